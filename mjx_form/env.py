@@ -1,0 +1,192 @@
+"""The functional environment API shared by every task: `reset(key)` and `step(state, action)`.
+
+A `Task` owns the compiled MuJoCo/MJX model of its domain and defines, like dm_control's
+`base.Task`, how an episode starts (`initialize_episode`), what is observed (`get_observation`)
+and what is rewarded (`get_reward`). Everything here is pure JAX on one environment; batch it
+with `jax.vmap` and auto-reset it with `mjx_form.wrappers.AutoReset`.
+"""
+
+from __future__ import annotations
+
+import abc
+import collections
+import functools
+import xml.etree.ElementTree as ET
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+from flax import struct
+from mujoco import mjx
+
+from mjx_form import physics as physics_lib
+
+EPISODE_LENGTH = 1000  # control steps; no Control Suite task terminates early
+
+
+@struct.dataclass
+class State:
+  """One environment's state. Batched states carry a leading batch axis on every leaf."""
+
+  data: mjx.Data  # MJX physics data, position and velocity stages up to date
+  obs: jax.Array  # (obs_dim,) flat observation, dm_control's flattening order
+  obs_parts: dict[str, jax.Array]  # the named observation elements, as dm_control names them
+  reward: jax.Array  # () reward of the last step (0 after a reset)
+  done: jax.Array  # () 1.0 where the episode ended at this step
+  truncation: jax.Array  # () 1.0 where it ended by the time limit or a physics error
+  task: dict[str, jax.Array]  # per-episode task variables (e.g. reacher's target position)
+  info: dict[str, jax.Array]  # step count, episode return, RNG key, physics-error flag
+
+
+class Task(abc.ABC):
+  """Base class for the Control Suite tasks on MJX."""
+
+  domain: str = ""
+  task: str = ""
+  n_substeps: int = 1
+  # Fast-mode solver settings for this domain; see mjx_form.physics and the README's tables.
+  fast_settings: physics_lib.SolverSettings = physics_lib.PARITY
+
+  def __init__(self, physics: str = physics_lib.DEFAULT_PHYSICS):
+    self.physics = physics_lib.check_physics_mode(physics)
+    settings = physics_lib.PARITY if physics == "parity" else self.fast_settings
+    root = self.model_xml()
+    physics_lib.apply_solver_settings(root, settings)
+    self.solver_settings = settings
+    self.mj_model = physics_lib.compile_model(root, self.model_assets())
+    self.mjx_model = physics_lib.put_model(self.mj_model)
+    self._reset_model = physics_lib.without_actuation(self.mj_model)
+
+  # --- what each task defines -------------------------------------------------------------
+
+  @abc.abstractmethod
+  def model_xml(self) -> ET.Element:
+    """The domain's MJCF tree (dm_control's XML, possibly edited as dm_control edits it)."""
+
+  @abc.abstractmethod
+  def model_assets(self) -> dict[str, bytes]:
+    """Files the XML includes, by the names it includes them under."""
+
+  @abc.abstractmethod
+  def initialize_episode(self, data: mjx.Data, key: jax.Array) -> tuple[mjx.Data, dict]:
+    """Sets the initial qpos/qvel/act from dm_control's reset distribution.
+
+    `data` is MuJoCo's reset state (qpos0, zero velocities). Returns the data (its stages need
+    not be computed) and the episode's task variables.
+    """
+
+  @abc.abstractmethod
+  def get_observation(self, data: mjx.Data, task: dict) -> collections.OrderedDict:
+    """dm_control's observation dict, element by element."""
+
+  @abc.abstractmethod
+  def get_reward(self, data: mjx.Data, task: dict) -> jax.Array:
+    """dm_control's reward for the current data."""
+
+  # --- the functional API -----------------------------------------------------------------
+
+  @property
+  def name(self) -> str:
+    return f"{self.domain}_{self.task}"
+
+  @property
+  def action_size(self) -> int:
+    return self.mj_model.nu
+
+  @property
+  def observation_size(self) -> int:
+    return sum(self.observation_layout.values())
+
+  @functools.cached_property
+  def observation_layout(self) -> dict[str, int]:
+    """Names and sizes of the observation elements, in flattening order."""
+    def observe(key):
+      data, task = self.initialize_episode(mjx.make_data(self.mjx_model), key)
+      return self.get_observation(data, task)
+    shapes = jax.eval_shape(observe, jax.random.PRNGKey(0))
+    return {k: int(np.prod(v.shape)) for k, v in shapes.items()}
+
+  @property
+  def control_timestep(self) -> float:
+    return float(self.mj_model.opt.timestep) * self.n_substeps
+
+  def reset(self, key: jax.Array) -> State:
+    """Draws a fresh initial state from dm_control's reset distribution."""
+    key, init_key = jax.random.split(key)
+    data = mjx.make_data(self.mjx_model)
+    data, task = self.initialize_episode(data, init_key)
+    data = self.after_reset(data)
+    obs_parts = self.get_observation(data, task)
+    zero = jnp.zeros(())
+    info = {"step": jnp.zeros((), jnp.int32), "episode_return": zero, "key": key,
+            "physics_error": zero}
+    return State(data=data, obs=_flatten(obs_parts), obs_parts=dict(obs_parts), reward=zero,
+                 done=zero, truncation=zero, task=task, info=info)
+
+  def step(self, state: State, action: jax.Array) -> State:
+    """One control step. Actions are written to `ctrl` unclipped; MuJoCo clamps them to
+    `ctrlrange` and the control-cost rewards see them as given, as in dm_control.
+
+    A NaN/inf in the action or the resulting physics state ends the episode with
+    `info['physics_error'] = 1`, zero reward and the previous observation; the auto-reset
+    wrapper then draws a new start.
+    """
+    action = jnp.asarray(action, state.data.ctrl.dtype)
+    data = state.data.replace(ctrl=action)
+    data = physics_lib.physics_step(self.mjx_model, data, self.n_substeps)
+    obs_parts = self.get_observation(data, state.task)
+    obs = _flatten(obs_parts)
+    reward = jnp.asarray(self.get_reward(data, state.task), jnp.float32)
+
+    ok = jnp.all(jnp.isfinite(action)) & physics_lib.physics_state_is_finite(data)
+    ok = ok & jnp.all(jnp.isfinite(obs)) & jnp.isfinite(reward)
+    reward = jnp.where(ok, reward, 0.0)
+    obs = jnp.where(ok, obs, state.obs)
+    obs_parts = jax.tree.map(lambda new, old: jnp.where(ok, new, old), dict(obs_parts),
+                             state.obs_parts)
+
+    step_count = state.info["step"] + 1
+    truncation = (step_count >= EPISODE_LENGTH) | ~ok
+    info = dict(state.info, step=step_count, episode_return=state.info["episode_return"] + reward,
+                physics_error=jnp.where(ok, 0.0, 1.0))
+    return state.replace(data=data, obs=obs, obs_parts=obs_parts, reward=reward,
+                         done=truncation.astype(jnp.float32),
+                         truncation=truncation.astype(jnp.float32), info=info)
+
+  # --- helpers shared by the tasks --------------------------------------------------------
+
+  def after_reset(self, data: mjx.Data) -> mjx.Data:
+    """dm_control's `after_reset`: `mj_forward` with actuation disabled."""
+    return mjx.forward(self._reset_model, data)
+
+  def observe(self, data: mjx.Data, task: dict) -> tuple[jax.Array, jax.Array]:
+    """Flat observation and reward of `data` after `mj_forward` (for parity checks)."""
+    data = mjx.forward(self.mjx_model, data)
+    return _flatten(self.get_observation(data, task)), self.get_reward(data, task)
+
+  def body_id(self, name: str) -> int:
+    return mujoco.mj_name2id(self.mj_model, mujoco.mjtObj.mjOBJ_BODY, name)
+
+  def geom_id(self, name: str) -> int:
+    return mujoco.mj_name2id(self.mj_model, mujoco.mjtObj.mjOBJ_GEOM, name)
+
+  def sensor_slice(self, name: str) -> slice:
+    i = mujoco.mj_name2id(self.mj_model, mujoco.mjtObj.mjOBJ_SENSOR, name)
+    if i < 0:
+      raise KeyError(f"no sensor named {name!r} in the {self.domain} model")
+    adr = int(self.mj_model.sensor_adr[i])
+    return slice(adr, adr + int(self.mj_model.sensor_dim[i]))
+
+  def sensor_indices(self, *sensor_types: int) -> np.ndarray:
+    """sensordata indices of all sensors of the given types, in model order (as dm_control)."""
+    m = self.mj_model
+    ids = np.nonzero(np.isin(m.sensor_type, sensor_types))[0]
+    return np.concatenate([np.arange(m.sensor_adr[i], m.sensor_adr[i] + m.sensor_dim[i])
+                           for i in ids]).astype(np.int32)
+
+
+def _flatten(parts: dict[str, Any]) -> jax.Array:
+  return jnp.concatenate([jnp.ravel(v) for v in parts.values()]).astype(jnp.float32)
+

@@ -1,0 +1,37 @@
+"""The device mesh: environment batches sharded over devices, parameters replicated."""
+
+from __future__ import annotations
+
+import jax
+import numpy as np
+from jax.sharding import Mesh, NamedSharding, PartitionSpec
+
+BATCH_AXIS = "batch"
+
+
+def make_mesh(devices=None) -> Mesh:
+  """A one-axis mesh over `devices` (default: all devices of the default backend)."""
+  devices = jax.devices() if devices is None else devices
+  return Mesh(np.asarray(devices), (BATCH_AXIS,))
+
+
+def check_batch_size(num_envs: int, mesh: Mesh) -> None:
+  n = mesh.devices.size
+  if num_envs <= 0:
+    raise ValueError(f"num_envs must be positive, got {num_envs}")
+  if num_envs % n:
+    raise ValueError(f"num_envs={num_envs} must be a multiple of the number of devices ({n})")
+
+
+def batch_sharding(mesh: Mesh) -> NamedSharding:
+  """Leading axis split over the mesh."""
+  return NamedSharding(mesh, PartitionSpec(BATCH_AXIS))
+
+
+def replicated(mesh: Mesh) -> NamedSharding:
+  return NamedSharding(mesh, PartitionSpec())
+
+
+def shard_batch(tree, mesh: Mesh):
+  """Places every leaf of a batched pytree with its leading axis split over the mesh."""
+  return jax.device_put(tree, batch_sharding(mesh))

@@ -1,0 +1,132 @@
+"""MJX physics: model loading with a physics mode, and dm_control's step semantics.
+
+dm_control steps with `mj_step2; mj_step(n - 1); mj_step1` (its "legacy step"), so after a
+control step the position- and velocity-dependent quantities (xpos, xmat, velocity sensors)
+already belong to the new state, while acceleration-stage sensors (touch, force, torque,
+accelerometer) hold the values of the last substep. `control_step` reproduces that split with
+MJX's stage functions: the data carried between control steps has its position and velocity
+stages computed, exactly like dm_control's `mjData` after `mj_step1`.
+"""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+import xml.etree.ElementTree as ET
+
+import jax
+import jax.numpy as jnp
+import mujoco
+from mujoco import mjx
+
+PHYSICS_MODES = ("parity", "fast")
+DEFAULT_PHYSICS = "parity"
+
+
+@dataclasses.dataclass(frozen=True)
+class SolverSettings:
+  """Constraint-solver and collision settings applied on top of dm_control's XML.
+
+  None keeps the XML's own value (dm_control's XMLs keep MuJoCo's defaults: 100 iterations,
+  50 line-search iterations, tolerance 1e-8, no contact culling).
+  """
+
+  iterations: int | None = None
+  ls_iterations: int | None = None
+  max_contact_points: int | None = None  # MJX contact culling: keep the N closest contacts
+  max_geom_pairs: int | None = None  # MJX contact culling: keep the N closest geom pairs
+
+
+PARITY = SolverSettings()
+
+
+def check_physics_mode(physics: str) -> str:
+  if physics not in PHYSICS_MODES:
+    raise ValueError(f"unknown physics mode {physics!r}; valid modes: {', '.join(PHYSICS_MODES)}")
+  return physics
+
+
+def apply_solver_settings(root: ET.Element, settings: SolverSettings) -> None:
+  """Writes `settings` into a parsed MJCF tree (in place)."""
+  option = root.find("option")
+  if option is None:
+    option = ET.SubElement(root, "option")
+  if settings.iterations is not None:
+    option.set("iterations", str(settings.iterations))
+  if settings.ls_iterations is not None:
+    option.set("ls_iterations", str(settings.ls_iterations))
+  numerics = {"max_contact_points": settings.max_contact_points,
+              "max_geom_pairs": settings.max_geom_pairs}
+  numerics = {k: v for k, v in numerics.items() if v is not None}
+  if numerics:
+    custom = root.find("custom")
+    if custom is None:
+      custom = ET.SubElement(root, "custom")
+    for name, value in numerics.items():
+      ET.SubElement(custom, "numeric", name=name, data=str(value))
+
+
+def compile_model(root: ET.Element, assets: dict[str, bytes]) -> mujoco.MjModel:
+  return mujoco.MjModel.from_xml_string(ET.tostring(root, encoding="unicode"), assets)
+
+
+def put_model(mj_model: mujoco.MjModel) -> mjx.Model:
+  return mjx.put_model(mj_model, impl="jax")
+
+
+def without_actuation(mj_model: mujoco.MjModel) -> mjx.Model:
+  """The MJX model with actuation disabled, as dm_control runs `forward` after a reset."""
+  model = copy.deepcopy(mj_model)
+  model.opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_ACTUATION
+  return put_model(model)
+
+
+def position_velocity_stages(m: mjx.Model, d: mjx.Data) -> mjx.Data:
+  """MuJoCo's `mj_step1`: position and velocity stages with their sensors."""
+  d = mjx.fwd_position(m, d)
+  d = mjx.sensor_pos(m, d)
+  d = mjx.fwd_velocity(m, d)
+  return mjx.sensor_vel(m, d)
+
+
+def acceleration_stage_and_integrate(m: mjx.Model, d: mjx.Data) -> mjx.Data:
+  """MuJoCo's `mj_step2` for the Euler integrator: forces, constraint solve, sensors, advance."""
+  d = mjx.fwd_actuation(m, d)
+  d = mjx.fwd_acceleration(m, d)
+  if d._impl.efc_J.size == 0:  # no constraint rows (e.g. reacher has contacts disabled)
+    d = d.replace(qacc=d.qacc_smooth)
+  else:
+    d = mjx.solve(m, d)
+  d = mjx.sensor_acc(m, d)
+  return mjx.euler(m, d)
+
+
+def physics_step(m: mjx.Model, d: mjx.Data, n_substeps: int) -> mjx.Data:
+  """dm_control's `physics.step(n)`: `mj_step2; mj_step(n - 1); mj_step1`.
+
+  `d` must have its position and velocity stages computed for its current qpos/qvel (true for
+  every state this module returns); the result has them computed for the new state.
+  """
+  d = acceleration_stage_and_integrate(m, d)
+  if n_substeps > 1:
+    def substep(d, _):
+      d = position_velocity_stages(m, d)
+      return acceleration_stage_and_integrate(m, d), None
+    d, _ = jax.lax.scan(substep, d, None, length=n_substeps - 1)
+  return position_velocity_stages(m, d)
+
+
+def has_contacts(m: mjx.Model, d: mjx.Data) -> jax.Array:
+  """Whether MuJoCo's collision detection reports any contact (`ncon > 0`) at d.qpos."""
+  d = mjx.kinematics(m, d)
+  d = mjx.collision(m, d)
+  if d._impl.contact.dist.size == 0:
+    return jnp.array(False)
+  contact = d._impl.contact
+  return jnp.any(contact.dist < contact.includemargin)
+
+
+def physics_state_is_finite(d: mjx.Data) -> jax.Array:
+  """False where qpos, qvel, act or qacc hold NaN or inf (MuJoCo's bad-state warnings)."""
+  parts = (d.qpos, d.qvel, d.act, d.qacc)
+  return jnp.all(jnp.stack([jnp.all(jnp.isfinite(p)) for p in parts]))

@@ -1,0 +1,60 @@
+"""Batched environment wrappers: auto-reset with fresh draws."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+
+from mjx_form.env import State, Task
+
+
+def _select(mask: jax.Array, on_true, on_false):
+  """Per-environment `where` over two batched pytrees (mask has shape (batch,))."""
+  def pick(a, b):
+    return jnp.where(mask.reshape(mask.shape + (1,) * (a.ndim - 1)), a, b)
+  return jax.tree.map(pick, on_true, on_false)
+
+
+class AutoReset:
+  """Steps a batch of environments and restarts the ones whose episode ended.
+
+  Restarted environments draw a fresh initial state from the task's reset distribution (never
+  a cached one). The reset runs inside a `lax.cond` on "any episode ended", so the cost of
+  resetting (cheetah's 200 settling steps, humanoid's rejection sampling, quadruped's height
+  search) is paid only at the steps where an episode ends, not at every step.
+
+  The state returned for an ended environment is its new episode's first state, while
+  `reward`, `done` and `truncation` still describe the transition that ended the old one and
+  `info['final_obs']` holds its last observation. `info['physics_errors']` counts, per
+  environment, the episodes cut short by NaN/inf in actions or physics.
+  """
+
+  def __init__(self, env: Task):
+    self.env = env
+
+  def reset(self, key: jax.Array, num_envs: int) -> State:
+    """`num_envs` independent fresh starts; every leaf gets a leading (num_envs,) axis."""
+    state = jax.vmap(self.env.reset)(jax.random.split(key, num_envs))
+    info = dict(state.info, final_obs=state.obs, physics_errors=jnp.zeros((num_envs,)))
+    return state.replace(info=info)
+
+  def step(self, state: State, action: jax.Array) -> State:
+    """One control step of every environment; action has shape (num_envs, action_size)."""
+    stepped = jax.vmap(self.env.step)(state, action)  # carries the wrapper's info keys along
+    info = dict(stepped.info, final_obs=stepped.obs,
+                physics_errors=stepped.info["physics_errors"] + stepped.info["physics_error"])
+    stepped = stepped.replace(info=info)
+
+    def restart_ended(stepped: State) -> State:
+      key, reset_key = jax.vmap(jax.random.split, out_axes=1)(stepped.info["key"])
+      fresh = jax.vmap(self.env.reset)(reset_key)
+      fresh = fresh.replace(info=dict(fresh.info, key=key))
+      ended = stepped.done > 0
+      new_start = stepped.replace(
+          data=fresh.data, obs=fresh.obs, obs_parts=fresh.obs_parts, task=fresh.task,
+          info=dict(stepped.info, step=fresh.info["step"], key=fresh.info["key"],
+                    episode_return=fresh.info["episode_return"]))
+      return _select(ended, new_start, stepped)
+
+    return jax.lax.cond(jnp.any(stepped.done > 0), restart_ended, lambda s: s, stepped)
+

@@ -1,0 +1,59 @@
+"""Cheetah domain (dm_control/suite/cheetah.py): run."""
+
+from __future__ import annotations
+
+import collections
+
+import jax
+
+from mjx_form import physics as physics_lib
+from mjx_form.rewards import tolerance
+from tasks.common import ControlSuiteTask
+
+_RUN_SPEED = 10
+_SETTLE_STEPS = 200
+
+
+class Cheetah(ControlSuiteTask):
+  """Run forward as fast as possible."""
+
+  domain = "cheetah"
+  task = "run"
+  xml_file = "cheetah.xml"
+  n_substeps = 1  # physics dt 0.01 = control dt
+  fast_settings = physics_lib.SolverSettings(iterations=4, ls_iterations=8)
+
+  def __init__(self, physics: str = physics_lib.DEFAULT_PHYSICS):
+    super().__init__(physics)
+    self._speed = self.sensor_slice("torso_subtreelinvel").start
+
+  def initialize_episode(self, data, key):
+    m = self.mj_model
+    assert m.nq == m.njnt  # every joint has one degree of freedom, as dm_control asserts
+    limited = m.jnt_limited == 1
+    lower, upper = m.jnt_range[limited].T
+    qpos = data.qpos.at[limited].set(
+        jax.random.uniform(key, (int(limited.sum()),), minval=lower, maxval=upper))
+    # dm_control then runs physics.step(nstep=200) with zero control. Its first mj_step2 uses the
+    # kinematics of mj_resetData's forward pass (at qpos0), since only qpos was overwritten.
+    settled = self.after_reset(data).replace(qpos=qpos)
+    settled = physics_lib.physics_step(self.mjx_model, settled, _SETTLE_STEPS)
+    return settled.replace(time=0.0 * settled.time), {}
+
+  def speed(self, data):
+    """Horizontal speed of the cheetah's torso subtree."""
+    return data.sensordata[self._speed]
+
+  def get_observation(self, data, task):
+    obs = collections.OrderedDict()
+    obs["position"] = data.qpos[1:]  # ignores horizontal position
+    obs["velocity"] = data.qvel
+    return obs
+
+  def get_reward(self, data, task):
+    return tolerance(self.speed(data), bounds=(_RUN_SPEED, float("inf")), margin=_RUN_SPEED,
+                     value_at_margin=0, sigmoid="linear")
+
+
+def run(physics: str = physics_lib.DEFAULT_PHYSICS) -> Cheetah:
+  return Cheetah(physics)
