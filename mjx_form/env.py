@@ -122,8 +122,8 @@ class Task(abc.ABC):
     zero = jnp.zeros(())
     info = {"step": jnp.zeros((), jnp.int32), "episode_return": zero, "key": key,
             "physics_error": zero}
-    return State(data=data, obs=_flatten(obs_parts), obs_parts=dict(obs_parts), reward=zero,
-                 done=zero, truncation=zero, task=task, info=info)
+    return State(data=data, obs=flatten_observation(obs_parts), obs_parts=dict(obs_parts),
+                 reward=zero, done=zero, truncation=zero, task=task, info=info)
 
   def step(self, state: State, action: jax.Array) -> State:
     """One control step. Actions are written to `ctrl` unclipped; MuJoCo clamps them to
@@ -137,7 +137,7 @@ class Task(abc.ABC):
     data = state.data.replace(ctrl=action)
     data = physics_lib.physics_step(self.mjx_model, data, self.n_substeps)
     obs_parts = self.get_observation(data, state.task)
-    obs = _flatten(obs_parts)
+    obs = flatten_observation(obs_parts)
     reward = jnp.asarray(self.get_reward(data, state.task), jnp.float32)
 
     ok = jnp.all(jnp.isfinite(action)) & physics_lib.physics_state_is_finite(data)
@@ -161,11 +161,6 @@ class Task(abc.ABC):
     """dm_control's `after_reset`: `mj_forward` with actuation disabled."""
     return mjx.forward(self._reset_model, data)
 
-  def observe(self, data: mjx.Data, task: dict) -> tuple[jax.Array, jax.Array]:
-    """Flat observation and reward of `data` after `mj_forward` (for parity checks)."""
-    data = mjx.forward(self.mjx_model, data)
-    return _flatten(self.get_observation(data, task)), self.get_reward(data, task)
-
   def body_id(self, name: str) -> int:
     return mujoco.mj_name2id(self.mj_model, mujoco.mjtObj.mjOBJ_BODY, name)
 
@@ -187,6 +182,7 @@ class Task(abc.ABC):
                            for i in ids]).astype(np.int32)
 
 
-def _flatten(parts: dict[str, Any]) -> jax.Array:
+def flatten_observation(parts: dict[str, Any]) -> jax.Array:
+  """Concatenates observation elements in order, as dm_control's `flatten_observation`."""
   return jnp.concatenate([jnp.ravel(v) for v in parts.values()]).astype(jnp.float32)
 

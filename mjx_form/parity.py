@@ -9,13 +9,15 @@ in a test on the CPU or in a benchmark on the GPU (the arrays travel as an .npz 
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 import jax
 import jax.numpy as jnp
 from mujoco import mjx
 
 from mjx_form import physics as physics_lib
-from mjx_form.env import State, Task
+from mjx_form.env import State, Task, flatten_observation
 
 STATE_FIELDS = ("qpos", "qvel", "act", "qacc_warmstart", "ctrl")
 
@@ -43,11 +45,12 @@ def task_variables(task_name: str, physics) -> dict[str, np.ndarray]:
 
 
 def collect_reference(task_name: str, num_states: int, seed: int = 0, burn_in: int = 5,
-                      stride: int = 7, action_scale: float = 1.0) -> dict[str, np.ndarray]:
+                      stride: int = 37, action_scale: float = 1.2) -> dict[str, np.ndarray]:
   """Samples `num_states` transitions of dm_control's env under uniform random actions.
 
-  The samples are spread over episodes: `burn_in` steps after each reset, then one sample
-  every `stride` steps. Keys: `<field>` (state before), `next_<field>` (state after),
+  Actions are uniform in `action_scale` times the control range, so some components lie
+  outside it (dm_control passes them to MuJoCo unclipped). The samples are spread over
+  episodes: `burn_in` steps after each reset, then one sample every `stride` steps. Keys: `<field>` (state before), `next_<field>` (state after),
   `action`, `obs`/`reward` (after the step), `task_<name>` (task variables).
   """
   env = load_dm_control_env(task_name, seed)
@@ -57,7 +60,7 @@ def collect_reference(task_name: str, num_states: int, seed: int = 0, burn_in: i
   step_in_episode = 0
   timestep = env.reset()
   while len(records.get("action", [])) < num_states:
-    action = action_scale * rng.uniform(spec.minimum, spec.maximum)
+    action = rng.uniform(action_scale * spec.minimum, action_scale * spec.maximum)
     sample = step_in_episode >= burn_in and (step_in_episode - burn_in) % stride == 0
     if sample:
       before = physics_state(env.physics)
@@ -80,26 +83,94 @@ def _flat_obs(observation) -> np.ndarray:
   return np.concatenate([np.asarray(v, np.float64).ravel() for v in observation.values()])
 
 
+def reference_data(model: mjx.Model, arrays: dict[str, jax.Array]) -> mjx.Data:
+  """MJX data holding one recorded dm_control state, its position and velocity stages
+  recomputed from qpos/qvel as they are in dm_control's data after a step."""
+  d = mjx.make_data(model)
+  d = d.replace(**{f: jnp.asarray(arrays[f], d.qpos.dtype) for f in STATE_FIELDS})
+  return physics_lib.position_velocity_stages(model, d)
+
+
+def reference_task(arrays: dict[str, jax.Array]) -> dict[str, jax.Array]:
+  return {k[len("task_"):]: jnp.asarray(v, jnp.float32) for k, v in arrays.items()
+          if k.startswith("task_")}
+
+
 def reference_state(env: Task, arrays: dict[str, jax.Array]) -> State:
   """Our `State` holding one recorded dm_control physics state (works under jit/vmap).
 
-  The position and velocity stages are recomputed from qpos/qvel, as they are in dm_control's
-  data after a step; the observation fields are left empty (they are outputs of `step`).
+  The observation fields are left empty: they are outputs of `step`.
   """
-  d = mjx.make_data(env.mjx_model)
-  d = d.replace(**{f: jnp.asarray(arrays[f], d.qpos.dtype) for f in STATE_FIELDS})
-  d = physics_lib.position_velocity_stages(env.mjx_model, d)
-  task = {k[len("task_"):]: jnp.asarray(v, jnp.float32) for k, v in arrays.items()
-          if k.startswith("task_")}
   zero = jnp.zeros(())
   info = {"step": jnp.zeros((), jnp.int32), "episode_return": zero,
           "key": jax.random.PRNGKey(0), "physics_error": zero}
-  obs = jnp.zeros((env.observation_size,))
   parts = {k: jnp.zeros((n,)) for k, n in env.observation_layout.items()}
-  return State(data=d, obs=obs, obs_parts=parts, reward=zero, done=zero, truncation=zero,
-               task=task, info=info)
+  return State(data=reference_data(env.mjx_model, arrays), obs=jnp.zeros((env.observation_size,)),
+               obs_parts=parts, reward=zero, done=zero, truncation=zero,
+               task=reference_task(arrays), info=info)
 
 
 def step_from_reference(env: Task, arrays: dict[str, jax.Array]) -> State:
   """One of our control steps from a recorded state with the recorded action."""
   return env.step(reference_state(env, arrays), arrays["action"])
+
+
+def dm_control_forward(task_name: str, arrays: dict[str, np.ndarray],
+                       prefix: str = "next_") -> tuple[np.ndarray, np.ndarray]:
+  """dm_control's observation and reward of recorded states after its own `mj_forward`.
+
+  The states `<prefix><field>` (with their ctrl) are written into a dm_control physics, which
+  then runs `physics.forward()`; every observation element, the acceleration-stage sensors
+  included, is then a function of that state alone.
+  """
+  env = load_dm_control_env(task_name, seed=0)
+  env.reset()
+  physics, task = env.physics, env.task
+  observations, rewards = [], []
+  for i in range(len(arrays["action"])):
+    for field in STATE_FIELDS:
+      getattr(physics.data, field)[:] = arrays[prefix + field][i]
+    if "task_target" in arrays:
+      physics.named.model.geom_pos["target", :2] = arrays["task_target"][i]
+    physics.forward()
+    observations.append(_flat_obs(task.get_observation(physics)))
+    rewards.append(float(task.get_reward(physics)))
+  return np.stack(observations), np.array(rewards)
+
+
+def _state_fields(arrays, prefix=""):
+  return {f: arrays[prefix + f] for f in STATE_FIELDS}
+
+
+@functools.partial(jax.jit, static_argnums=3)
+def _physics_batch(model, states, actions, n_substeps):
+  def one(state, action):
+    d = reference_data(model, state).replace(ctrl=jnp.asarray(action, state["qpos"].dtype))
+    return physics_lib.physics_step(model, d, n_substeps)
+  return jax.vmap(one)(states, actions)
+
+
+def physics_batch(env: Task, states: dict, actions) -> mjx.Data:
+  """One control step of the physics alone from each recorded state (batched).
+
+  The model is an argument of the compiled function, so tasks that share a domain's model
+  (walker stand/walk/run, ...) share one compilation.
+  """
+  return _physics_batch(env.mjx_model, _state_fields(states), actions, env.n_substeps)
+
+
+@jax.jit
+def _forward_batch(model, states):
+  return jax.vmap(lambda s: mjx.forward(model, reference_data(model, s)))(states)
+
+
+def forward_batch(env: Task, states: dict, prefix: str = "") -> mjx.Data:
+  """`mj_forward` of each recorded state `<prefix><field>` (batched)."""
+  return _forward_batch(env.mjx_model, _state_fields(states, prefix))
+
+
+def observe_batch(env: Task, data: mjx.Data, task: dict) -> tuple[jax.Array, jax.Array]:
+  """Flat observations and rewards of batched data (what `step` reports after physics)."""
+  def one(d, t):
+    return flatten_observation(env.get_observation(d, t)), env.get_reward(d, t)
+  return jax.jit(jax.vmap(one))(data, task)

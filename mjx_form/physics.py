@@ -19,6 +19,8 @@ import jax.numpy as jnp
 import mujoco
 from mujoco import mjx
 
+from mjx_form import mjx_patches  # noqa: F401  (MJX corrections for parity with MuJoCo C)
+
 PHYSICS_MODES = ("parity", "fast")
 DEFAULT_PHYSICS = "parity"
 
@@ -104,16 +106,15 @@ def acceleration_stage_and_integrate(m: mjx.Model, d: mjx.Data) -> mjx.Data:
 def physics_step(m: mjx.Model, d: mjx.Data, n_substeps: int) -> mjx.Data:
   """dm_control's `physics.step(n)`: `mj_step2; mj_step(n - 1); mj_step1`.
 
-  `d` must have its position and velocity stages computed for its current qpos/qvel (true for
-  every state this module returns); the result has them computed for the new state.
+  Written as n repetitions of (mj_step2; mj_step1), the same sequence, so each stage is
+  compiled once. `d` must have its position and velocity stages computed for its current
+  qpos/qvel (true for every state this module returns); so does the result.
   """
-  d = acceleration_stage_and_integrate(m, d)
-  if n_substeps > 1:
-    def substep(d, _):
-      d = position_velocity_stages(m, d)
-      return acceleration_stage_and_integrate(m, d), None
-    d, _ = jax.lax.scan(substep, d, None, length=n_substeps - 1)
-  return position_velocity_stages(m, d)
+  def substep(d, _):
+    d = acceleration_stage_and_integrate(m, d)
+    return position_velocity_stages(m, d), None
+  d, _ = jax.lax.scan(substep, d, None, length=n_substeps)
+  return d
 
 
 def has_contacts(m: mjx.Model, d: mjx.Data) -> jax.Array:

@@ -53,10 +53,8 @@ def parse_args(argv=None) -> argparse.Namespace:
   return args
 
 
-def random_rollout(args: argparse.Namespace) -> dict:
-  """Random-action rollout; returns the measured numbers."""
-  mesh = mesh_lib.make_mesh()
-  mesh_lib.check_batch_size(args.num_envs, mesh)
+def random_rollout(args: argparse.Namespace, mesh) -> dict:
+  """Random-action rollout with the batch sharded over `mesh`; returns the measured numbers."""
   env = AutoReset(tasks.make(args.task, physics=args.physics))
   num_actions = env.env.action_size
   print(f"{args.task}: obs {env.env.observation_size}, actions {num_actions}, "
@@ -105,7 +103,13 @@ def main(argv=None) -> int:
   if args.list:
     print("\n".join(tasks.TASKS))
     return 0
-  result = random_rollout(args)
+  mesh = mesh_lib.make_mesh()
+  try:
+    mesh_lib.check_batch_size(args.num_envs, mesh)
+  except ValueError as e:
+    print(f"error: {e}", file=sys.stderr)
+    return 2
+  result = random_rollout(args, mesh)
   print(f"done: {result['steps_per_second']:,.0f} control steps/s "
         f"({result['num_envs']} envs x {result['steps']} steps)")
   return 0

@@ -5,6 +5,7 @@ from __future__ import annotations
 import collections
 
 import jax
+import jax.numpy as jnp
 
 from mjx_form import physics as physics_lib
 from mjx_form.rewards import tolerance
@@ -34,11 +35,17 @@ class Cheetah(ControlSuiteTask):
     lower, upper = m.jnt_range[limited].T
     qpos = data.qpos.at[limited].set(
         jax.random.uniform(key, (int(limited.sum()),), minval=lower, maxval=upper))
-    # dm_control then runs physics.step(nstep=200) with zero control. Its first mj_step2 uses the
-    # kinematics of mj_resetData's forward pass (at qpos0), since only qpos was overwritten.
+    return self.settle(data, qpos), {}
+
+  def settle(self, data, qpos):
+    """dm_control's `physics.step(nstep=200)` with zero control from `qpos`, then time = 0.
+
+    Its first mj_step2 uses the kinematics of mj_resetData's forward pass (at qpos0), since
+    only qpos was overwritten before stepping; so does ours.
+    """
     settled = self.after_reset(data).replace(qpos=qpos)
     settled = physics_lib.physics_step(self.mjx_model, settled, _SETTLE_STEPS)
-    return settled.replace(time=0.0 * settled.time), {}
+    return settled.replace(time=jnp.zeros_like(settled.time))
 
   def speed(self, data):
     """Horizontal speed of the cheetah's torso subtree."""

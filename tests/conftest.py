@@ -16,3 +16,37 @@ import jax  # noqa: E402
 _CACHE = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), ".jax_cache")
 jax.config.update("jax_compilation_cache_dir", _CACHE)
 jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)
+
+import json  # noqa: E402
+
+import pytest  # noqa: E402
+
+_PARITY_REPORT: list[dict] = []
+
+
+@pytest.fixture(scope="session")
+def parity_report() -> list[dict]:
+  """Rows of measured parity errors; printed at the end and written to .parity_report.jsonl."""
+  return _PARITY_REPORT
+
+
+def pytest_terminal_summary(terminalreporter):
+  if not _PARITY_REPORT:
+    return
+  write = terminalreporter.write_line
+  write("")
+  write("parity with dm_control (largest absolute error per sample: median / p90 / max)")
+  for row in _PARITY_REPORT:
+    parts = []
+    for key, value in row.items():
+      if key in ("test", "task", "physics"):
+        continue
+      if isinstance(value, dict) and "median" in value:
+        parts.append(f"{key} {value['median']:.1e}/{value['p90']:.1e}/{value['max']:.1e}")
+      else:
+        parts.append(f"{key} {value}")
+    write(f"  {row['test']:<20} {row['task']:<15} {row['physics']:<7} " + "  ".join(parts))
+  path = os.path.join(os.path.dirname(_CACHE), ".parity_report.jsonl")
+  with open(path, "w") as f:
+    for row in _PARITY_REPORT:
+      f.write(json.dumps(row) + "\n")

@@ -1,0 +1,196 @@
+#!/usr/bin/env python3
+"""Control steps per second of our `step`, beside the raw physics and MuJoCo Playground.
+
+For every task, physics mode and batch size it times, on one device, with uniform random
+actions drawn on the device:
+  - ours: `AutoReset(task).step` (physics, observation, reward, NaN checks, auto-reset);
+  - raw:  a plain `mjx.step` loop (n_substeps per control step) on the same MJX model and
+          solver settings, no observation, reward or reset: the floor an env step cannot beat;
+  - peer: MuJoCo Playground's version of the task (`impl="jax"`, its own settings), where one
+          exists (none for quadruped), its unwrapped `step`.
+All three run `--steps` control steps inside one jitted `lax.scan`; the time is the best of
+`--repeats` calls after a warm-up call, compile time recorded apart. Functions are compiled in
+parallel threads first, then timed one after another.
+
+  python benchmarks/env_throughput.py --tasks cheetah_run --num_envs 2048 8192
+"""
+
+from __future__ import annotations
+
+import argparse
+import concurrent.futures
+import os
+import sys
+import time
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+
+import common  # noqa: E402  (puts the repository on sys.path)
+from mjx_form.cpu import configure_cpu_xla  # noqa: E402
+
+configure_cpu_xla()
+
+import jax  # noqa: E402
+import jax.numpy as jnp  # noqa: E402
+from mujoco import mjx  # noqa: E402
+
+import tasks  # noqa: E402
+from mjx_form.physics import PHYSICS_MODES  # noqa: E402
+from mjx_form.wrappers import AutoReset  # noqa: E402
+
+PEERS = {  # our name -> MuJoCo Playground's name
+    "reacher_easy": "ReacherEasy", "reacher_hard": "ReacherHard", "cheetah_run": "CheetahRun",
+    "hopper_stand": "HopperStand", "hopper_hop": "HopperHop", "walker_stand": "WalkerStand",
+    "walker_walk": "WalkerWalk", "walker_run": "WalkerRun", "humanoid_stand": "HumanoidStand",
+    "humanoid_walk": "HumanoidWalk", "humanoid_run": "HumanoidRun",
+}
+
+
+def _tile(tree, times: int):
+  """`times` copies of a batched pytree along the batch axis (new buffers)."""
+  return jax.tree.map(lambda x: jnp.tile(x, (times,) + (1,) * (x.ndim - 1)), tree)
+
+
+def _random_actions(key, num_envs, size):
+  return jax.random.uniform(key, (num_envs, size), minval=-1.0, maxval=1.0)
+
+
+def ours_fn(env, num_envs: int, steps: int):
+  wrapped = AutoReset(env)
+
+  def run(state, key):
+    def body(state, key):
+      return wrapped.step(state, _random_actions(key, num_envs, env.action_size)), None
+    return jax.lax.scan(body, state, jax.random.split(key, steps))[0]
+  return jax.jit(run, donate_argnums=0)
+
+
+def raw_fn(env, num_envs: int, steps: int):
+  model, n_substeps = env.mjx_model, env.n_substeps
+
+  def control_step(data):
+    return jax.lax.scan(lambda d, _: (mjx.step(model, d), None), data, None, length=n_substeps)[0]
+
+  def run(data, key):
+    def body(data, key):
+      data = data.replace(ctrl=_random_actions(key, num_envs, env.action_size))
+      return jax.vmap(control_step)(data), None
+    return jax.lax.scan(body, data, jax.random.split(key, steps))[0]
+  return jax.jit(run, donate_argnums=0)
+
+
+def peer_fns(name: str, num_envs: int, steps: int):
+  from mujoco_playground import registry
+  peer = registry.load(PEERS[name], config_overrides={"impl": "jax"})
+
+  def run(state, key):
+    def body(state, key):
+      return jax.vmap(peer.step)(state, _random_actions(key, num_envs, peer.action_size)), None
+    return jax.lax.scan(body, state, jax.random.split(key, steps))[0]
+  reset = jax.jit(lambda key: jax.vmap(peer.reset)(jax.random.split(key, num_envs)))
+  cfg = peer._config
+  settings = {"ctrl_dt": float(cfg.ctrl_dt), "sim_dt": float(cfg.sim_dt),
+              "n_substeps": int(round(cfg.ctrl_dt / cfg.sim_dt)),
+              "iterations": int(peer.mj_model.opt.iterations),
+              "ls_iterations": int(peer.mj_model.opt.ls_iterations)}
+  return reset, jax.jit(run, donate_argnums=0), settings
+
+
+def main(argv=None) -> int:
+  parser = argparse.ArgumentParser(description=__doc__,
+                                   formatter_class=argparse.RawDescriptionHelpFormatter)
+  parser.add_argument("--tasks", nargs="*", default=list(tasks.TASKS), choices=tasks.TASKS,
+                      metavar="TASK")
+  parser.add_argument("--physics", nargs="*", default=list(PHYSICS_MODES), choices=PHYSICS_MODES)
+  parser.add_argument("--num_envs", nargs="*", type=int, default=[2048, 8192])
+  parser.add_argument("--steps", type=int, default=0,
+                      help="control steps per timed call (0: 10 in parity mode, 50 in fast)")
+  parser.add_argument("--repeats", type=int, default=2)
+  parser.add_argument("--no_peer", action="store_true")
+  parser.add_argument("--threads", type=int, default=8, help="parallel compilations")
+  parser.add_argument("--out", default=common.default_results_path("env_throughput"))
+  args = parser.parse_args(argv)
+  base = min(args.num_envs)
+  if any(n % base for n in args.num_envs):
+    parser.error("every --num_envs must be a multiple of the smallest")
+  writer = common.ResultWriter(args.out)
+  key = jax.random.PRNGKey(0)
+
+  # Build every function and its inputs, then compile them all in parallel.
+  jobs = []  # (record, kind, fn, args)
+  for name in args.tasks:
+    for physics in args.physics:
+      env = tasks.make(name, physics=physics)
+      steps = args.steps or (10 if physics == "parity" else 50)
+      t0 = time.perf_counter()
+      start = jax.block_until_ready(AutoReset(env).reset(key, base))  # fresh draws, then tiled
+      reset_s = time.perf_counter() - t0
+      for num_envs in args.num_envs:
+        record = {"task": name, "physics": physics, "num_envs": num_envs, "steps": steps,
+                  "solver": vars(env.solver_settings), "n_substeps": env.n_substeps,
+                  "reset_s_incl_compile": reset_s}
+        # Each function gets its own copy: inputs are donated.
+        jobs.append((record, "sps", ours_fn(env, num_envs, steps),
+                     (_tile(start, num_envs // base), key)))
+        jobs.append((record, "raw_sps", raw_fn(env, num_envs, steps),
+                     (_tile(start.data, num_envs // base), key)))
+    if not args.no_peer and name in PEERS:
+      for num_envs in args.num_envs:
+        steps = args.steps or 50
+        peer_reset, peer_run, settings = peer_fns(name, num_envs, steps)
+        record = {"task": name, "num_envs": num_envs, "peer_steps": steps, "peer": settings}
+        jobs.append((record, "peer_sps", peer_run, (peer_reset(key), key)))
+
+  def compile_job(job):
+    _, _, fn, fn_args = job
+    t0 = time.perf_counter()
+    compiled = fn.lower(*fn_args).compile()
+    return compiled, time.perf_counter() - t0
+
+  t0 = time.perf_counter()
+  with concurrent.futures.ThreadPoolExecutor(args.threads) as pool:
+    compiled = list(pool.map(compile_job, jobs))
+  print(f"compiled {len(jobs)} functions in {time.perf_counter() - t0:.0f}s", flush=True)
+
+  # Time them one after another.
+  measured: dict[tuple, dict] = {}
+  for (record, kind, _, fn_args), (exe, compile_s) in zip(jobs, compiled):
+    steps = record.get("peer_steps", record.get("steps"))
+    num_envs = record["num_envs"]
+    state, fn_key = fn_args
+    state = jax.block_until_ready(exe(state, fn_key))  # warm-up (inputs are donated)
+    holder = [state]
+
+    def call():
+      holder[0] = jax.block_until_ready(exe(holder[0], fn_key))
+    seconds = common.best_time(call, args.repeats)
+    sps = steps * num_envs / seconds
+    print(f"{record['task']:<16}{record.get('physics', 'peer'):<8}{num_envs:>6} envs "
+          f"{kind:<8}{sps:>14,.0f} steps/s  (compile {compile_s:.0f}s)", flush=True)
+    measured.setdefault((record["task"], record.get("physics"), num_envs), dict(record)).update(
+        {kind: sps, f"{kind}_compile_s": compile_s})
+    del holder, state
+
+  # One record per (task, physics, num_envs), the peer's numbers beside ours.
+  for (name, physics, num_envs), row in measured.items():
+    if physics is None:
+      continue
+    peer = measured.get((name, None, num_envs), {})
+    fields = {k: v for k, v in row.items() if k not in ("task", "physics", "num_envs")}
+    settings = {k: fields.pop(k) for k in ("steps", "solver", "n_substeps", "reset_s_incl_compile")}
+    result = {"sps": fields["sps"], "raw_sps": fields["raw_sps"],
+              "ratio_to_raw": fields["sps"] / fields["raw_sps"],
+              "compile_s": fields["sps_compile_s"], "raw_compile_s": fields["raw_compile_s"]}
+    if "peer_sps" in peer:
+      result.update(peer_sps=peer["peer_sps"], ratio_to_peer=fields["sps"] / peer["peer_sps"],
+                    peer_compile_s=peer["peer_sps_compile_s"])
+      settings["peer"] = {"name": PEERS[name], **peer["peer"], "steps": peer["peer_steps"]}
+    writer.write(kind="env_throughput", task=name, physics=physics, num_envs=num_envs,
+                 settings={**settings, "num_envs": num_envs, "physics": physics,
+                           "repeats": args.repeats}, **result)
+  print(f"results appended to {args.out}")
+  return 0
+
+
+if __name__ == "__main__":
+  sys.exit(main())

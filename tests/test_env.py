@@ -1,0 +1,153 @@
+"""The functional API, auto-reset, NaN handling, the device mesh and the command line.
+
+Reacher keeps these fast: its step compiles in seconds.
+"""
+
+from __future__ import annotations
+
+import functools
+import os
+import subprocess
+import sys
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import tasks
+from mjx_form import env as env_lib
+from mjx_form import mesh as mesh_lib
+from mjx_form.wrappers import AutoReset
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+NUM_ENVS = 4
+
+
+@functools.cache
+def reacher():
+  return AutoReset(tasks.make("reacher_easy"))
+
+
+@functools.cache
+def compiled():
+  env = reacher()
+  return jax.jit(env.reset, static_argnums=1), jax.jit(env.step)
+
+
+def test_state_shapes_under_jit_and_vmap():
+  reset, step = compiled()
+  state = reset(jax.random.PRNGKey(0), NUM_ENVS)
+  state = step(state, jnp.zeros((NUM_ENVS, 2)))
+  assert state.obs.shape == (NUM_ENVS, 6)
+  assert set(state.obs_parts) == {"position", "to_target", "velocity"}
+  assert state.reward.shape == state.done.shape == state.truncation.shape == (NUM_ENVS,)
+  np.testing.assert_array_equal(state.info["step"], 1)
+  np.testing.assert_allclose(np.concatenate([state.obs_parts[k] for k in
+                                             ("position", "to_target", "velocity")], axis=1),
+                             state.obs)
+
+
+def test_nan_or_inf_action_resets_that_env_and_is_counted():
+  reset, step = compiled()
+  state = step(reset(jax.random.PRNGKey(1), NUM_ENVS), jnp.zeros((NUM_ENVS, 2)))
+  action = jnp.zeros((NUM_ENVS, 2)).at[1, 0].set(jnp.nan).at[3, 1].set(jnp.inf)
+  after = step(state, action)
+  np.testing.assert_array_equal(after.info["physics_errors"], [0, 1, 0, 1])
+  np.testing.assert_array_equal(after.done, [0, 1, 0, 1])
+  np.testing.assert_array_equal(after.info["step"], [2, 0, 2, 0])  # 1 and 3 restarted
+  np.testing.assert_array_equal(after.reward[[1, 3]], 0.0)
+  assert np.isfinite(after.obs).all() and np.isfinite(after.data.qvel).all()
+  assert np.isfinite(after.info["final_obs"]).all()
+  # Later steps keep counting per environment.
+  again = step(after, action)
+  np.testing.assert_array_equal(again.info["physics_errors"], [0, 2, 0, 2])
+
+
+def test_nan_in_physics_state_is_detected():
+  reset, step = compiled()
+  state = reset(jax.random.PRNGKey(2), NUM_ENVS)
+  state = state.replace(data=state.data.replace(qvel=state.data.qvel.at[2, 0].set(jnp.inf)))
+  after = step(state, jnp.zeros((NUM_ENVS, 2)))
+  np.testing.assert_array_equal(after.info["physics_errors"], [0, 0, 1, 0])
+  assert np.isfinite(after.data.qvel).all()
+
+
+def test_episode_lasts_1000_steps_and_restarts_from_fresh_draws():
+  env = reacher()
+
+  @jax.jit
+  def run(state):
+    def body(state, _):
+      state = env.step(state, jnp.full((NUM_ENVS, 2), 0.3))
+      return state, state.done
+    return jax.lax.scan(body, state, None, length=env_lib.EPISODE_LENGTH)
+
+  first = compiled()[0](jax.random.PRNGKey(3), NUM_ENVS)
+  last, dones = run(first)
+  dones = np.asarray(dones)
+  assert dones[:-1].sum() == 0 and dones[-1].all()  # ends at step 1000 exactly, not before
+  np.testing.assert_array_equal(last.truncation, 1.0)
+  np.testing.assert_array_equal(last.info["step"], 0)
+  # The new episodes are fresh draws: not the first starts, not copies of each other.
+  assert not np.allclose(last.task["target"], first.task["target"])
+  assert len({tuple(np.round(t, 6)) for t in np.asarray(last.task["target"])}) == NUM_ENVS
+  assert not np.allclose(last.obs, last.info["final_obs"])
+  assert np.all(np.asarray(last.info["final_obs"])[:, 4:] != 0)  # moving at the end
+
+
+def test_two_devices_match_one():
+  """The same rollout with the batch sharded over 2 (forced host) devices and on 1."""
+  assert jax.device_count() >= 2, "tests run with --xla_force_host_platform_device_count=2"
+  env = reacher()
+  actions = jax.random.uniform(jax.random.PRNGKey(5), (30, NUM_ENVS, 2), minval=-1, maxval=1)
+
+  def rollout(state, actions):  # actions: (num_envs, steps, 2), sharded like the batch
+    def body(state, action):
+      state = env.step(state, action)
+      return state, state.reward
+    return jax.lax.scan(body, state, actions.swapaxes(0, 1))
+
+  results = []
+  for devices in (jax.devices()[:1], jax.devices()[:2]):
+    mesh = mesh_lib.make_mesh(devices)
+    state = mesh_lib.shard_batch(compiled()[0](jax.random.PRNGKey(6), NUM_ENVS), mesh)
+    final, rewards = jax.jit(rollout)(state, mesh_lib.shard_batch(actions.swapaxes(0, 1), mesh))
+    assert len(final.obs.sharding.device_set) == len(devices)
+    results.append((np.asarray(final.obs), np.asarray(rewards)))
+  np.testing.assert_allclose(results[0][0], results[1][0], rtol=1e-5, atol=1e-6)
+  np.testing.assert_allclose(results[0][1], results[1][1], rtol=1e-5, atol=1e-6)
+
+
+def test_mesh_rejects_bad_batch_sizes():
+  mesh = mesh_lib.make_mesh(jax.devices()[:2])
+  with pytest.raises(ValueError, match="multiple of the number of devices"):
+    mesh_lib.check_batch_size(3, mesh)
+  with pytest.raises(ValueError, match="positive"):
+    mesh_lib.check_batch_size(0, mesh)
+
+
+def _run_cli(*args):
+  return subprocess.run([sys.executable, os.path.join(ROOT, "scripts", "run.py"), *args],
+                        capture_output=True, text=True, timeout=300, cwd=ROOT)
+
+
+def test_cli_lists_tasks_and_rejects_bad_input():
+  listed = _run_cli("--list")
+  assert listed.returncode == 0 and listed.stdout.split() == list(tasks.TASKS)
+  unknown = _run_cli("--task", "humanoid_fly")
+  assert unknown.returncode != 0
+  assert "unknown task 'humanoid_fly'" in unknown.stderr and "humanoid_run" in unknown.stderr
+  for bad in (["--num_envs", "0"], ["--num_envs", "-3"], ["--steps", "0"]):
+    result = _run_cli("--task", "reacher_easy", *bad)
+    assert result.returncode != 0 and "must be a positive integer" in result.stderr
+  odd = _run_cli("--task", "reacher_easy", "--num_envs", "3")
+  assert odd.returncode != 0 and "multiple of the number of devices" in odd.stderr
+  assert "Traceback" not in odd.stderr
+
+
+def test_cli_random_rollout_reports_steps_per_second():
+  result = _run_cli("--task", "reacher_easy", "--num_envs", "4", "--steps", "20",
+                    "--log_every", "10")
+  assert result.returncode == 0, result.stderr
+  assert "steps/s" in result.stdout and "done:" in result.stdout

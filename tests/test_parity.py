@@ -1,0 +1,178 @@
+"""Parity of the 13 tasks with dm_control itself, on states from dm_control's own rollouts.
+
+Compiled MJX functions take the model as an argument, so the tasks of one domain share them
+(one compilation per domain and function). Every measured error goes into the parity report
+printed at the end of the session (tests/conftest.py).
+"""
+
+from __future__ import annotations
+
+import functools
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import tasks
+from mjx_form import parity
+
+NUM_STATES = 24  # transitions sampled per task from dm_control rollouts (actions up to 1.2x range)
+DIVERGENCE_STEPS = 25
+DOMAIN_OF = {name: name.split("_")[0] for name in tasks.TASKS}
+
+
+@functools.cache
+def env(name: str, physics: str = "parity"):
+  return tasks.make(name, physics=physics)
+
+
+@functools.cache
+def reference(name: str) -> dict[str, np.ndarray]:
+  return parity.collect_reference(name, NUM_STATES, seed=1)
+
+
+def _errors(ours, theirs) -> np.ndarray:
+  """Largest absolute error per sample (leading axis)."""
+  ours, theirs = np.asarray(ours, np.float64), np.asarray(theirs, np.float64)
+  assert ours.shape == theirs.shape, (ours.shape, theirs.shape)
+  diff = np.abs(ours - theirs)
+  return diff.reshape(len(diff), -1).max(axis=1) if diff.ndim > 1 else diff
+
+
+def _stats(errors) -> dict:
+  return {"max": float(np.max(errors)), "median": float(np.median(errors)),
+          "p90": float(np.quantile(errors, 0.9))}
+
+
+# --- 1. Observation and reward as functions of the physics state ----------------------------
+
+@pytest.mark.parametrize("name", tasks.TASKS)
+def test_observation_and_reward_as_functions_of_state(name, parity_report):
+  """The same state (after mj_forward in both) gives the same observation and reward."""
+  ref = reference(name)
+  expected_obs, expected_reward = parity.dm_control_forward(name, ref, prefix="next_")
+  ours = env(name)
+  data = parity.forward_batch(ours, ref, prefix="next_")
+  obs, reward = parity.observe_batch(ours, data, parity.reference_task(ref))
+  obs_err, reward_err = _errors(obs, expected_obs), _errors(reward, expected_reward)
+  parity_report.append(dict(test="obs/reward of state", task=name, physics="-",
+                            obs=_stats(obs_err), reward=_stats(reward_err)))
+  # float32 precision, relative to each element's magnitude.
+  np.testing.assert_allclose(obs, expected_obs, rtol=2e-4, atol=2e-4)
+  np.testing.assert_allclose(reward, expected_reward, rtol=1e-4, atol=1e-5)
+
+
+# --- 2. One control step from the same state and action -------------------------------------
+
+@pytest.mark.parametrize("name", tasks.TASKS)
+def test_one_control_step_matches_dm_control(name, parity_report):
+  """Parity mode, float32: the step's observation, reward and next state match dm_control.
+
+  Contacts make a few states sensitive to float32 rounding (dm_control runs in float64), so the
+  bulk is checked tightly and the worst case is reported; the float64 test below shows the
+  step itself is exact.
+  """
+  ref = reference(name)
+  ours = env(name)
+  data = parity.physics_batch(ours, ref, ref["action"])
+  obs, reward = parity.observe_batch(ours, data, parity.reference_task(ref))
+  qpos_err = _errors(data.qpos, ref["next_qpos"])
+  qvel_err = _errors(data.qvel, ref["next_qvel"])
+  obs_err, reward_err = _errors(obs, ref["obs"]), _errors(reward, ref["reward"])
+  parity_report.append(dict(test="one step", task=name, physics="parity", qpos=_stats(qpos_err),
+                            qvel=_stats(qvel_err), obs=_stats(obs_err),
+                            reward=_stats(reward_err)))
+  assert np.median(qpos_err) < 1e-5 and np.median(qvel_err) < 1e-3
+  assert np.quantile(qvel_err, 0.75) < 1e-2
+  assert np.median(reward_err) < 1e-4
+
+
+@pytest.mark.parametrize("name", tasks.TASKS)
+def test_one_control_step_is_exact_in_float64(name, parity_report):
+  """In float64 our control step reproduces dm_control's to rounding error: the step semantics
+  (mj_step2 / mj_step / mj_step1, sensors, clamping of out-of-range actions) are the same."""
+  ref = reference(name)
+  with jax.enable_x64(True):
+    ours = tasks.make(name)
+    data = parity.physics_batch(ours, ref, ref["action"])
+    obs, reward = parity.observe_batch(ours, data, parity.reference_task(ref))
+    qpos_err = _errors(data.qpos, ref["next_qpos"])
+    qvel_err = _errors(data.qvel, ref["next_qvel"])
+    obs_err = _errors(obs, ref["obs"])
+  parity_report.append(dict(test="one step float64", task=name, physics="parity",
+                            qpos=_stats(qpos_err), qvel=_stats(qvel_err), obs=_stats(obs_err)))
+  assert qpos_err.max() < 1e-9 and qvel_err.max() < 1e-7 and obs_err.max() < 1e-6
+
+
+@pytest.mark.parametrize("name", tasks.TASKS)
+def test_fast_mode_error_is_reported(name, parity_report):
+  """Fast mode: the same comparison, reported; it must stay a faithful step on most states."""
+  ref = reference(name)
+  fast = env(name, "fast")
+  data = parity.physics_batch(fast, ref, ref["action"])
+  qpos_err = _errors(data.qpos, ref["next_qpos"])
+  qvel_err = _errors(data.qvel, ref["next_qvel"])
+  parity_report.append(dict(test="one step", task=name, physics="fast", qpos=_stats(qpos_err),
+                            qvel=_stats(qvel_err)))
+  assert np.median(qvel_err) < 1e-2
+
+
+# --- 3. A fixed action sequence from the same start -----------------------------------------
+
+@pytest.mark.parametrize("name", tasks.TASKS)
+def test_fixed_action_sequence_divergence(name, parity_report):
+  """From dm_control's reset states, the same actions: the error grows slowly, and is reported.
+
+  Trajectories of contact-rich systems diverge chaotically, so the test bounds the first
+  steps and reports the whole curve.
+  """
+  dm_env = parity.load_dm_control_env(name, seed=2)
+  ours = env(name)
+  rng = np.random.RandomState(3)
+  spec = dm_env.action_spec()
+  starts, dm_obs, actions = [], [], []
+  for _ in range(NUM_STATES):
+    dm_env.reset()
+    starts.append({**parity.physics_state(dm_env.physics),
+                   **{f"task_{k}": v for k, v in parity.task_variables(name, dm_env.physics).items()}})
+    episode_actions = rng.uniform(spec.minimum, spec.maximum, (DIVERGENCE_STEPS, spec.shape[0]))
+    actions.append(episode_actions)
+    dm_obs.append([parity._flat_obs(dm_env.step(a).observation) for a in episode_actions])
+  states = {k: np.stack([s[k] for s in starts]) for k in starts[0]}
+  actions, dm_obs = np.stack(actions), np.stack(dm_obs)  # (episodes, steps, ...)
+
+  errors = []
+  task_vars = parity.reference_task(states)
+  for t in range(DIVERGENCE_STEPS):
+    data = parity.physics_batch(ours, states, actions[:, t])
+    obs, _ = parity.observe_batch(ours, data, task_vars)
+    errors.append(_errors(obs, dm_obs[:, t]))
+    states = {**states, **{f: np.asarray(getattr(data, f)) for f in parity.STATE_FIELDS}}
+  errors = np.stack(errors, axis=1)  # (episodes, steps)
+  median_curve = np.median(errors, axis=0)
+  parity_report.append(dict(test="fixed actions", task=name, physics="parity",
+                            median_obs_error_at_step={t + 1: float(median_curve[t])
+                                                      for t in (0, 4, 9, 24)}))
+  assert median_curve[0] < 1e-3
+  assert median_curve[4] < 1e-2
+
+
+# --- 4. Resets -------------------------------------------------------------------------------
+# See test_resets.py.
+
+
+def test_reference_states_cover_out_of_range_actions():
+  """The parity data above includes actions outside [-1, 1], which dm_control passes on."""
+  ref = reference("walker_walk")
+  assert (np.abs(ref["action"]) > 1).any()
+  assert (np.abs(ref["action"]) <= 1).any()
+
+
+def test_reference_state_round_trip_keeps_physics_fields():
+  ref = reference("cheetah_run")
+  ours = env("cheetah_run")
+  data = parity.reference_data(ours.mjx_model, {k: jnp.asarray(ref[k][0])
+                                                for k in parity.STATE_FIELDS})
+  np.testing.assert_allclose(data.qpos, ref["qpos"][0], rtol=1e-6, atol=1e-7)
+  np.testing.assert_allclose(data.qvel, ref["qvel"][0], rtol=1e-6, atol=1e-6)
