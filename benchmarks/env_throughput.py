@@ -47,8 +47,13 @@ PEERS = {  # our name -> MuJoCo Playground's name
 
 
 def _tile(tree, times: int):
-  """`times` copies of a batched pytree along the batch axis (new buffers)."""
-  return jax.tree.map(lambda x: jnp.tile(x, (times,) + (1,) * (x.ndim - 1)), tree)
+  """`times` copies of a batched pytree along the batch axis, in new buffers."""
+  return copy_tree(jax.tree.map(lambda x: jnp.tile(x, (times,) + (1,) * (x.ndim - 1)), tree))
+
+
+def copy_tree(tree):
+  """Every leaf in a buffer of its own (inputs are donated; no two leaves may share one)."""
+  return jax.tree.map(lambda x: jnp.array(x, copy=True), tree)
 
 
 def _random_actions(key, num_envs, size):
@@ -180,7 +185,7 @@ def main(argv=None) -> int:
     settings = {k: fields.pop(k) for k in ("steps", "solver", "n_substeps", "reset_s_incl_compile")}
     result = {"sps": fields["sps"], "raw_sps": fields["raw_sps"],
               "ratio_to_raw": fields["sps"] / fields["raw_sps"],
-              "compile_s": fields["sps_compile_s"], "raw_compile_s": fields["raw_compile_s"]}
+              "compile_s": fields["sps_compile_s"], "raw_compile_s": fields["raw_sps_compile_s"]}
     if "peer_sps" in peer:
       result.update(peer_sps=peer["peer_sps"], ratio_to_peer=fields["sps"] / peer["peer_sps"],
                     peer_compile_s=peer["peer_sps_compile_s"])

@@ -49,9 +49,12 @@ class Task(abc.ABC):
   # Fast-mode solver settings for this domain; see mjx_form.physics and the README's tables.
   fast_settings: physics_lib.SolverSettings = physics_lib.PARITY
 
-  def __init__(self, physics: str = physics_lib.DEFAULT_PHYSICS):
+  def __init__(self, physics: str | physics_lib.SolverSettings = physics_lib.DEFAULT_PHYSICS):
     self.physics = physics_lib.check_physics_mode(physics)
-    settings = physics_lib.PARITY if physics == "parity" else self.fast_settings
+    if isinstance(physics, physics_lib.SolverSettings):
+      settings = physics
+    else:
+      settings = physics_lib.PARITY if physics == "parity" else self.fast_settings
     root = self.model_xml()
     physics_lib.apply_solver_settings(root, settings)
     self.solver_settings = settings

@@ -2,9 +2,10 @@
 
 `collect_reference` (needs dm-control, a test dependency) rolls dm_control's own environment
 with random actions and records, per sampled step: the physics state before the step, the
-action, and dm_control's observation, reward and physics state after it. `reference_state`
-puts a recorded state into one of our `State`s, so the two can be compared element by element,
-in a test on the CPU or in a benchmark on the GPU (the arrays travel as an .npz file).
+action, and dm_control's observation, reward and physics state after it. `physics_batch` and
+`observe_batch` redo those steps with our physics and task functions, so the two can be
+compared element by element, in a test on the CPU or in a benchmark on the GPU (the arrays
+travel as an .npz file).
 """
 
 from __future__ import annotations
@@ -17,7 +18,7 @@ import jax.numpy as jnp
 from mujoco import mjx
 
 from mjx_form import physics as physics_lib
-from mjx_form.env import State, Task, flatten_observation
+from mjx_form.env import Task, flatten_observation
 
 STATE_FIELDS = ("qpos", "qvel", "act", "qacc_warmstart", "ctrl")
 
@@ -70,7 +71,7 @@ def collect_reference(task_name: str, num_states: int, seed: int = 0, burn_in: i
     if sample:
       row = {**before, **{f"next_{k}": v for k, v in physics_state(env.physics).items()},
              **{f"task_{k}": v for k, v in task.items()}, "action": action,
-             "obs": _flat_obs(timestep.observation), "reward": np.float64(timestep.reward)}
+             "obs": flat_observation(timestep.observation), "reward": np.float64(timestep.reward)}
       for k, v in row.items():
         records.setdefault(k, []).append(v)
     if timestep.last():
@@ -79,7 +80,8 @@ def collect_reference(task_name: str, num_states: int, seed: int = 0, burn_in: i
   return {k: np.stack(v) for k, v in records.items()}
 
 
-def _flat_obs(observation) -> np.ndarray:
+def flat_observation(observation) -> np.ndarray:
+  """dm_control's observation dict flattened in order, as float64."""
   return np.concatenate([np.asarray(v, np.float64).ravel() for v in observation.values()])
 
 
@@ -96,50 +98,8 @@ def reference_task(arrays: dict[str, jax.Array]) -> dict[str, jax.Array]:
           if k.startswith("task_")}
 
 
-def reference_state(env: Task, arrays: dict[str, jax.Array]) -> State:
-  """Our `State` holding one recorded dm_control physics state (works under jit/vmap).
-
-  The observation fields are left empty: they are outputs of `step`.
-  """
-  zero = jnp.zeros(())
-  info = {"step": jnp.zeros((), jnp.int32), "episode_return": zero,
-          "key": jax.random.PRNGKey(0), "physics_error": zero}
-  parts = {k: jnp.zeros((n,)) for k, n in env.observation_layout.items()}
-  return State(data=reference_data(env.mjx_model, arrays), obs=jnp.zeros((env.observation_size,)),
-               obs_parts=parts, reward=zero, done=zero, truncation=zero,
-               task=reference_task(arrays), info=info)
-
-
-def step_from_reference(env: Task, arrays: dict[str, jax.Array]) -> State:
-  """One of our control steps from a recorded state with the recorded action."""
-  return env.step(reference_state(env, arrays), arrays["action"])
-
-
-def dm_control_forward(task_name: str, arrays: dict[str, np.ndarray],
-                       prefix: str = "next_") -> tuple[np.ndarray, np.ndarray]:
-  """dm_control's observation and reward of recorded states after its own `mj_forward`.
-
-  The states `<prefix><field>` (with their ctrl) are written into a dm_control physics, which
-  then runs `physics.forward()`; every observation element, the acceleration-stage sensors
-  included, is then a function of that state alone.
-  """
-  env = load_dm_control_env(task_name, seed=0)
-  env.reset()
-  physics, task = env.physics, env.task
-  observations, rewards = [], []
-  for i in range(len(arrays["action"])):
-    for field in STATE_FIELDS:
-      getattr(physics.data, field)[:] = arrays[prefix + field][i]
-    if "task_target" in arrays:
-      physics.named.model.geom_pos["target", :2] = arrays["task_target"][i]
-    physics.forward()
-    observations.append(_flat_obs(task.get_observation(physics)))
-    rewards.append(float(task.get_reward(physics)))
-  return np.stack(observations), np.array(rewards)
-
-
-def _state_fields(arrays, prefix=""):
-  return {f: arrays[prefix + f] for f in STATE_FIELDS}
+def _state_fields(arrays):
+  return {f: arrays[f] for f in STATE_FIELDS}
 
 
 @functools.partial(jax.jit, static_argnums=3)
@@ -157,16 +117,6 @@ def physics_batch(env: Task, states: dict, actions) -> mjx.Data:
   (walker stand/walk/run, ...) share one compilation.
   """
   return _physics_batch(env.mjx_model, _state_fields(states), actions, env.n_substeps)
-
-
-@jax.jit
-def _forward_batch(model, states):
-  return jax.vmap(lambda s: mjx.forward(model, reference_data(model, s)))(states)
-
-
-def forward_batch(env: Task, states: dict, prefix: str = "") -> mjx.Data:
-  """`mj_forward` of each recorded state `<prefix><field>` (batched)."""
-  return _forward_batch(env.mjx_model, _state_fields(states, prefix))
 
 
 def observe_batch(env: Task, data: mjx.Data, task: dict) -> tuple[jax.Array, jax.Array]:

@@ -24,10 +24,25 @@ import pytest  # noqa: E402
 _PARITY_REPORT: list[dict] = []
 
 
-@pytest.fixture(scope="session")
-def parity_report() -> list[dict]:
+class _ReportRows:
+  """Collects a test's measured rows; they travel with its report (also from xdist workers)."""
+
+  def __init__(self, node):
+    self._node = node
+
+  def append(self, row: dict) -> None:
+    self._node.user_properties.append(("parity_row", json.dumps(row)))
+
+
+@pytest.fixture
+def parity_report(request) -> _ReportRows:
   """Rows of measured parity errors; printed at the end and written to .parity_report.jsonl."""
-  return _PARITY_REPORT
+  return _ReportRows(request.node)
+
+
+def pytest_runtest_logreport(report):
+  if report.when == "call":
+    _PARITY_REPORT.extend(json.loads(v) for k, v in report.user_properties if k == "parity_row")
 
 
 def pytest_terminal_summary(terminalreporter):
@@ -36,7 +51,7 @@ def pytest_terminal_summary(terminalreporter):
   write = terminalreporter.write_line
   write("")
   write("parity with dm_control (largest absolute error per sample: median / p90 / max)")
-  for row in _PARITY_REPORT:
+  for row in sorted(_PARITY_REPORT, key=lambda r: (r["test"], r["task"], r["physics"])):
     parts = []
     for key, value in row.items():
       if key in ("test", "task", "physics"):

@@ -17,8 +17,9 @@ from mjx_form import parity
 
 NUM_RESETS = 200
 # One task per domain: the tasks of a domain share their reset (initialize_episode).
-DOMAIN_TASKS = ["reacher_easy", "cheetah_run", "hopper_hop", "walker_walk", "quadruped_walk",
-                "humanoid_walk"]
+DOMAIN_TASKS = [pytest.param(name, marks=pytest.mark.xdist_group(name.split("_")[0]))
+                for name in ("reacher_easy", "cheetah_run", "hopper_hop", "walker_walk",
+                             "quadruped_walk", "humanoid_walk")]
 
 
 @functools.cache
@@ -34,7 +35,7 @@ def dm_control_resets(name: str):
   obs, qpos, targets = [], [], []
   for _ in range(NUM_RESETS):
     timestep = dm_env.reset()
-    obs.append(parity._flat_obs(timestep.observation))
+    obs.append(parity.flat_observation(timestep.observation))
     qpos.append(np.array(dm_env.physics.data.qpos))
     targets.append(parity.task_variables(name, dm_env.physics).get("target", np.zeros(2)))
   return np.stack(obs), np.stack(qpos), np.stack(targets)
@@ -66,6 +67,7 @@ def test_reset_observation_distribution_matches_dm_control(name, parity_report):
   assert np.isfinite(states.obs).all()
 
 
+@pytest.mark.xdist_group("cheetah")
 def test_reset_distribution_test_can_fail():
   """The same check tells a wrong reset apart: dm_control's cheetah before settling differs."""
   dm_env = parity.load_dm_control_env("cheetah_run", seed=3)
@@ -78,6 +80,7 @@ def test_reset_distribution_test_can_fail():
   assert _ks_pvalues(unsettled[:, 1:], dm_qpos[:, 1:]).min() < 1e-6
 
 
+@pytest.mark.xdist_group("reacher")
 def test_reacher_target_placement():
   env, states = our_resets("reacher_easy")
   _, _, dm_targets = dm_control_resets("reacher_easy")
@@ -102,6 +105,7 @@ def _mujoco_ncon(env, qpos: np.ndarray) -> int:
   return int(data.ncon)
 
 
+@pytest.mark.xdist_group("humanoid")
 def test_humanoid_starts_without_contacts():
   env, states = our_resets("humanoid_walk")
   assert not states.task["reset_penetrating"].any()
@@ -110,6 +114,7 @@ def test_humanoid_starts_without_contacts():
   assert states.task["reset_draws"].max() > 1
 
 
+@pytest.mark.xdist_group("quadruped")
 def test_quadruped_starts_at_lowest_contact_free_height():
   env, states = our_resets("quadruped_walk")
   for qpos in states.data.qpos[:50]:
@@ -124,6 +129,7 @@ def test_quadruped_starts_at_lowest_contact_free_height():
     np.testing.assert_array_equal(qpos[:2], 0.0)
 
 
+@pytest.mark.xdist_group("cheetah")
 def test_cheetah_settling_is_dm_controls():
   """Settling from the same random pose gives dm_control's settled state (float64)."""
   dm_env = parity.load_dm_control_env("cheetah_run", seed=5)
