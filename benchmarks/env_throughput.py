@@ -9,8 +9,7 @@ actions drawn on the device:
   - peer: MuJoCo Playground's version of the task (`impl="jax"`, its own settings), where one
           exists (none for quadruped), its unwrapped `step`.
 All three run `--steps` control steps inside one jitted `lax.scan`; the time is the best of
-`--repeats` calls after a warm-up call, compile time recorded apart. Functions are compiled in
-parallel threads first, then timed one after another.
+`--repeats` calls after a warm-up call, compile time recorded apart.
 
   python benchmarks/env_throughput.py --tasks cheetah_run --num_envs 2048 8192
 """
@@ -18,7 +17,6 @@ parallel threads first, then timed one after another.
 from __future__ import annotations
 
 import argparse
-import concurrent.futures
 import os
 import sys
 import time
@@ -112,7 +110,6 @@ def main(argv=None) -> int:
                       help="control steps per timed call (0: 10 in parity mode, 50 in fast)")
   parser.add_argument("--repeats", type=int, default=2)
   parser.add_argument("--no_peer", action="store_true")
-  parser.add_argument("--threads", type=int, default=8, help="parallel compilations")
   parser.add_argument("--out", default=common.default_results_path("env_throughput"))
   args = parser.parse_args(argv)
   base = min(args.num_envs)
@@ -121,78 +118,58 @@ def main(argv=None) -> int:
   writer = common.ResultWriter(args.out)
   key = jax.random.PRNGKey(0)
 
-  # Build every function and its inputs, then compile them all in parallel.
-  jobs = []  # (record, kind, fn, args)
-  for name in args.tasks:
-    for physics in args.physics:
-      env = tasks.make(name, physics=physics)
-      steps = args.steps or (10 if physics == "parity" else 50)
-      t0 = time.perf_counter()
-      start = jax.block_until_ready(AutoReset(env).reset(key, base))  # fresh draws, then tiled
-      reset_s = time.perf_counter() - t0
-      for num_envs in args.num_envs:
-        record = {"task": name, "physics": physics, "num_envs": num_envs, "steps": steps,
-                  "solver": vars(env.solver_settings), "n_substeps": env.n_substeps,
-                  "reset_s_incl_compile": reset_s}
-        # Each function gets its own copy: inputs are donated.
-        jobs.append((record, "sps", ours_fn(env, num_envs, steps),
-                     (_tile(start, num_envs // base), key)))
-        jobs.append((record, "raw_sps", raw_fn(env, num_envs, steps),
-                     (_tile(start.data, num_envs // base), key)))
-    if not args.no_peer and name in PEERS:
-      for num_envs in args.num_envs:
-        steps = args.steps or 50
-        peer_reset, peer_run, settings = peer_fns(name, num_envs, steps)
-        record = {"task": name, "num_envs": num_envs, "peer_steps": steps, "peer": settings}
-        jobs.append((record, "peer_sps", peer_run, (peer_reset(key), key)))
-
-  def compile_job(job):
-    _, _, fn, fn_args = job
+  def measure(fn, fn_args, steps, num_envs, label):
+    """Compiles, warms up and times `fn`; returns (steps/s, compile seconds)."""
     t0 = time.perf_counter()
-    compiled = fn.lower(*fn_args).compile()
-    return compiled, time.perf_counter() - t0
-
-  t0 = time.perf_counter()
-  with concurrent.futures.ThreadPoolExecutor(args.threads) as pool:
-    compiled = list(pool.map(compile_job, jobs))
-  print(f"compiled {len(jobs)} functions in {time.perf_counter() - t0:.0f}s", flush=True)
-
-  # Time them one after another.
-  measured: dict[tuple, dict] = {}
-  for (record, kind, _, fn_args), (exe, compile_s) in zip(jobs, compiled):
-    steps = record.get("peer_steps", record.get("steps"))
-    num_envs = record["num_envs"]
-    state, fn_key = fn_args
-    state = jax.block_until_ready(exe(state, fn_key))  # warm-up (inputs are donated)
-    holder = [state]
+    exe = fn.lower(*fn_args).compile()
+    compile_s = time.perf_counter() - t0
+    holder = [jax.block_until_ready(exe(*fn_args))]  # warm-up (inputs are donated)
 
     def call():
-      holder[0] = jax.block_until_ready(exe(holder[0], fn_key))
-    seconds = common.best_time(call, args.repeats)
-    sps = steps * num_envs / seconds
-    print(f"{record['task']:<16}{record.get('physics', 'peer'):<8}{num_envs:>6} envs "
-          f"{kind:<8}{sps:>14,.0f} steps/s  (compile {compile_s:.0f}s)", flush=True)
-    measured.setdefault((record["task"], record.get("physics"), num_envs), dict(record)).update(
-        {kind: sps, f"{kind}_compile_s": compile_s})
-    del holder, state
+      holder[0] = jax.block_until_ready(exe(holder[0], fn_args[1]))
+    sps = steps * num_envs / common.best_time(call, args.repeats)
+    print(f"{label:<40}{sps:>14,.0f} steps/s  (compile {compile_s:.0f}s)", flush=True)
+    return sps, compile_s
 
-  # One record per (task, physics, num_envs), the peer's numbers beside ours.
-  for (name, physics, num_envs), row in measured.items():
-    if physics is None:
-      continue
-    peer = measured.get((name, None, num_envs), {})
-    fields = {k: v for k, v in row.items() if k not in ("task", "physics", "num_envs")}
-    settings = {k: fields.pop(k) for k in ("steps", "solver", "n_substeps", "reset_s_incl_compile")}
-    result = {"sps": fields["sps"], "raw_sps": fields["raw_sps"],
-              "ratio_to_raw": fields["sps"] / fields["raw_sps"],
-              "compile_s": fields["sps_compile_s"], "raw_compile_s": fields["raw_sps_compile_s"]}
-    if "peer_sps" in peer:
-      result.update(peer_sps=peer["peer_sps"], ratio_to_peer=fields["sps"] / peer["peer_sps"],
-                    peer_compile_s=peer["peer_sps_compile_s"])
-      settings["peer"] = {"name": PEERS[name], **peer["peer"], "steps": peer["peer_steps"]}
-    writer.write(kind="env_throughput", task=name, physics=physics, num_envs=num_envs,
-                 settings={**settings, "num_envs": num_envs, "physics": physics,
-                           "repeats": args.repeats}, **result)
+  # Sequential, one record written per (task, physics, size) as soon as it is measured, so a
+  # run stopped at its time limit keeps what it measured.
+  for name in args.tasks:
+    envs = {physics: tasks.make(name, physics=physics) for physics in args.physics}
+    reset = jax.jit(lambda k, env: AutoReset(env).reset(k, base), static_argnums=1)
+    starts = {physics: jax.block_until_ready(reset(key, env)) for physics, env in envs.items()}
+    for num_envs in args.num_envs:
+      peer, peer_reset = {}, None
+      if not args.no_peer and name in PEERS:
+        steps = args.steps or 50
+        try:
+          peer_reset, peer_run, settings = peer_fns(name, num_envs, steps)
+        except Exception as e:  # e.g. Playground 0.2.0's reacher needs a newer MuJoCo API
+          print(f"{name}: peer unavailable ({type(e).__name__}: {e})", flush=True)
+          peer_reset = None
+      if peer_reset is not None:
+        sps, compile_s = measure(peer_run, (peer_reset(key), key), steps, num_envs,
+                                 f"{name} peer {num_envs}")
+        peer = {"peer_sps": sps, "peer_compile_s": compile_s,
+                "peer": {"name": PEERS[name], **settings, "steps": steps}}
+      for physics, env in envs.items():
+        steps = args.steps or (10 if physics == "parity" else 50)
+        start = _tile(starts[physics], num_envs // base)
+        sps, compile_s = measure(ours_fn(env, num_envs, steps), (start, key), steps, num_envs,
+                                 f"{name} {physics} {num_envs} ours")
+        raw_sps, raw_compile_s = measure(raw_fn(env, num_envs, steps),
+                                         (_tile(starts[physics].data, num_envs // base), key),
+                                         steps, num_envs, f"{name} {physics} {num_envs} raw")
+        result = {"sps": sps, "raw_sps": raw_sps, "ratio_to_raw": sps / raw_sps,
+                  "compile_s": compile_s, "raw_compile_s": raw_compile_s}
+        settings = {"num_envs": num_envs, "physics": physics, "steps": steps,
+                    "repeats": args.repeats, "solver": vars(env.solver_settings),
+                    "n_substeps": env.n_substeps}
+        if peer:
+          result.update(peer_sps=peer["peer_sps"], ratio_to_peer=sps / peer["peer_sps"],
+                        peer_compile_s=peer["peer_compile_s"])
+          settings["peer"] = peer["peer"]
+        writer.write(kind="env_throughput", task=name, physics=physics, num_envs=num_envs,
+                     settings=settings, **result)
   print(f"results appended to {args.out}")
   return 0
 
