@@ -63,14 +63,18 @@ def throughput_table(records: list[dict]) -> str:
               f"{versions.get('mujoco')}); ours = `AutoReset(task).step`, raw = plain `mjx.step` "
               "loop on the same model and settings, peer = MuJoCo Playground (`impl=\"jax\"`, its "
               "own settings, unwrapped step):", "",
-              "| task | physics | envs | ours | raw | ours/raw | peer | ours/peer |",
-              "|---|---|---|---|---|---|---|---|"]
+              "| task | physics | envs | ours | raw | ours/raw | peer | ours/peer | peer settings |",
+              "|---|---|---|---|---|---|---|---|---|"]
     for r in sorted(sel, key=lambda r: (_order(r["task"]), r["physics"] != "parity",
                                         r["num_envs"])):
       peer = f"{_k(r['peer_sps'])}" if "peer_sps" in r else "-"
       ratio_peer = f"{r['ratio_to_peer']:.2f}" if "ratio_to_peer" in r else "-"
+      p = r["settings"].get("peer")
+      peer_settings = (f"dt {p['sim_dt']}, {p['n_substeps']} substeps, {p['iterations']}/"
+                       f"{p['ls_iterations']} iterations" if p else "-")
       lines.append(f"| {r['task']} | {r['physics']} | {r['num_envs']} | {_k(r['sps'])} | "
-                   f"{_k(r['raw_sps'])} | {r['ratio_to_raw']:.2f} | {peer} | {ratio_peer} |")
+                   f"{_k(r['raw_sps'])} | {r['ratio_to_raw']:.2f} | {peer} | {ratio_peer} | "
+                   f"{peer_settings} |")
     lines.append("")
   return "\n".join(lines).rstrip()
 

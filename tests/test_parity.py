@@ -14,7 +14,6 @@ from __future__ import annotations
 import functools
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 import pytest
 
@@ -51,7 +50,7 @@ def _stats(errors) -> dict:
           "p90": float(np.quantile(errors, 0.9))}
 
 
-# --- 2. One control step from the same state and action -------------------------------------
+# --- One control step from the same state and action ---------------------------------------
 
 @pytest.mark.parametrize("name", BY_DOMAIN)
 def test_one_control_step_matches_dm_control(name, parity_report):
@@ -112,7 +111,7 @@ def test_fast_mode_error_is_reported(name, parity_report):
   assert np.median(qvel_err) < 1e-2
 
 
-# --- 3. A fixed action sequence from the same start -----------------------------------------
+# --- A fixed action sequence from the same start -------------------------------------------
 
 @pytest.mark.parametrize("name", BY_DOMAIN)
 def test_fixed_action_sequence_divergence(name, parity_report):
@@ -152,8 +151,7 @@ def test_fixed_action_sequence_divergence(name, parity_report):
   assert median_curve[4] < 1e-2
 
 
-# --- 4. Resets -------------------------------------------------------------------------------
-# See test_resets.py.
+# Resets: see test_resets.py.
 
 
 def test_reference_states_cover_out_of_range_actions():
