@@ -98,17 +98,8 @@ def test_one_control_step_is_exact_in_float64(name, parity_report):
   np.testing.assert_allclose(reward, ref["reward"], rtol=1e-6, atol=1e-7)
 
 
-@pytest.mark.parametrize("name", BY_DOMAIN)
-def test_fast_mode_error_is_reported(name, parity_report):
-  """Fast mode: the same comparison, reported; it must stay a faithful step on most states."""
-  ref = reference(name)
-  fast = env(name, "fast")
-  data = parity.physics_batch(fast, ref, ref["action"])
-  qpos_err = _errors(data.qpos, ref["next_qpos"])
-  qvel_err = _errors(data.qvel, ref["next_qvel"])
-  parity_report.append(dict(test="one step", task=name, physics="fast", qpos=_stats(qpos_err),
-                            qvel=_stats(qvel_err)))
-  assert np.median(qvel_err) < 1e-2
+# Fast mode: its per-task error is measured by benchmarks/parity_error.py (64 transitions per
+# task) and shown in the README's parity table; repeating it here cost CI six more compilations.
 
 
 # --- A fixed action sequence from the same start -------------------------------------------
