@@ -57,15 +57,6 @@ def best_time(fn, repeats: int) -> float:
   return min(times)
 
 
-def read_results(pattern: str = "*.jsonl") -> list[dict]:
-  import glob
-  rows = []
-  for path in sorted(glob.glob(os.path.join(RESULTS_DIR, pattern))):
-    with open(path) as f:
-      rows.extend(json.loads(line) for line in f if line.strip())
-  return rows
-
-
 def compile_all(functions_and_args, threads: int) -> list:
   """Compiles jitted functions for their arguments in parallel threads (XLA compiles release
   the GIL); returns (executable, seconds) per item, in order."""

@@ -44,13 +44,15 @@ def errors(ours, theirs) -> dict:
           "max": float(per_sample.max())}
 
 
-def measure(name: str, physics: str, ref: dict) -> dict:
+def measure(name: str, physics, ref: dict) -> dict:
+  """Errors of one control step from each reference transition, and the solver settings."""
   env = tasks.make(name, physics=physics)
   data = parity.physics_batch(env, ref, ref["action"])
   obs, reward = parity.observe_batch(env, data, parity.reference_task(ref))
   return {"qpos_error": errors(data.qpos, ref["next_qpos"]),
           "qvel_error": errors(data.qvel, ref["next_qvel"]),
-          "obs_error": errors(obs, ref["obs"]), "reward_error": errors(reward, ref["reward"])}
+          "obs_error": errors(obs, ref["obs"]), "reward_error": errors(reward, ref["reward"]),
+          "solver": vars(env.solver_settings)}
 
 
 def main(argv=None) -> int:
@@ -70,7 +72,7 @@ def main(argv=None) -> int:
       result = measure(name, physics, ref)
       writer.write(kind="parity", task=name, physics=physics, precision="float32",
                    settings={"num_transitions": len(ref["action"]),
-                             "solver": vars(tasks.make(name, physics).solver_settings)},
+                             "solver": result.pop("solver")},
                    **result)
       q, v = result["qpos_error"], result["qvel_error"]
       print(f"{name:<16}{physics:<8}{q['median']:>11.1e}/{q['max']:<10.1e}"

@@ -101,6 +101,7 @@ def main(argv=None) -> int:
   print(f"{'task':<16}{'iters':>6}{'ls':>4}{'cull':>6}{'ours/s':>12}{'raw/s':>12}"
         f"{'qvel med':>10}{'qvel p90':>10}{'qvel max':>10}")
   for ((name, settings), speed), error in zip(results.items(), errors):
+    error.pop("solver")
     writer.write(kind="solver_sweep", task=name, settings={**vars(settings),
                  "num_envs": args.num_envs, "steps": args.steps}, **speed, **error)
     v = error["qvel_error"]
