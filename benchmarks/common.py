@@ -55,26 +55,3 @@ def best_time(fn, repeats: int) -> float:
     fn()
     times.append(time.perf_counter() - t0)
   return min(times)
-
-
-def compile_all(functions_and_args, threads: int) -> list:
-  """Compiles jitted functions for their arguments in parallel threads (XLA compiles release
-  the GIL); returns (executable, seconds) per item, in order."""
-  import concurrent.futures
-
-  def compile_one(item):
-    fn, args = item
-    t0 = time.perf_counter()
-    exe = fn.lower(*args).compile()
-    return exe, time.perf_counter() - t0
-
-  with concurrent.futures.ThreadPoolExecutor(threads) as pool:
-    return list(pool.map(compile_one, functions_and_args))
-
-
-def batched_resets(envs, key, num_envs: int, threads: int) -> list:
-  """`AutoReset(env).reset(key, num_envs)` for each env, compiled in parallel, then run."""
-  import jax
-  from mjx_form.wrappers import AutoReset
-  fns = [(jax.jit(lambda k, env=env: AutoReset(env).reset(k, num_envs)), (key,)) for env in envs]
-  return [jax.block_until_ready(exe(key)) for exe, _ in compile_all(fns, threads)]
