@@ -153,7 +153,7 @@ class Task(abc.ABC):
     step_count = state.info["step"] + 1
     truncation = (step_count >= EPISODE_LENGTH) | ~ok
     info = dict(state.info, step=step_count, episode_return=state.info["episode_return"] + reward,
-                physics_error=jnp.where(ok, 0.0, 1.0))
+                physics_error=(~ok).astype(jnp.float32))
     return state.replace(data=data, obs=obs, obs_parts=obs_parts, reward=reward,
                          done=truncation.astype(jnp.float32),
                          truncation=truncation.astype(jnp.float32), info=info)

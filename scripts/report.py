@@ -50,6 +50,13 @@ def _k(x: float) -> str:
   return f"{x / 1e6:.2f}M" if x >= 1e6 else f"{x / 1e3:.0f}k" if x >= 1e3 else f"{x:.0f}"
 
 
+def _solver(settings: dict) -> str:
+  """'100/50' (iterations / line-search iterations), plus ' cull N' with contact culling."""
+  text = f"{settings.get('iterations') or 100}/{settings.get('ls_iterations') or 50}"
+  return text + (f" cull {settings['max_contact_points']}"
+                 if settings.get("max_contact_points") else "")
+
+
 def throughput_table(records: list[dict]) -> str:
   rows = [r for r in records if r.get("kind") == "env_throughput"]
   if not rows:
@@ -63,8 +70,9 @@ def throughput_table(records: list[dict]) -> str:
               f"{versions.get('mujoco')}); ours = `AutoReset(task).step`, raw = plain `mjx.step` "
               "loop on the same model and settings, peer = MuJoCo Playground (`impl=\"jax\"`, its "
               "own settings, unwrapped step):", "",
-              "| task | physics | envs | ours | raw | ours/raw | peer | ours/peer | peer settings |",
-              "|---|---|---|---|---|---|---|---|---|"]
+              "| task | physics | solver | envs | ours | raw | ours/raw | peer | ours/peer | "
+              "peer settings |",
+              "|---|---|---|---|---|---|---|---|---|---|"]
     for r in sorted(sel, key=lambda r: (_order(r["task"]), r["physics"] != "parity",
                                         r["num_envs"])):
       peer = f"{_k(r['peer_sps'])}" if "peer_sps" in r else "-"
@@ -72,7 +80,8 @@ def throughput_table(records: list[dict]) -> str:
       p = r["settings"].get("peer")
       peer_settings = (f"dt {p['sim_dt']}, {p['n_substeps']} substeps, {p['iterations']}/"
                        f"{p['ls_iterations']} iterations" if p else "-")
-      lines.append(f"| {r['task']} | {r['physics']} | {r['num_envs']} | {_k(r['sps'])} | "
+      lines.append(f"| {r['task']} | {r['physics']} | {_solver(r['settings']['solver'])} | "
+                   f"{r['num_envs']} | {_k(r['sps'])} | "
                    f"{_k(r['raw_sps'])} | {r['ratio_to_raw']:.2f} | {peer} | {ratio_peer} | "
                    f"{peer_settings} |")
     lines.append("")
@@ -100,9 +109,33 @@ def parity_table(records: list[dict]) -> str:
   return "\n".join(lines).rstrip()
 
 
+def sweep_table(records: list[dict]) -> str:
+  rows = [r for r in records if r.get("kind") == "solver_sweep"]
+  if not rows:
+    return "No solver sweep results yet."
+  newest = _newest(rows, lambda r: (r["task"], _solver(r["settings"]["solver"]), r["measured"]))
+  speed = {k[:2]: r for k, r in newest.items() if k[2] == "speed"}
+  error = {k[:2]: r for k, r in newest.items() if k[2] == "error"}
+  keys = sorted(set(speed) | set(error),  # by task, then most iterations first, culling second
+                key=lambda k: (_order(k[0]), -int(k[1].split("/")[0]), "cull" in k[1]))
+  first = next(iter(speed.values()), None)
+  lines = [f"Raw `mjx.step` control steps per second at "
+           f"{first['settings']['num_envs'] if first else '-'} envs on "
+           f"`{first['device'] if first else '-'}`, and the one-step qvel error against "
+           "dm_control (float32, CPU, 64 states: median / p90 / max):", "",
+           "| task | solver | raw steps/s | x parity | qvel error |", "|---|---|---|---|---|"]
+  for task, solver in keys:
+    s, e = speed.get((task, solver)), error.get((task, solver))
+    sps = f"{_k(s['raw_sps'])} | {s['speedup_over_parity']:.2f}" if s else "- | -"
+    err = (f"{e['qvel_error']['median']:.0e} / {e['qvel_error']['p90']:.0e} / "
+           f"{e['qvel_error']['max']:.0e}") if e else "-"
+    lines.append(f"| {task} | {solver} | {sps} | {err} |")
+  return "\n".join(lines)
+
+
 def render(readme: str, records: list[dict]) -> str:
   for name, table in (("throughput", throughput_table(records)),
-                      ("parity", parity_table(records))):
+                      ("parity", parity_table(records)), ("sweep", sweep_table(records))):
     pattern = re.compile(rf"(<!-- {name}:begin -->\n).*?(\n<!-- {name}:end -->)", re.S)
     if not pattern.search(readme):
       raise ValueError(f"README.md has no <!-- {name}:begin/end --> markers")

@@ -22,7 +22,8 @@ class Cheetah(ControlSuiteTask):
   task = "run"
   xml_file = "cheetah.xml"
   n_substeps = 1  # physics dt 0.01 = control dt
-  fast_settings = physics_lib.SolverSettings(iterations=4, ls_iterations=8)
+  fast_settings = physics_lib.SolverSettings(iterations=10, ls_iterations=10, max_contact_points=4,
+                                             max_geom_pairs=4)  # benchmarks/solver_sweep.py
 
   def __init__(self, physics: str = physics_lib.DEFAULT_PHYSICS):
     super().__init__(physics)

@@ -31,7 +31,8 @@ class Move(ControlSuiteTask):
   domain = "quadruped"
   xml_file = "quadruped.xml"
   n_substeps = 4  # physics dt 0.005, control dt 0.02
-  fast_settings = physics_lib.SolverSettings(iterations=4, ls_iterations=8)
+  fast_settings = physics_lib.SolverSettings(iterations=10, ls_iterations=10, max_contact_points=8,
+                                             max_geom_pairs=8)  # benchmarks/solver_sweep.py
 
   def __init__(self, desired_speed: float, task: str,
                physics: str = physics_lib.DEFAULT_PHYSICS):

@@ -20,7 +20,8 @@ class PlanarWalker(ControlSuiteTask):
   domain = "walker"
   xml_file = "walker.xml"
   n_substeps = 10  # physics dt 0.0025, control dt 0.025
-  fast_settings = physics_lib.SolverSettings(iterations=4, ls_iterations=8)
+  fast_settings = physics_lib.SolverSettings(iterations=10, ls_iterations=10, max_contact_points=8,
+                                             max_geom_pairs=8)  # benchmarks/solver_sweep.py
 
   def __init__(self, move_speed: float, task: str, physics: str = physics_lib.DEFAULT_PHYSICS):
     self.move_speed = move_speed

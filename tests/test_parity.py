@@ -83,7 +83,7 @@ def test_one_control_step_is_exact_in_float64(name, parity_report):
   out-of-range actions) and the observation and reward functions are dm_control's."""
   ref = reference(name)
   with jax.enable_x64(True):
-    ours = tasks.make(name)
+    ours = tasks.make(name, physics="parity")
     data = parity.physics_batch(ours, ref, ref["action"])
     obs, reward = parity.observe_batch(ours, data, parity.reference_task(ref))
     qpos_err = _errors(data.qpos, ref["next_qpos"])

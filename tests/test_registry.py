@@ -36,7 +36,7 @@ def test_unknown_physics_mode_is_a_clear_error():
 
 @pytest.mark.parametrize("name", tasks.TASKS)
 def test_specs_and_model_match_dm_control(name):
-  env = tasks.make(name)
+  env = tasks.make(name, physics="parity")
   dm_env = parity.load_dm_control_env(name, seed=0)
   control_dt, substeps, obs_dims, act_dims = EXPECTED[name]
   assert env.n_substeps == dm_env._n_sub_steps == substeps

@@ -64,7 +64,7 @@ def test_reset_observation_distribution_matches_dm_control(name, parity_report):
   env, states = our_resets(name)
   dm_obs, _, _ = dm_control_resets(name)
   pvalues = _ks_pvalues(states.obs, dm_obs)
-  parity_report.append(dict(test="reset distribution", task=name, physics="parity",
+  parity_report.append(dict(test="reset distribution", task=name, physics=env.physics,
                             dims=len(pvalues), min_ks_pvalue=float(pvalues.min()),
                             worst_dim=int(pvalues.argmin())))
   # Bonferroni over the dimensions at an overall level of 1e-3 (seeds are fixed).
@@ -144,7 +144,7 @@ def test_cheetah_settling_is_dm_controls():
   m = physics.model
   limited = m.jnt_limited == 1
   with jax.enable_x64(True):
-    env = tasks.make("cheetah_run")
+    env = tasks.make("cheetah_run", physics="parity")
     settle = jax.jit(lambda qpos: env.settle(mjx.make_data(env.mjx_model), qpos))
     for _ in range(3):
       qpos = np.zeros(m.nq)
