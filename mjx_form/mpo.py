@@ -1,0 +1,155 @@
+"""The MPO policy loss (Abdolmaleki et al., 2018) for a diagonal Gaussian policy, with the
+decoupled mean / scale KL constraints of Acme's `mpo` agent (per action dimension by default).
+
+Shapes: N sampled actions per state, S states (a flattened batch), A action dimensions.
+
+One scalar loss trains all three parameter groups; stop-gradients route each term:
+  temperature  eta   <- eta * epsilon + eta * mean_s log mean_i exp(sg(Q) / eta)  (E-step dual)
+  policy (online)    <- -mean_s sum_i w_i [log N(a_i; mu, sg(sigma_target))
+                                          + log N(a_i; sg(mu_target), sigma)]   (M-step)
+                        + sum sg(alpha_mean) * KL_mean + sum sg(alpha_scale) * KL_scale
+  alphas             <- sum alpha_mean * (epsilon_mean - sg(KL_mean))
+                        + sum alpha_scale * (epsilon_scale - sg(KL_scale))
+with E-step weights w = sg(softmax_i(Q / eta)), KL_mean = mean_s KL(target || N(mu, sigma_target))
+and KL_scale = mean_s KL(target || N(mu_target, sigma)), both [A] with per-dimension constraints
+(else summed over A, scalars). `target`, `sampled_actions` and `q_values` are constants.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+from mjx_form.distributions import DiagonalGaussian
+
+DUAL_EPSILON = 1e-8  # dual value = softplus(raw) + DUAL_EPSILON, as in Acme
+MIN_RAW_DUAL = -18.0  # `clip_duals` floor for the raw duals, as in Acme
+
+
+@dataclasses.dataclass(frozen=True)
+class MPOConfig:
+  """KL bounds and initial raw duals.
+
+  The initial raw duals match Acme's TF/JAX learner defaults (1, 1, 10: softplus gives
+  temperature 1.31, alpha_mean 1.31, alpha_scale 10.0). Acme's bounds there are epsilon 0.1,
+  epsilon_mean 1e-3, epsilon_stddev 1e-6 (its newer GaussianPolicyLossConfig: 0.1, 2.5e-3,
+  1e-6 with raw duals 10, 10, 1000). With per-dimension constraints every action dimension
+  gets the full epsilon_mean / epsilon_scale, so the total KL bound grows with A.
+  """
+
+  epsilon: float = 0.1  # KL(E-step policy || target policy) bound, for the temperature
+  epsilon_mean: float = 0.005  # KL bound on the mean-only change (per dimension if per_dim)
+  epsilon_scale: float = 1e-5  # KL bound on the scale-only change (per dimension if per_dim)
+  per_dim_constraining: bool = True
+  init_log_temperature: float = 1.0
+  init_log_alpha_mean: float = 1.0
+  init_log_alpha_scale: float = 10.0
+
+
+class MPODuals(NamedTuple):
+  """Raw (unconstrained) Lagrange multipliers; values are softplus(raw) + DUAL_EPSILON."""
+
+  log_temperature: jax.Array  # []
+  log_alpha_mean: jax.Array  # [A], or [] without per-dimension constraints
+  log_alpha_scale: jax.Array  # [A], or [] without per-dimension constraints
+
+
+def init_duals(config: MPOConfig, action_size: int, dtype=jnp.float32) -> MPODuals:
+  """Initial raw duals from `config`."""
+  shape = (action_size,) if config.per_dim_constraining else ()
+  return MPODuals(
+      log_temperature=jnp.full((), config.init_log_temperature, dtype),
+      log_alpha_mean=jnp.full(shape, config.init_log_alpha_mean, dtype),
+      log_alpha_scale=jnp.full(shape, config.init_log_alpha_scale, dtype))
+
+
+def dual_value(raw: jax.Array) -> jax.Array:
+  """The positive multiplier of a raw dual: softplus(raw) + DUAL_EPSILON."""
+  return jax.nn.softplus(raw) + DUAL_EPSILON
+
+
+def clip_duals(duals: MPODuals) -> MPODuals:
+  """Keeps raw duals >= MIN_RAW_DUAL after an update, so softplus keeps a usable gradient."""
+  return jax.tree.map(lambda x: jnp.maximum(x, MIN_RAW_DUAL), duals)
+
+
+def e_step_weights(q_values: jax.Array, temperature: jax.Array) -> jax.Array:
+  """Non-parametric policy weights softmax_i(Q / eta) over the samples: [N, S] -> [N, S]."""
+  return jax.nn.softmax(q_values / temperature, axis=0)
+
+
+def temperature_loss(q_values: jax.Array, temperature: jax.Array, epsilon: float) -> jax.Array:
+  """E-step dual eta * epsilon + eta * mean_s log mean_i exp(Q / eta); q_values [N, S].
+
+  Written as max_i Q + eta * log mean_i exp((Q - max_i Q) / eta) (equal), whose gradient in eta
+  does not cancel two terms of size max|Q| / eta when the temperature is small.
+  """
+  q_max = jax.lax.stop_gradient(jnp.max(q_values, axis=0))  # [S]
+  log_mean_exp = (jax.nn.logsumexp((q_values - q_max) / temperature, axis=0)
+                  - math.log(q_values.shape[0]))
+  return temperature * epsilon + jnp.mean(q_max + temperature * log_mean_exp)
+
+
+def mpo_loss(duals: MPODuals, online: DiagonalGaussian, target: DiagonalGaussian,
+             sampled_actions: jax.Array, q_values: jax.Array,
+             config: MPOConfig) -> tuple[jax.Array, dict[str, jax.Array]]:
+  """The MPO loss (policy + KL penalties + dual losses) and its metrics.
+
+  online, target: mean/scale [S, A]; sampled_actions [N, S, A] (drawn from `target`);
+  q_values [N, S]. Returns (scalar loss, dict of scalar metrics).
+  """
+  target, sampled_actions, q_values = jax.lax.stop_gradient((target, sampled_actions, q_values))
+  num_samples = q_values.shape[0]
+  temperature = dual_value(duals.log_temperature)
+  alpha_mean = dual_value(duals.log_alpha_mean)
+  alpha_scale = dual_value(duals.log_alpha_scale)
+
+  # E-step: weights of the non-parametric policy and the temperature's dual loss.
+  weights = jax.lax.stop_gradient(e_step_weights(q_values, temperature))  # [N, S]
+  loss_temperature = temperature_loss(q_values, temperature, config.epsilon)
+
+  # M-step: weighted maximum likelihood of the two decoupled distributions.
+  fixed_scale = DiagonalGaussian(online.mean, target.scale)  # learns the mean
+  fixed_mean = DiagonalGaussian(target.mean, online.scale)  # learns the scale
+  loss_policy_mean = -jnp.mean(jnp.sum(weights * fixed_scale.log_prob(sampled_actions), axis=0))
+  loss_policy_scale = -jnp.mean(jnp.sum(weights * fixed_mean.log_prob(sampled_actions), axis=0))
+
+  # Trust region KL(target || decoupled online): [A] per dimension, else [].
+  per_dim = config.per_dim_constraining
+  kl_mean = jnp.mean(target.kl_divergence(fixed_scale, per_dim=per_dim), axis=0)
+  kl_scale = jnp.mean(target.kl_divergence(fixed_mean, per_dim=per_dim), axis=0)
+  sg = jax.lax.stop_gradient
+  loss_kl = jnp.sum(sg(alpha_mean) * kl_mean) + jnp.sum(sg(alpha_scale) * kl_scale)
+  loss_alpha = (jnp.sum(alpha_mean * (config.epsilon_mean - sg(kl_mean)))
+                + jnp.sum(alpha_scale * (config.epsilon_scale - sg(kl_scale))))
+
+  loss_policy = loss_policy_mean + loss_policy_scale
+  loss = loss_policy + loss_kl + loss_alpha + loss_temperature
+
+  # KL(E-step policy || uniform over the samples) estimates KL(E-step policy || target).
+  kl_nonparametric = jnp.mean(jnp.sum(weights * jnp.log(num_samples * weights + 1e-30), axis=0))
+  ess = 1.0 / jnp.sum(jnp.square(weights), axis=0)  # [S]
+  metrics = {
+      "loss_policy": loss_policy,
+      "loss_kl": loss_kl,
+      "loss_alpha": loss_alpha,
+      "loss_temperature": loss_temperature,
+      "temperature": temperature,
+      "alpha_mean": jnp.mean(alpha_mean),
+      "alpha_scale": jnp.mean(alpha_scale),
+      "kl_mean": jnp.sum(kl_mean),  # mean over states, summed over dimensions
+      "kl_scale": jnp.sum(kl_scale),
+      "kl_mean_rel": jnp.mean(kl_mean) / config.epsilon_mean,  # > 1: constraint violated
+      "kl_scale_rel": jnp.mean(kl_scale) / config.epsilon_scale,
+      "kl_nonparametric_rel": kl_nonparametric / config.epsilon,
+      "ess_fraction": jnp.mean(ess) / num_samples,  # 1: uniform weights, 1/N: one sample
+      "q_mean": jnp.mean(q_values),
+      "q_max": jnp.mean(jnp.max(q_values, axis=0)),
+      "scale_mean": jnp.mean(online.scale),
+      "entropy": jnp.mean(online.entropy()),
+  }
+  return loss, metrics

@@ -1,0 +1,68 @@
+"""Observation standardisation by exponential moving averages, as pure functions.
+
+`update` keeps bias-corrected EMAs of the batch mean and of the batch second moment, stored as
+`mean` and `var` (= EMA second moment - mean**2). With a constant `decay` d, after t updates
+
+  mean_t = sum_i w_i * batch_mean_i,   E[x^2]_t = sum_i w_i * batch_second_moment_i,
+  w_i = (1 - d) * d**(t - i) / (1 - d**t)              (the weights sum to 1)
+
+i.e. Adam-style bias correction: the first update sets the statistics from the batch exactly
+and early batches are not over-weighted. Each update is the convex combination with rate
+a_t = (1 - d) / (1 - d**t); the variance is combined as
+(1 - a) var + a batch_var + a (1 - a) (batch_mean - mean)**2, which equals the EMA second
+moment minus the squared mean without its cancellation. Batch statistics are plain `jnp`
+reductions over all leading axes, so they are global when the batch is sharded over devices.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+
+class NormalizerState(NamedTuple):
+  mean: jax.Array   # [D]
+  var: jax.Array    # [D], population variance (ddof=0)
+  count: jax.Array  # int32 []: number of updates so far
+
+
+def init(size: int, dtype=jnp.float32) -> NormalizerState:
+  """Statistics of `size` features before any update: mean 0, var 1 (normalize is identity-ish)."""
+  if isinstance(size, bool) or not isinstance(size, int) or size < 1:
+    raise ValueError(f"size must be a positive integer, got {size!r}")
+  return NormalizerState(jnp.zeros((size,), dtype), jnp.ones((size,), dtype),
+                         jnp.zeros((), jnp.int32))
+
+
+def _check(state: NormalizerState, x: jax.Array, what: str) -> None:
+  size = state.mean.shape[-1]
+  if jnp.ndim(x) < 1 or jnp.shape(x)[-1] != size:
+    raise ValueError(f"{what} has shape {jnp.shape(x)}; expected (..., {size})")
+
+
+def update(state: NormalizerState, batch: jax.Array, decay: float = 0.99) -> NormalizerState:
+  """Folds the statistics of `batch` [..., D] (all leading axes pooled) into the EMAs."""
+  _check(state, batch, "batch")
+  if isinstance(decay, (int, float)) and not 0.0 <= decay < 1.0:
+    raise ValueError(f"decay must be in [0, 1), got {decay}")
+  batch = jnp.asarray(batch, state.mean.dtype)
+  axes = tuple(range(batch.ndim - 1))
+  batch_mean = jnp.mean(batch, axis=axes)                                  # [D]
+  batch_var = jnp.mean(jnp.square(batch - batch_mean), axis=axes)          # [D]
+  count = state.count + 1
+  decay = jnp.asarray(decay, state.mean.dtype)
+  rate = (1 - decay) / (1 - decay ** count.astype(state.mean.dtype))       # 1 at the first update
+  delta = batch_mean - state.mean
+  mean = state.mean + rate * delta
+  var = (1 - rate) * state.var + rate * batch_var + rate * (1 - rate) * jnp.square(delta)
+  return NormalizerState(mean, jnp.maximum(var, 0), count)
+
+
+def normalize(state: NormalizerState, x: jax.Array, clip: float | None = None,
+              eps: float = 1e-6) -> jax.Array:
+  """(x - mean) / sqrt(var + eps) for x [..., D], optionally clipped to [-clip, clip]."""
+  _check(state, x, "x")
+  out = (x - state.mean) / jnp.sqrt(state.var + eps)
+  return out if clip is None else jnp.clip(out, -clip, clip)

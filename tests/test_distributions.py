@@ -1,0 +1,94 @@
+"""The diagonal Gaussian against scipy / numpy closed forms."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from scipy import stats
+
+from mjx_form.distributions import DiagonalGaussian, scale_from_raw
+
+
+def _random_gaussian(rng, shape):
+  return DiagonalGaussian(rng.normal(size=shape).astype(np.float32),
+                          rng.uniform(0.2, 2.0, size=shape).astype(np.float32))
+
+
+def _np_kl(m1, s1, m2, s2):
+  """KL(N(m1, s1^2) || N(m2, s2^2)) per dimension, float64."""
+  m1, s1, m2, s2 = (np.asarray(v, np.float64) for v in (m1, s1, m2, s2))
+  return np.log(s2 / s1) + (s1 ** 2 + (m1 - m2) ** 2) / (2 * s2 ** 2) - 0.5
+
+
+def test_log_prob_and_entropy_match_scipy():
+  rng = np.random.default_rng(0)
+  dist = _random_gaussian(rng, (5, 3))
+  x = rng.normal(size=(7, 5, 3)).astype(np.float32)
+  expected = stats.norm(dist.mean, dist.scale).logpdf(x).sum(-1)
+  np.testing.assert_allclose(dist.log_prob(x), expected, rtol=1e-5, atol=1e-5)
+  assert dist.log_prob(x).shape == (7, 5)
+  np.testing.assert_allclose(dist.entropy(), stats.norm(dist.mean, dist.scale).entropy().sum(-1),
+                             rtol=1e-5, atol=1e-5)
+  np.testing.assert_array_equal(dist.mode(), dist.mean)
+
+
+def test_kl_matches_closed_form():
+  rng = np.random.default_rng(1)
+  p, q = _random_gaussian(rng, (4, 6)), _random_gaussian(rng, (4, 6))
+  expected = _np_kl(p.mean, p.scale, q.mean, q.scale)
+  np.testing.assert_allclose(p.kl_divergence(q, per_dim=True), expected, rtol=1e-5, atol=1e-6)
+  np.testing.assert_allclose(p.kl_divergence(q), expected.sum(-1), rtol=1e-5, atol=1e-5)
+  assert p.kl_divergence(q).shape == (4,)
+  # Monte Carlo check of the direction, KL(p || q) = E_p[log p - log q].
+  x = p.sample(jax.random.key(0), (200_000,))
+  mc = jnp.mean(p.log_prob(x) - q.log_prob(x), axis=0)
+  np.testing.assert_allclose(mc, expected.sum(-1), rtol=0.03, atol=0.02)
+
+
+def test_kl_precise_for_nearly_equal_scales():
+  # The scale constraint is ~1e-5: the KL must stay accurate well below that in float32.
+  s1 = np.float32(1.0)
+  s2 = np.float32(1.001)
+  kl = DiagonalGaussian(jnp.zeros(1), jnp.full(1, s1)).kl_divergence(
+      DiagonalGaussian(jnp.zeros(1), jnp.full(1, s2)))
+  np.testing.assert_allclose(kl, _np_kl(0, s1, 0, np.float64(s2)), rtol=1e-3)
+
+
+def test_kl_of_equal_distributions_is_zero():
+  rng = np.random.default_rng(2)
+  p = _random_gaussian(rng, (3, 5))
+  np.testing.assert_array_equal(p.kl_divergence(p, per_dim=True), np.zeros((3, 5)))
+  grads = jax.grad(lambda m, s: DiagonalGaussian(m, s).kl_divergence(p).sum(), argnums=(0, 1))(
+      jnp.asarray(p.mean), jnp.asarray(p.scale))
+  np.testing.assert_allclose(grads[0], 0.0, atol=1e-6)
+  np.testing.assert_allclose(grads[1], 0.0, atol=1e-6)
+
+
+def test_sample_moments_and_shapes():
+  mean = jnp.array([-1.0, 0.5, 3.0])
+  scale = jnp.array([0.1, 1.0, 2.5])
+  dist = DiagonalGaussian(mean, scale)
+  x = dist.sample(jax.random.key(3), (100_000,))
+  assert x.shape == (100_000, 3) and x.dtype == jnp.float32
+  np.testing.assert_allclose(x.mean(0), mean, atol=4 * 2.5 / np.sqrt(100_000))
+  np.testing.assert_allclose(x.std(0), scale, rtol=0.01)
+  assert dist.sample(jax.random.key(0)).shape == (3,)
+  # Broadcast batch shape, and reparameterised: d sample / d mean = 1.
+  batched = DiagonalGaussian(jnp.zeros((4, 3)), jnp.ones(3))
+  assert batched.sample(jax.random.key(1), (2,)).shape == (2, 4, 3)
+  grad = jax.grad(lambda m: DiagonalGaussian(m, scale).sample(jax.random.key(4)).sum())(mean)
+  np.testing.assert_allclose(grad, 1.0)
+
+
+def test_is_a_pytree_under_jit_and_vmap():
+  dist = DiagonalGaussian(jnp.zeros((6, 2)), jnp.ones((6, 2)))
+  log_probs = jax.jit(jax.vmap(lambda d, x: d.log_prob(x)))(dist, jnp.zeros((6, 2)))
+  np.testing.assert_allclose(log_probs, -np.log(2 * np.pi), rtol=1e-6)
+
+
+@pytest.mark.parametrize("min_scale", [1e-4, 1e-2])
+def test_scale_from_raw(min_scale):
+  raw = jnp.array([-100.0, -1.0, 0.0, 3.0, 50.0])
+  expected = np.log1p(np.exp(np.asarray(raw, np.float64))) + min_scale
+  np.testing.assert_allclose(scale_from_raw(raw, min_scale), expected, rtol=1e-6)
+  assert float(scale_from_raw(jnp.array(-1e4), min_scale)) == pytest.approx(min_scale)
