@@ -94,7 +94,7 @@ def save(directory, step: int, state, config: dict, keep: int = 2) -> str:
       raise CheckpointError(f"{directory} already holds a checkpoint for step {latest} >= {step}; "
                             "resume from it or use a fresh directory")
     mngr.save(step, force=True, args=ocp.args.Composite(
-        state=ocp.args.StandardSave(state), config=ocp.args.JsonSave(config),
+        state=ocp.args.StandardSave(_flat(state)), config=ocp.args.JsonSave(config),
         info=ocp.args.JsonSave(info)))
     mngr.wait_until_finished()
     mngr.reload()  # a safety net: report success only once the step is final on disk
@@ -183,6 +183,17 @@ def _path_name(path) -> str:
   return "/".join(parts) or "(root)"
 
 
+def _is_empty(x) -> bool:
+  return hasattr(x, "shape") and 0 in tuple(x.shape)
+
+
+def _flat(tree) -> dict:
+  """{'a/b/c': leaf} of the leaves with data. Zero-size arrays (e.g. MJX's `act` for a model
+  without actuator state) are not stored (orbax cannot); `restore` takes them from the target."""
+  return {_path_name(p): x for p, x in jax.tree_util.tree_flatten_with_path(tree)[0]
+          if not _is_empty(x)}
+
+
 def _abstract(x):
   """Target leaf -> what orbax restores into: jax arrays keep the target's sharding."""
   if isinstance(x, (jax.ShapeDtypeStruct, jax.Array)):
@@ -212,8 +223,7 @@ def _check_tree(where: str, stored_tree, target) -> None:
   is_meta = lambda x: hasattr(x, "shape") and hasattr(x, "dtype")
   stored = {_path_name(p): m for p, m in
             jax.tree_util.tree_flatten_with_path(stored_tree, is_leaf=is_meta)[0]}
-  ours = {_path_name(p): x for p, x in
-          jax.tree_util.tree_flatten_with_path(target)[0]}
+  ours = _flat(target)
   problems = [f"leaf {name} is missing from the checkpoint" for name in ours if name not in stored]
   problems += [f"the checkpoint has a leaf {name} the target lacks"
                for name in stored if name not in ours]
@@ -251,6 +261,9 @@ def restore(directory, target, config: dict, step: int | None = None, *,
     _check_config(directory, stored, config, ignore)
     metadata = mngr.item_metadata(step)["state"]
     _check_tree(where, getattr(metadata, "tree", metadata), target)
-    abstract = jax.tree.map(_abstract, target)
-    return mngr.restore(step, args=ocp.args.Composite(
+    abstract = {name: _abstract(x) for name, x in _flat(target).items()}
+    restored = mngr.restore(step, args=ocp.args.Composite(
         state=ocp.args.StandardRestore(abstract)))["state"]
+  paths, treedef = jax.tree_util.tree_flatten_with_path(target)
+  return jax.tree_util.tree_unflatten(treedef, [
+      x if _is_empty(x) else restored[_path_name(p)] for p, x in paths])

@@ -1,16 +1,20 @@
 #!/usr/bin/env python3
 """mjx-form's command line.
 
-At this stage it rolls out uniform random actions in N auto-resetting environments of one task,
-sharded over all devices, and reports control steps per second (compile time apart).
+  --method random (default): uniform random actions in N auto-resetting environments of one
+      task, sharded over all devices; reports control steps per second (compile time apart).
+  --method expert: trains MPO (Retrace) on the task reward in one compiled loop; writes
+      progress.csv, checkpoints and policy.npz to --run_dir; --resume continues a run.
 
   python scripts/run.py --task humanoid_run --num_envs 2048
+  python scripts/run.py --task cheetah_run --method expert --num_envs 2048 --env_steps 20000000
   python scripts/run.py --list
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import os
 import sys
 import time
@@ -26,6 +30,9 @@ import jax.numpy as jnp  # noqa: E402
 
 import tasks  # noqa: E402
 from mjx_form import mesh as mesh_lib  # noqa: E402
+from mjx_form import runner  # noqa: E402
+from mjx_form.learner import LearnerConfig  # noqa: E402
+from mjx_form.train import TrainConfig  # noqa: E402
 from mjx_form.physics import DEFAULT_PHYSICS, PHYSICS_MODES  # noqa: E402
 from mjx_form.wrappers import AutoReset  # noqa: E402
 
@@ -37,20 +44,55 @@ def parse_args(argv=None) -> argparse.Namespace:
   parser.add_argument("--task", default="cheetah_run", help="task name (see --list)")
   parser.add_argument("--num_envs", type=int, default=16, help="parallel environments")
   parser.add_argument("--steps", type=int, default=200, help="control steps per environment")
-  parser.add_argument("--log_every", type=int, default=50, help="steps between progress lines")
+  parser.add_argument("--log_every", type=int, default=None,
+                      help="progress lines every N steps (random, default 50) or N iterations "
+                           "(expert, default 1)")
   parser.add_argument("--physics", default=DEFAULT_PHYSICS, choices=PHYSICS_MODES,
                       help="parity: dm_control's solver settings; fast: fewer iterations")
   parser.add_argument("--seed", type=int, default=0)
   parser.add_argument("--list", action="store_true", help="print the task names and exit")
+  parser.add_argument("--method", default="random", choices=("random", "expert"))
+  train = parser.add_argument_group("training (--method expert; defaults are the paper's)")
+  defaults = TrainConfig()
+  train.add_argument("--run_dir", help="where logs, checkpoints and policy.npz go "
+                     "(default runs/<task>_<method>_seed<seed>)")
+  train.add_argument("--resume", action="store_true", help="continue the run in --run_dir")
+  train.add_argument("--env_steps", type=int, default=1_000_000, help="total environment steps")
+  train.add_argument("--unroll_length", type=int, default=defaults.unroll_length)
+  train.add_argument("--batch_size", type=int, default=defaults.batch_size,
+                     help="unrolls per learner update")
+  train.add_argument("--replay_capacity", type=int, default=defaults.replay_capacity,
+                     help="unrolls")
+  train.add_argument("--updates_per_iteration", type=int,
+                     default=defaults.updates_per_iteration,
+                     help="learner updates per iteration (num_envs x unroll_length env steps)")
+  train.add_argument("--network_width", type=int, default=defaults.network_width)
+  train.add_argument("--num_action_samples", type=int,
+                     default=defaults.learner.num_action_samples)
+  train.add_argument("--eval_envs", type=int, default=defaults.eval_envs)
+  train.add_argument("--eval_every", type=int, default=10, help="iterations between evaluations")
+  train.add_argument("--checkpoint_every", type=int, default=50, help="iterations")
   args = parser.parse_args(argv)
   if args.list:
     return args
+  if args.log_every is None:
+    args.log_every = 50 if args.method == "random" else 1
   if args.task not in tasks.TASKS:
     parser.error(f"unknown task {args.task!r}; valid tasks: {', '.join(tasks.TASKS)}")
-  for name in ("num_envs", "steps", "log_every"):
+  for name in ("num_envs", "steps", "log_every", "env_steps", "eval_every", "checkpoint_every"):
     if getattr(args, name) <= 0:
       parser.error(f"--{name} must be a positive integer, got {getattr(args, name)}")
   return args
+
+
+def train_config(args: argparse.Namespace) -> TrainConfig:
+  learner = dataclasses.replace(LearnerConfig(), num_action_samples=args.num_action_samples)
+  return TrainConfig(task=args.task, physics=args.physics, num_envs=args.num_envs,
+                     unroll_length=args.unroll_length, batch_size=args.batch_size,
+                     replay_capacity=args.replay_capacity,
+                     updates_per_iteration=args.updates_per_iteration,
+                     network_width=args.network_width, eval_envs=args.eval_envs,
+                     seed=args.seed, learner=learner)
 
 
 def random_rollout(args: argparse.Namespace, mesh) -> dict:
@@ -78,12 +120,10 @@ def random_rollout(args: argparse.Namespace, mesh) -> dict:
   t0 = time.perf_counter()
   state = jax.block_until_ready(reset(key))
   reset_s = time.perf_counter() - t0
-  # The first two chunks compile (the second sees the first's output layout); they run but
-  # are not counted in steps/s.
+  # The first chunk compiles; it runs but is not counted in steps/s.
   t0 = time.perf_counter()
-  for _ in range(2):
-    state, _, _ = jax.block_until_ready(chunk(state, key))
-  print(f"reset (incl. compile) {reset_s:.1f}s, first {2 * args.log_every} steps (incl. "
+  state, _, _ = jax.block_until_ready(chunk(state, key))
+  print(f"reset (incl. compile) {reset_s:.1f}s, first {args.log_every} steps (incl. "
         f"compile) {time.perf_counter() - t0:.1f}s", flush=True)
 
   done_steps, elapsed, episodes = 0, 0.0, 0
@@ -108,6 +148,21 @@ def main(argv=None) -> int:
     print("\n".join(tasks.TASKS))
     return 0
   mesh = mesh_lib.make_mesh()
+  if args.method == "expert":
+    run_dir = args.run_dir or os.path.join("runs", f"{args.task}_expert_seed{args.seed}")
+    try:
+      config = train_config(args)
+      config.check(mesh.devices.size)
+      row = runner.run(config, run_dir, args.env_steps, resume=args.resume,
+                       log_every=args.log_every, eval_every=args.eval_every,
+                       checkpoint_every=args.checkpoint_every, mesh=mesh,
+                       print_fn=lambda line: print(line, flush=True))
+    except ValueError as e:  # bad settings, an existing run, a checkpoint of another config
+      print(f"error: {e}", file=sys.stderr)
+      return 2
+    print(f"done: eval return {row.get('eval_return', float('nan')):.1f} after "
+          f"{row['env_steps']:,} env steps; policy in {os.path.join(run_dir, 'policy.npz')}")
+    return 0
   try:
     mesh_lib.check_batch_size(args.num_envs, mesh)
   except ValueError as e:

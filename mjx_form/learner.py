@@ -1,0 +1,137 @@
+"""The MPO learner step: Retrace critic loss, MPO policy loss, Adam, target networks.
+
+One `update` consumes a batch of B unrolls of T steps (observations [B, T+1, D], raw) and
+rewards [B, T] from a reward source. Q targets use the target critic and the target policy:
+  v(x) = mean over `num_action_samples` actions a ~ pi_target(x) of Q_target(x, a)
+  Retrace(lambda) with c_t = lambda min(1, pi_target(a_t|x_t) / mu(a_t|x_t)), mu = behaviour.
+The MPO E-step reuses the same samples and target Q values at x_0 .. x_{T-1}. Policy, critic
+and duals have their own Adam optimisers; targets are copied from the online networks every
+`target_update_period` updates (at updates 0, P, 2P, ...).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import optax
+
+from mjx_form import mpo, normalizer, retrace
+from mjx_form.networks import Networks
+
+
+@dataclasses.dataclass(frozen=True)
+class LearnerConfig:
+  """The paper's settings (../shared/DESIGN.md) unless stated."""
+
+  discount: float = 0.99
+  retrace_lambda: float = 1.0
+  num_action_samples: int = 20
+  target_update_period: int = 200
+  learning_rate: float = 1e-4
+  dual_learning_rate: float = 1e-3
+  max_grad_norm: float = 40.0  # Acme's MPO clips gradients at 40 (not stated in the paper)
+  mpo: mpo.MPOConfig = mpo.MPOConfig()
+
+
+class LearnerState(NamedTuple):
+  policy: Any  # flax params
+  critic: Any
+  target_policy: Any
+  target_critic: Any
+  duals: mpo.MPODuals
+  policy_opt: Any
+  critic_opt: Any
+  dual_opt: Any
+  updates: jax.Array  # int32 [], learner updates taken
+
+
+def _optimizers(config: LearnerConfig):
+  def adam(lr):
+    return optax.chain(optax.clip_by_global_norm(config.max_grad_norm), optax.adam(lr))
+  return adam(config.learning_rate), adam(config.learning_rate), optax.adam(
+      config.dual_learning_rate)
+
+
+def init(networks: Networks, config: LearnerConfig, key: jax.Array, observation_size: int,
+         action_size: int) -> LearnerState:
+  """Fresh parameters, targets equal to them, optimiser and dual states."""
+  policy_key, critic_key = jax.random.split(key)
+  obs = jnp.zeros((1, observation_size))
+  policy = networks.policy.init(policy_key, obs)
+  critic = networks.critic.init(critic_key, obs, jnp.zeros((1, action_size)))
+  duals = mpo.init_duals(config.mpo, action_size)
+  policy_tx, critic_tx, dual_tx = _optimizers(config)
+  return LearnerState(policy, critic, policy, critic, duals, policy_tx.init(policy),
+                      critic_tx.init(critic), dual_tx.init(duals), jnp.zeros((), jnp.int32))
+
+
+def losses(networks: Networks, config: LearnerConfig, online: tuple, state: LearnerState,
+           obs: jax.Array, batch: dict, rewards: jax.Array, key: jax.Array):
+  """Critic + MPO loss of one batch; `online` = (policy, critic, duals) being differentiated.
+
+  obs: standardised observations [B, T+1, D]; batch: action [B, T, A],
+  behaviour_log_prob [B, T], discount [B, T]; rewards [B, T].
+  """
+  policy_params, critic_params, duals = online
+  actions = batch["action"]
+  target_pi = networks.policy.apply(state.target_policy, obs)  # [B, T+1, A]
+  sampled = target_pi.sample(key, (config.num_action_samples,))  # [N, B, T+1, A]
+  obs_n = jnp.broadcast_to(obs, sampled.shape[:-1] + obs.shape[-1:])
+  q_sampled = networks.critic.apply(state.target_critic, obs_n, sampled)  # [N, B, T+1]
+  v = jnp.mean(q_sampled, axis=0)  # [B, T+1]
+
+  obs_t = obs[:, :-1]
+  q_taken_target = networks.critic.apply(state.target_critic, obs_t, actions)  # [B, T]
+  log_rhos = (jax.tree.map(lambda x: x[:, :-1], target_pi).log_prob(actions)
+              - batch["behaviour_log_prob"])
+  targets = jax.vmap(retrace.retrace_targets, in_axes=(0, 0, 0, 0, 0, None))(
+      q_taken_target, v[:, 1:], rewards, config.discount * batch["discount"], log_rhos,
+      config.retrace_lambda)
+  q_online = networks.critic.apply(critic_params, obs_t, actions)  # [B, T]
+  critic_loss = 0.5 * jnp.mean(jnp.square(q_online - targets))
+
+  online_pi = networks.policy.apply(policy_params, obs_t)  # [B, T, A]
+  flat = lambda x: x.reshape((-1,) + x.shape[2:])  # [B, T, ...] -> [S, ...]
+  n = config.num_action_samples
+  policy_loss, metrics = mpo.mpo_loss(
+      duals, jax.tree.map(flat, online_pi), jax.tree.map(lambda x: flat(x[:, :-1]), target_pi),
+      sampled[:, :, :-1].reshape((n, -1, actions.shape[-1])),
+      q_sampled[:, :, :-1].reshape((n, -1)), config.mpo)
+  metrics = dict(metrics, critic_loss=critic_loss, q_online=jnp.mean(q_online),
+                 retrace_target=jnp.mean(targets), reward=jnp.mean(rewards),
+                 importance_weight=jnp.mean(jnp.minimum(1.0, jnp.exp(log_rhos))))
+  return critic_loss + policy_loss, metrics
+
+
+def update(networks: Networks, config: LearnerConfig, state: LearnerState,
+           norm: normalizer.NormalizerState, batch: dict, rewards: jax.Array,
+           key: jax.Array) -> tuple[LearnerState, dict]:
+  """One learner update on a batch of unrolls (see `losses`); returns (state, metrics)."""
+  # Targets follow the online networks every `target_update_period` updates.
+  copy = state.updates % config.target_update_period == 0
+  follow = lambda online, target: jax.tree.map(lambda o, t: jnp.where(copy, o, t), online, target)
+  state = state._replace(target_policy=follow(state.policy, state.target_policy),
+                         target_critic=follow(state.critic, state.target_critic))
+
+  obs = normalizer.normalize(norm, batch["observation"])
+  online = (state.policy, state.critic, state.duals)
+  grads, metrics = jax.grad(lambda o: losses(networks, config, o, state, obs, batch, rewards,
+                                             key), has_aux=True)(online)
+  policy_tx, critic_tx, dual_tx = _optimizers(config)
+  steps = {}
+  for name, params, grad, opt, tx in (
+      ("policy", state.policy, grads[0], state.policy_opt, policy_tx),
+      ("critic", state.critic, grads[1], state.critic_opt, critic_tx),
+      ("duals", state.duals, grads[2], state.dual_opt, dual_tx)):
+    change, opt = tx.update(grad, opt, params)
+    steps[name] = (optax.apply_updates(params, change), opt)
+    metrics[f"{name}_grad_norm"] = jnp.sqrt(sum(jnp.sum(jnp.square(g))
+                                                for g in jax.tree.leaves(grad)))
+  state = state._replace(policy=steps["policy"][0], policy_opt=steps["policy"][1],
+                         critic=steps["critic"][0], critic_opt=steps["critic"][1],
+                         duals=mpo.clip_duals(steps["duals"][0]), dual_opt=steps["duals"][1],
+                         updates=state.updates + 1)
+  return state, metrics

@@ -1,0 +1,47 @@
+"""Where the learner's reward comes from.
+
+The learner never reads the task reward itself: it asks a reward source for the rewards of each
+sampled batch of unrolls. The task reward (experts) is one source; FORM and the imitation
+baselines are others (they train their own models from the replay and relabel). A source
+declares whether the replay must keep the task reward at all: when it does not, the task reward
+is never written to the replay, so no learner code can read it.
+
+A source is an object with:
+  needs_task_reward: bool
+  init(key, observation_size, action_size) -> source state (a pytree, replicated)
+  update(state, batch, key) -> (state, metrics): called once per learner update, before relabel
+  relabel(state, batch) -> rewards [B, T]
+where `batch` is a dict of unrolls: observation [B, T+1, D] (raw, not standardised), action
+[B, T, A], discount [B, T], and reward [B, T] only when needs_task_reward is set.
+"""
+
+from __future__ import annotations
+
+import jax
+
+
+class TaskReward:
+  """The environment's own reward (dm_control's), for experts."""
+
+  name = "task"
+  needs_task_reward = True
+
+  def init(self, key: jax.Array, observation_size: int, action_size: int) -> dict:
+    del key, observation_size, action_size
+    return {}
+
+  def update(self, state: dict, batch: dict, key: jax.Array) -> tuple[dict, dict]:
+    del batch, key
+    return state, {}
+
+  def relabel(self, state: dict, batch: dict) -> jax.Array:
+    del state
+    return batch["reward"]
+
+
+def make_reward_source(name: str):
+  """The reward source called `name` ('task' for now; imitation methods add theirs)."""
+  sources = {"task": TaskReward}
+  if name not in sources:
+    raise ValueError(f"unknown reward source {name!r}; valid: {', '.join(sources)}")
+  return sources[name]()

@@ -1,0 +1,147 @@
+"""The Python side of a training run: progress lines, CSV (and TensorBoard) logs, evaluation,
+checkpoints, resume, and the exported policy. Each step of work is one compiled
+`Trainer.iteration`; nothing here touches per-step data.
+
+Run directory layout:
+  config.json         the run's TrainConfig (a resumed run must match it)
+  progress.csv        one row per logged iteration: env steps, wall clock, steps/s, returns, losses
+  checkpoints/        orbax checkpoints of the whole TrainState (replay and env states included,
+                      so a stopped and resumed run ends where an uninterrupted one ends)
+  policy.npz          the final policy (+ observation normaliser), see mjx_form.policy_io
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import time
+
+import jax
+import numpy as np
+
+from mjx_form import checkpoint, policy_io
+from mjx_form.train import Trainer, TrainConfig, iterations_for
+
+# Settings that may change when a run is resumed (they do not change what is computed).
+RESUMABLE = ("total_env_steps", "log_every", "eval_every", "checkpoint_every")
+
+
+class RunError(ValueError):
+  """A run that cannot start as asked (e.g. an existing directory without --resume)."""
+
+
+def _scalar(x) -> float:
+  return float(np.asarray(x))
+
+
+class CsvLog:
+  """Appends rows to progress.csv (columns fixed by the first row) and, when tensorboardX is
+  installed, the same scalars to TensorBoard event files in the run directory."""
+
+  def __init__(self, directory: str):
+    self.path = os.path.join(directory, "progress.csv")
+    self._columns = None
+    if os.path.exists(self.path):
+      with open(self.path) as f:
+        header = f.readline().strip()
+      self._columns = header.split(",") if header else None
+    try:
+      from tensorboardX import SummaryWriter
+      self._tb = SummaryWriter(os.path.join(directory, "tb"))
+    except ImportError:
+      self._tb = None
+
+  def write(self, row: dict) -> None:
+    if self._columns is None:
+      self._columns = list(row)
+      with open(self.path, "w", newline="") as f:
+        csv.writer(f).writerow(self._columns)
+    with open(self.path, "a", newline="") as f:
+      csv.writer(f).writerow([row.get(c, "") for c in self._columns])
+    if self._tb is not None:
+      for k, v in row.items():
+        if isinstance(v, (int, float)) and k != "env_steps":
+          self._tb.add_scalar(k, v, row["env_steps"])
+      self._tb.flush()
+
+
+def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bool = False,
+        log_every: int = 1, eval_every: int = 10, checkpoint_every: int = 50,
+        mesh=None, print_fn=print) -> dict:
+  """Trains until `total_env_steps`; returns the last logged row (with the final evaluation)."""
+  run_settings = {"total_env_steps": total_env_steps, "log_every": log_every,
+                  "eval_every": eval_every, "checkpoint_every": checkpoint_every}
+  full_config = {**config.to_dict(), **run_settings}
+  ckpt_dir = os.path.join(os.path.abspath(directory), "checkpoints")
+  config_path = os.path.join(directory, "config.json")
+  if os.path.exists(config_path) and not resume:
+    raise RunError(f"{directory} already holds a run; pass --resume to continue it or choose "
+                   "another --run_dir (nothing was overwritten)")
+  if resume and not os.path.exists(config_path):
+    raise RunError(f"--resume: {directory} holds no run to continue")
+
+  trainer = Trainer(config, mesh)
+  state = trainer.init(jax.random.PRNGKey(config.seed))
+  if resume and checkpoint.latest_step(ckpt_dir) is not None:
+    state = checkpoint.restore(ckpt_dir, state, full_config, ignore=RESUMABLE)
+    print_fn(f"resumed from iteration {int(state.iteration)} ({ckpt_dir})")
+  os.makedirs(directory, exist_ok=True)
+  with open(config_path, "w") as f:
+    json.dump(full_config, f, indent=1)
+  log = CsvLog(directory)
+
+  total_iterations = iterations_for(config, total_env_steps)
+  steps_per_iteration = config.env_steps_per_iteration
+  print_fn(f"{config.task}: {config.num_envs} envs x {config.unroll_length}-step unrolls, "
+           f"{config.updates_per_iteration} updates per iteration (updates/env step "
+           f"{config.updates_per_env_step:.2e}, replay ratio {config.replay_ratio:.2f}), "
+           f"{total_iterations} iterations, physics {config.physics}, "
+           f"{trainer.mesh.devices.size} {jax.default_backend()} device(s)")
+  eval_key = jax.random.PRNGKey(config.seed + 1)
+  start_time = time.perf_counter()
+  start_iteration = int(state.iteration)
+  timed_steps, timed_seconds, row = 0, 0.0, {}
+  while int(state.iteration) < total_iterations:
+    t0 = time.perf_counter()
+    state, metrics = trainer.iteration(state)
+    metrics = jax.device_get(metrics)
+    seconds = time.perf_counter() - t0
+    iteration = int(state.iteration)
+    if iteration > start_iteration + 1:  # the first call compiles
+      timed_steps += steps_per_iteration
+      timed_seconds += seconds
+    last = iteration == total_iterations
+    row = {"iteration": iteration, "env_steps": iteration * steps_per_iteration,
+           "updates": int(state.learner.updates), "wall_s": time.perf_counter() - start_time,
+           "steps_per_s": timed_steps / timed_seconds if timed_seconds else float("nan"),
+           **{k: _scalar(v) for k, v in metrics.items()}}
+    if iteration % eval_every == 0 or last:
+      returns = np.asarray(trainer.evaluate(state.learner.policy, state.normalizer, eval_key))
+      row.update(eval_return=float(returns.mean()), eval_return_std=float(returns.std()))
+    if iteration % log_every == 0 or last or "eval_return" in row:
+      log.write(row)
+      evaluated = f"  eval {row['eval_return']:.1f}" if "eval_return" in row else ""
+      print_fn(f"iter {iteration}/{total_iterations}  steps {row['env_steps']:,}  "
+               f"{row['steps_per_s']:,.0f} steps/s  train return {row['train_return']:.1f}"
+               f"{evaluated}  q {row['q_mean']:.2f}  critic {row['critic_loss']:.3f}")
+    if iteration % checkpoint_every == 0 or last:
+      checkpoint.save(ckpt_dir, iteration, state, full_config)
+
+  export_policy(trainer, state, os.path.join(directory, "policy.npz"), row)
+  return row
+
+
+def export_policy(trainer: Trainer, state, path: str, row: dict) -> None:
+  """Writes the policy and its observation normaliser (a small, pickle-free file)."""
+  env, cfg = trainer.env, trainer.config
+  arrays = {"policy": jax.device_get(state.learner.policy),
+            "normalizer": {"mean": np.asarray(state.normalizer.mean),
+                           "var": np.asarray(state.normalizer.var)}}
+  metadata = {"task": cfg.task, "observation_size": env.observation_size,
+              "action_size": env.action_size,
+              "observation_layout": [[k, v] for k, v in env.observation_layout.items()],
+              "network_width": cfg.network_width, "physics": cfg.physics,
+              "env_steps": row.get("env_steps"), "eval_return": row.get("eval_return"),
+              "train_config": cfg.to_dict()}
+  policy_io.save_policy(path, arrays, metadata, overwrite=True)
