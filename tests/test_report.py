@@ -28,6 +28,8 @@ def test_report_detects_a_hand_edited_table():
 def test_throughput_table_lists_each_measurement():
   records = [{"kind": "env_throughput", "task": "cheetah_run", "physics": "parity",
               "num_envs": 2048, "device": "gpu:X", "versions": {}, "time": "t", "sps": 1.5e5,
-              "raw_sps": 2e5, "ratio_to_raw": 0.75, "settings": {}}]
+              "raw_sps": 2e5, "ratio_to_raw": 0.75,
+              "settings": {"solver": {"iterations": 10, "ls_iterations": 10,
+                                      "max_contact_points": 4}}}]
   table = report.throughput_table(records)
-  assert "| cheetah_run | parity | 2048 | 150k | 200k | 0.75 | - | - | - |" in table
+  assert "| cheetah_run | parity | 10/10 cull 4 | 2048 | 150k | 200k | 0.75 | - | - | - |" in table

@@ -167,3 +167,34 @@ def test_expert_learns_reacher_easy():
   assert after >= before + 150, (before, after)
   assert metrics[-1]["train_return"] > 100  # the sampling policy improved too
   assert np.isfinite([m["critic_loss"] for m in metrics]).all()
+
+
+def test_demonstrations_from_an_exported_expert(tmp_path, capsys):
+  """scripts/make_demos.py records K full episodes from a policy.npz and writes a file that
+  loads for its task and is refused for another."""
+  import importlib.util
+
+  from mjx_form import demos, runner
+  trainer = Trainer(CONFIG)
+  state = trainer.init(jax.random.PRNGKey(0))
+  runner.export_policy(trainer, state, str(tmp_path / "policy.npz"), {"env_steps": 0})
+  spec = importlib.util.spec_from_file_location(
+      "make_demos", os.path.join(os.path.dirname(os.path.dirname(__file__)), "scripts",
+                                 "make_demos.py"))
+  cli = importlib.util.module_from_spec(spec)
+  spec.loader.exec_module(cli)
+  out = tmp_path / "demos.npz"
+  args = ["--policy", str(tmp_path / "policy.npz"), "--out", str(out), "--episodes", "3",
+          "--chunk", "2", "--actions"]
+  assert cli.main(args) == 0
+  loaded = demos.load_demonstrations(out, task="reacher_easy", observation_size=6,
+                                     need_actions=True)
+  assert loaded.observations.shape == (3, 1001, 6) and loaded.actions.shape == (3, 1000, 2)
+  assert np.abs(loaded.actions).max() <= 1.0
+  assert loaded.metadata["physics"] == CONFIG.physics
+  # Each episode starts from its own fresh reset (reacher's target differs).
+  assert len({tuple(np.round(o[0], 5)) for o in loaded.observations}) == 3
+  with pytest.raises(demos.DemonstrationError, match="reacher_easy"):
+    demos.load_demonstrations(out, task="cheetah_run")
+  assert cli.main(args) == 2  # never overwritten without --overwrite
+  assert "exists" in capsys.readouterr().err
