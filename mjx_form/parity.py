@@ -121,6 +121,12 @@ def physics_batch(env: Task, states: dict, actions) -> mjx.Data:
 
 def observe_batch(env: Task, data: mjx.Data, task: dict) -> tuple[jax.Array, jax.Array]:
   """Flat observations and rewards of batched data (what `step` reports after physics)."""
+  return _observe_fn(env)(data, task)
+
+
+@functools.cache
+def _observe_fn(env: Task):
+  """One jitted observe per task object, so repeated calls (a rollout) do not re-trace."""
   def one(d, t):
     return flatten_observation(env.get_observation(d, t)), env.get_reward(d, t)
-  return jax.jit(jax.vmap(one))(data, task)
+  return jax.jit(jax.vmap(one))
