@@ -55,3 +55,19 @@ def best_time(fn, repeats: int) -> float:
     fn()
     times.append(time.perf_counter() - t0)
   return min(times)
+
+
+def time_compiled(fn, fn_args: tuple, steps: int, num_envs: int, repeats: int):
+  """Compiles jitted `fn` for `fn_args`, warms it up and times it: (steps/s, compile seconds).
+
+  `fn(state, key)` donates its first argument, so each timed call is fed the previous output.
+  """
+  import jax
+  t0 = time.perf_counter()
+  exe = fn.lower(*fn_args).compile()
+  compile_s = time.perf_counter() - t0
+  holder = [jax.block_until_ready(exe(*fn_args))]  # warm-up
+
+  def call():
+    holder[0] = jax.block_until_ready(exe(holder[0], fn_args[1]))
+  return steps * num_envs / best_time(call, repeats), compile_s

@@ -21,7 +21,6 @@ import argparse
 import hashlib
 import os
 import sys
-import time
 import xml.etree.ElementTree as ET
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
@@ -132,14 +131,7 @@ def main(argv=None) -> int:
 
   def measure(fn, fn_args, steps, num_envs, label):
     """Compiles, warms up and times `fn`; returns (steps/s, compile seconds)."""
-    t0 = time.perf_counter()
-    exe = fn.lower(*fn_args).compile()
-    compile_s = time.perf_counter() - t0
-    holder = [jax.block_until_ready(exe(*fn_args))]  # warm-up (inputs are donated)
-
-    def call():
-      holder[0] = jax.block_until_ready(exe(holder[0], fn_args[1]))
-    sps = steps * num_envs / common.best_time(call, args.repeats)
+    sps, compile_s = common.time_compiled(fn, fn_args, steps, num_envs, args.repeats)
     print(f"{label:<40}{sps:>14,.0f} steps/s  (compile {compile_s:.0f}s)", flush=True)
     return sps, compile_s
 

@@ -21,7 +21,6 @@ from __future__ import annotations
 import argparse
 import os
 import sys
-import time
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
@@ -96,15 +95,9 @@ def main(argv=None) -> int:
       if args.measure == "speed":
         data = env_throughput.copy_tree(jax.vmap(  # own buffers: the timed calls donate them
             lambda q, v: mjx.make_data(env.mjx_model).replace(qpos=q, qvel=v))(qpos, qvel))
-        fn = env_throughput.raw_fn(env, args.num_envs, args.steps)
-        t0 = time.perf_counter()
-        exe = fn.lower(data, key).compile()
-        compile_s = time.perf_counter() - t0
-        holder = [jax.block_until_ready(exe(data, key))]
-
-        def call():
-          holder[0] = jax.block_until_ready(exe(holder[0], key))
-        raw_sps = args.steps * args.num_envs / common.best_time(call, args.repeats)
+        raw_sps, compile_s = common.time_compiled(
+            env_throughput.raw_fn(env, args.num_envs, args.steps), (data, key), args.steps,
+            args.num_envs, args.repeats)
         parity_sps = parity_sps or raw_sps  # the first candidate is dm_control's settings
         record["settings"].update(num_envs=args.num_envs, steps=args.steps,
                                   repeats=args.repeats)
@@ -112,7 +105,7 @@ def main(argv=None) -> int:
                      compile_s=compile_s)
         print(f"{name:<16}{describe(settings):<16}{raw_sps:>12,.0f} raw steps/s "
               f"({raw_sps / parity_sps:.2f}x parity, compile {compile_s:.0f}s)", flush=True)
-        del holder, data
+        del data
       else:
         result = parity_error.measure(name, settings, ref)
         result.pop("solver")

@@ -33,20 +33,19 @@ All arrays are finite (no NaN or inf). The metadata object has these keys:
 
 The caller may add further keys to the metadata (JSON values); they are kept as given.
 Files are written atomically: a temporary file in the same directory, fsync, then `os.replace`
-(with overwrite=True) or a hard link, which fails rather than replace a file that exists. `load_demonstrations` checks all of the above
-and raises `DemonstrationError` naming the file and the problem.
+(with overwrite=True) or a hard link, which fails rather than replace a file that exists.
+`load_demonstrations` checks all of the above and raises `DemonstrationError` naming the file
+and the problem.
 """
 
 from __future__ import annotations
 
-import hashlib
-import json
 import os
-import tempfile
-import zipfile
 from typing import Any, NamedTuple
 
 import numpy as np
+
+from mjx_form import npz_files
 
 FORMAT = "mjx-form-demonstrations"
 VERSION = 1
@@ -65,30 +64,9 @@ class Demonstrations(NamedTuple):
   metadata: dict[str, Any]         # the file's metadata object (see the module docstring)
 
 
-def _layout_pairs(layout) -> list[list]:
-  """A layout (dict name -> size, or sequence of (name, size)) as [[name, size], ...]."""
-  items = layout.items() if isinstance(layout, dict) else layout
-  try:
-    pairs = [[name, size] for name, size in items]
-  except (TypeError, ValueError):
-    raise ValueError("observation_layout must be a dict or a list of [name, size] pairs, "
-                     f"got {layout!r}") from None
-  for name, size in pairs:
-    if (not isinstance(name, str) or isinstance(size, bool)
-        or not isinstance(size, (int, np.integer)) or size < 1):
-      raise ValueError(f"observation_layout entry [{name!r}, {size!r}] is not [str, positive int]")
-  return [[name, int(size)] for name, size in pairs]
-
-
 def checksum(arrays: dict[str, np.ndarray]) -> str:
   """The `sha256` metadata field of `arrays` (see the module docstring)."""
-  h = hashlib.sha256()
-  for name in _ARRAYS:
-    if name in arrays:
-      a = arrays[name]
-      h.update(f"{name}:{a.dtype.str}:{','.join(map(str, a.shape))}\n".encode())
-      h.update(np.ascontiguousarray(a).tobytes())
-  return h.hexdigest()
+  return npz_files.digest(arrays, _ARRAYS)
 
 
 def save_demonstrations(path, observations, actions=None, *, metadata: dict,
@@ -126,7 +104,7 @@ def save_demonstrations(path, observations, actions=None, *, metadata: dict,
   bad = [key for key in _RESERVED if key in meta]
   if bad:
     raise ValueError(f"metadata keys {bad} are written by save_demonstrations")
-  meta["observation_layout"] = _layout_pairs(meta["observation_layout"])
+  meta["observation_layout"] = npz_files.layout_pairs(meta["observation_layout"])
   layout_size = sum(size for _, size in meta["observation_layout"])
   if layout_size != d:
     raise ValueError(f"observation_layout sums to {layout_size} but observations have D = {d}")
@@ -137,51 +115,7 @@ def save_demonstrations(path, observations, actions=None, *, metadata: dict,
     if key in meta and meta[key] != value:
       raise ValueError(f"metadata {key}={meta[key]!r} disagrees with the arrays ({value!r})")
   meta.update(computed, format=FORMAT, version=VERSION, sha256=checksum(arrays))
-  try:
-    text = json.dumps(meta, sort_keys=True, allow_nan=False)
-  except (TypeError, ValueError) as e:
-    raise ValueError(f"metadata is not JSON-serialisable: {e}") from None
-  arrays["metadata"] = np.frombuffer(text.encode("utf-8"), dtype=np.uint8)
-
-  if not overwrite and os.path.exists(path):
-    raise FileExistsError(f"{path} exists; pass overwrite=True to replace it")
-  directory = os.path.dirname(os.path.abspath(path))
-  fd, tmp = tempfile.mkstemp(dir=directory, prefix=f".{os.path.basename(path)}.", suffix=".tmp")
-  try:
-    with os.fdopen(fd, "wb") as f:
-      np.savez(f, allow_pickle=False, **arrays)
-      f.flush()
-      os.fsync(f.fileno())
-    if overwrite:
-      os.replace(tmp, path)
-    else:
-      try:
-        os.link(tmp, path)  # atomic and never clobbers: fails if `path` appeared meanwhile
-      except FileExistsError:
-        raise FileExistsError(f"{path} exists; pass overwrite=True to replace it") from None
-      except OSError:  # no hard links on this file system: checked above, replace
-        os.replace(tmp, path)
-      else:
-        os.unlink(tmp)
-  except BaseException:
-    if os.path.exists(tmp):
-      os.unlink(tmp)
-    raise
-  _fsync_directory(directory)
-  return path
-
-
-def _fsync_directory(directory: str) -> None:
-  try:
-    fd = os.open(directory, os.O_RDONLY)
-  except OSError:
-    return
-  try:
-    os.fsync(fd)
-  except OSError:
-    pass
-  finally:
-    os.close(fd)
+  return npz_files.write(path, arrays, meta, overwrite=overwrite)
 
 
 def _read(path: str) -> tuple[dict, dict[str, np.ndarray]]:
@@ -189,39 +123,11 @@ def _read(path: str) -> tuple[dict, dict[str, np.ndarray]]:
   def fail(problem):
     return DemonstrationError(f"{path}: {problem}")
 
-  if not os.path.isfile(path):
-    raise fail("no such demonstration file")
-  try:
-    npz = np.load(path, allow_pickle=False)
-    if not isinstance(npz, np.lib.npyio.NpzFile):  # a plain .npy array
-      raise fail("not an .npz archive")
-    with npz:
-      entries = {name: npz[name] for name in npz.files}
-  except (zipfile.BadZipFile, OSError, ValueError, EOFError, KeyError) as e:
-    if isinstance(e, DemonstrationError):
-      raise
-    problem = "not a readable .npz archive of plain arrays (truncated, corrupt or pickled?)"
-    raise fail(f"{problem}: {e}") from None
-
+  entries = npz_files.read(path, "demonstration file", fail)
   unknown = sorted(set(entries) - {"metadata", *_ARRAYS})
   if unknown or "metadata" not in entries or "observations" not in entries:
     raise fail(f"entries {sorted(entries)}; expected metadata, observations and optionally actions")
-  raw = entries.pop("metadata")
-  try:
-    if raw.dtype == np.uint8 and raw.ndim == 1:
-      meta = json.loads(raw.tobytes().decode("utf-8"))
-    elif raw.dtype.kind == "U" and raw.ndim == 0:
-      meta = json.loads(str(raw))
-    else:
-      raise ValueError(f"metadata entry has dtype {raw.dtype} and shape {raw.shape}")
-  except ValueError as e:
-    raise fail(f"unreadable metadata: {e}") from None
-  if not isinstance(meta, dict):
-    raise fail("metadata is not a JSON object")
-  if meta.get("format") != FORMAT:
-    raise fail(f"unknown format {meta.get('format')!r} (expected {FORMAT!r})")
-  if meta.get("version") != VERSION:
-    raise fail(f"unsupported format version {meta.get('version')!r} (this reader knows {VERSION})")
+  meta = npz_files.metadata(entries.pop("metadata"), fail, FORMAT, VERSION, accept_unicode=True)
 
   types = dict(task=str, observation_layout=list, observation_size=int, episodes=int, steps=int,
                physics=str, expert=dict, has_actions=bool, sha256=str)
@@ -230,7 +136,7 @@ def _read(path: str) -> tuple[dict, dict[str, np.ndarray]]:
     if not isinstance(value, kind) or (kind is int and isinstance(value, bool)):
       raise fail(f"metadata {key!r} is {value!r}, expected a {kind.__name__}")
   try:
-    meta["observation_layout"] = _layout_pairs(meta["observation_layout"])
+    meta["observation_layout"] = npz_files.layout_pairs(meta["observation_layout"])
   except ValueError as e:
     raise fail(f"bad metadata: {e}") from None
   layout_size = sum(size for _, size in meta["observation_layout"])
@@ -277,7 +183,7 @@ def load_demonstrations(path, *, task: str | None = None, observation_size: int 
     raise DemonstrationError(f"{path}: observation size {meta['observation_size']} does not match "
                              f"this run's {observation_size}")
   if observation_layout is not None:
-    ours = _layout_pairs(observation_layout)
+    ours = npz_files.layout_pairs(observation_layout)
     if meta["observation_layout"] != ours:
       raise DemonstrationError(f"{path}: observation layout {meta['observation_layout']} does not "
                                f"match this run's {ours}")

@@ -8,6 +8,7 @@ over a vmapped batch) and returns what `mjx_form.demos.save_demonstrations` stor
 
 from __future__ import annotations
 
+import functools
 from typing import NamedTuple
 
 import jax
@@ -43,15 +44,23 @@ def record(env: env_lib.Task, expert: Expert, key: jax.Array, episodes: int,
   Returns observations [K, T+1, D], actions [K, T, A] (clipped to [-1, 1], what the simulator
   applied) and task returns [K]. Actions are the policy's mean unless `stochastic`.
   """
-  policy = make_networks(env.action_size, expert.metadata["network_width"]).policy
+  rollout = _rollout_fn(env, expert.metadata["network_width"], episodes, stochastic)
+  obs, actions, returns = jax.device_get(rollout(expert.params, expert.normalizer, key))
+  return np.asarray(obs, np.float32), np.asarray(actions, np.float32), np.asarray(returns)
+
+
+@functools.cache
+def _rollout_fn(env: env_lib.Task, network_width: int, episodes: int, stochastic: bool):
+  """The jitted rollout of `record`, built once per task object and size (chunks reuse it)."""
+  policy = make_networks(env.action_size, network_width).policy
 
   @jax.jit
-  def rollout(key):
+  def rollout(params, norm, key):
     reset_key, action_key = jax.random.split(key)
     states = jax.vmap(env.reset)(jax.random.split(reset_key, episodes))
 
     def step(states, key):
-      pi = policy.apply(expert.params, normalizer.normalize(expert.normalizer, states.obs))
+      pi = policy.apply(params, normalizer.normalize(norm, states.obs))
       action = jnp.clip(pi.sample(key) if stochastic else pi.mode(), -1.0, 1.0)
       next_states = jax.vmap(env.step)(states, action)
       return next_states, (states.obs, action, next_states.reward)
@@ -61,5 +70,4 @@ def record(env: env_lib.Task, expert: Expert, key: jax.Array, episodes: int,
     obs = jnp.concatenate([obs, final.obs[None]])  # [T+1, K, D]
     return jnp.swapaxes(obs, 0, 1), jnp.swapaxes(actions, 0, 1), rewards.sum(axis=0)
 
-  obs, actions, returns = jax.device_get(rollout(key))
-  return np.asarray(obs, np.float32), np.asarray(actions, np.float32), np.asarray(returns)
+  return rollout

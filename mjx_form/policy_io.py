@@ -32,17 +32,12 @@ hard link); `load_policy` checks all of the above and raises `PolicyFileError`.
 
 from __future__ import annotations
 
-import hashlib
-import json
 import os
-import tempfile
-import zipfile
-import zlib
 from typing import Any, Mapping
 
 import numpy as np
 
-from mjx_form.demos import _fsync_directory, _layout_pairs
+from mjx_form import npz_files
 
 FORMAT = "mjx-form-policy"
 VERSION = 1
@@ -92,12 +87,7 @@ def _unflatten(flat: dict[str, np.ndarray]) -> dict[str, Any]:
 
 def checksum(arrays: dict[str, np.ndarray]) -> str:
   """The `sha256` metadata field of the flattened arrays (see the module docstring)."""
-  h = hashlib.sha256()
-  for name in sorted(arrays):
-    a = arrays[name]
-    h.update(f"{name}:{a.dtype.str}:{','.join(map(str, a.shape))}\n".encode())
-    h.update(np.ascontiguousarray(a).tobytes())
-  return h.hexdigest()
+  return npz_files.digest(arrays, sorted(arrays))
 
 
 def _is_size(value) -> bool:
@@ -125,7 +115,7 @@ def save_policy(path, params, metadata: dict, overwrite: bool = False) -> str:
     if not _is_size(meta[key]):
       raise ValueError(f"metadata {key!r} must be a positive int, got {meta[key]!r}")
   if "observation_layout" in meta:
-    meta["observation_layout"] = _layout_pairs(meta["observation_layout"])
+    meta["observation_layout"] = npz_files.layout_pairs(meta["observation_layout"])
     total = sum(size for _, size in meta["observation_layout"])
     if total != meta["observation_size"]:
       raise ValueError(f"observation_layout sums to {total}, "
@@ -134,38 +124,7 @@ def save_policy(path, params, metadata: dict, overwrite: bool = False) -> str:
   if reserved:
     raise ValueError(f"metadata keys {reserved} are written by save_policy")
   meta.update(format=FORMAT, version=VERSION, sha256=checksum(arrays))
-  try:
-    text = json.dumps(meta, sort_keys=True, allow_nan=False)
-  except (TypeError, ValueError) as e:
-    raise ValueError(f"metadata is not JSON-serialisable: {e}") from None
-  entries = {**arrays, "metadata": np.frombuffer(text.encode("utf-8"), dtype=np.uint8)}
-
-  if not overwrite and os.path.exists(path):
-    raise FileExistsError(f"{path} exists; pass overwrite=True to replace it")
-  directory = os.path.dirname(os.path.abspath(path))
-  fd, tmp = tempfile.mkstemp(dir=directory, prefix=f".{os.path.basename(path)}.", suffix=".tmp")
-  try:
-    with os.fdopen(fd, "wb") as f:
-      np.savez_compressed(f, allow_pickle=False, **entries)
-      f.flush()
-      os.fsync(f.fileno())
-    if overwrite:
-      os.replace(tmp, path)
-    else:
-      try:
-        os.link(tmp, path)  # atomic and never clobbers: fails if `path` appeared meanwhile
-      except FileExistsError:
-        raise FileExistsError(f"{path} exists; pass overwrite=True to replace it") from None
-      except OSError:  # no hard links on this file system: checked above, replace
-        os.replace(tmp, path)
-      else:
-        os.unlink(tmp)
-  except BaseException:
-    if os.path.exists(tmp):
-      os.unlink(tmp)
-    raise
-  _fsync_directory(directory)
-  return path
+  return npz_files.write(path, arrays, meta, overwrite=overwrite, compress=True)
 
 
 def _read(path: str) -> tuple[dict[str, np.ndarray], dict]:
@@ -173,35 +132,11 @@ def _read(path: str) -> tuple[dict[str, np.ndarray], dict]:
   def fail(problem):
     return PolicyFileError(f"{path}: {problem}")
 
-  if not os.path.isfile(path):
-    raise fail("no such policy file")
-  try:
-    npz = np.load(path, allow_pickle=False)
-    if not isinstance(npz, np.lib.npyio.NpzFile):
-      raise fail("not an .npz archive")
-    with npz:
-      entries = {name: npz[name] for name in npz.files}
-  except PolicyFileError:
-    raise
-  except (zipfile.BadZipFile, zlib.error, OSError, ValueError, EOFError, KeyError) as e:
-    problem = "not a readable .npz archive of plain arrays (truncated, corrupt or pickled?)"
-    raise fail(f"{problem}: {e}") from None
-
+  entries = npz_files.read(path, "policy file", fail)
   raw = entries.pop("metadata", None)
   if raw is None:
     raise fail("no metadata entry")
-  try:
-    if raw.dtype != np.uint8 or raw.ndim != 1:
-      raise ValueError(f"metadata entry has dtype {raw.dtype} and shape {raw.shape}")
-    meta = json.loads(raw.tobytes().decode("utf-8"))
-  except ValueError as e:
-    raise fail(f"unreadable metadata: {e}") from None
-  if not isinstance(meta, dict):
-    raise fail("metadata is not a JSON object")
-  if meta.get("format") != FORMAT:
-    raise fail(f"unknown format {meta.get('format')!r} (expected {FORMAT!r})")
-  if meta.get("version") != VERSION:
-    raise fail(f"unsupported format version {meta.get('version')!r} (this reader knows {VERSION})")
+  meta = npz_files.metadata(raw, fail, FORMAT, VERSION)
   if not isinstance(meta.get("task"), str):
     raise fail(f"metadata 'task' is {meta.get('task')!r}, expected a str")
   for key in ("observation_size", "action_size"):
@@ -231,7 +166,7 @@ def load_policy(path, *, task: str | None = None, observation_size: int | None =
       what = key.replace("_", " ")
       raise PolicyFileError(f"{path}: the policy's {what} is {meta[key]}, this run's is {ours}")
   if observation_layout is not None:
-    ours = _layout_pairs(observation_layout)
+    ours = npz_files.layout_pairs(observation_layout)
     if meta.get("observation_layout") != ours:
       raise PolicyFileError(f"{path}: the policy's observation layout "
                             f"{meta.get('observation_layout')} does not match this run's {ours}")

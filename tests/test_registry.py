@@ -1,6 +1,5 @@
 """Task registry, specs and models against dm_control's (no compilation of MJX steps here)."""
 
-import mujoco
 import numpy as np
 import pytest
 

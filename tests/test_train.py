@@ -2,6 +2,7 @@
 settings checks and the command line (small sizes, reacher_easy: no contacts, cheap to compile)."""
 
 import dataclasses
+import importlib.util
 import json
 import os
 
@@ -114,6 +115,15 @@ def test_bad_settings_are_refused(change, message):
     dataclasses.replace(CONFIG, **change).check(2)
 
 
+def _load_script(name: str):
+  """scripts/<name>.py as a module, so its main() runs in this process (compiles are shared)."""
+  path = os.path.join(os.path.dirname(os.path.dirname(__file__)), "scripts", f"{name}.py")
+  spec = importlib.util.spec_from_file_location(f"script_{name}", path)
+  module = importlib.util.module_from_spec(spec)
+  spec.loader.exec_module(module)
+  return module
+
+
 def _cli_args(run_dir, *extra):
   return ["--task", "reacher_easy", "--method", "expert", "--num_envs", "4",
           "--unroll_length", "10", "--batch_size", "4", "--replay_capacity", "12",
@@ -123,11 +133,7 @@ def _cli_args(run_dir, *extra):
 
 
 def test_command_line_trains_resumes_and_refuses_mismatches(tmp_path, capsys):
-  import importlib.util
-  spec = importlib.util.spec_from_file_location(
-      "run_cli", os.path.join(os.path.dirname(os.path.dirname(__file__)), "scripts", "run.py"))
-  cli = importlib.util.module_from_spec(spec)
-  spec.loader.exec_module(cli)
+  cli = _load_script("run")
   run_dir = tmp_path / "run"
   assert cli.main(_cli_args(run_dir, "--env_steps", "80")) == 0  # 2 iterations
   out = capsys.readouterr().out
@@ -172,17 +178,11 @@ def test_expert_learns_reacher_easy():
 def test_demonstrations_from_an_exported_expert(tmp_path, capsys):
   """scripts/make_demos.py records K full episodes from a policy.npz and writes a file that
   loads for its task and is refused for another."""
-  import importlib.util
-
   from mjx_form import demos, runner
   trainer = Trainer(CONFIG)
   state = trainer.init(jax.random.PRNGKey(0))
   runner.export_policy(trainer, state, str(tmp_path / "policy.npz"), {"env_steps": 0})
-  spec = importlib.util.spec_from_file_location(
-      "make_demos", os.path.join(os.path.dirname(os.path.dirname(__file__)), "scripts",
-                                 "make_demos.py"))
-  cli = importlib.util.module_from_spec(spec)
-  spec.loader.exec_module(cli)
+  cli = _load_script("make_demos")
   out = tmp_path / "demos.npz"
   args = ["--policy", str(tmp_path / "policy.npz"), "--out", str(out), "--episodes", "3",
           "--chunk", "2", "--actions"]
