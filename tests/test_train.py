@@ -158,8 +158,8 @@ def test_command_line_trains_resumes_and_refuses_mismatches(tmp_path, capsys):
 
 
 def test_expert_learns_reacher_easy():
-  """A short MPO run on the task reward: the mean-action return clearly improves
-  (seen here: 0 at the start, 380-530 after 100-140 iterations of 1600 env steps)."""
+  """A short MPO run on the task reward (100 iterations of 1600 env steps): the mean-action
+  return of the same 16 evaluation episodes clearly improves."""
   config = TrainConfig(task="reacher_easy", num_envs=32, unroll_length=50, batch_size=16,
                        replay_capacity=2048, updates_per_iteration=16, network_width=64,
                        eval_envs=16, learner=LearnerConfig(num_action_samples=8,
