@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import datetime
-import json
 import os
 import sys
 import time
@@ -13,33 +12,7 @@ RESULTS_DIR = os.path.join(ROOT, "benchmarks", "results")
 if ROOT not in sys.path:
   sys.path.insert(0, ROOT)
 
-
-def versions() -> dict:
-  import jax
-  import mujoco
-  return {"jax": jax.__version__, "mujoco": mujoco.__version__, "python": sys.version.split()[0]}
-
-
-def device_name() -> str:
-  import jax
-  d = jax.devices()[0]
-  return f"{d.platform}:{getattr(d, 'device_kind', d.platform)} x{jax.device_count()}"
-
-
-class ResultWriter:
-  """Appends one JSON record per measurement to `path`, flushing each line."""
-
-  def __init__(self, path: str):
-    os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
-    self.path = path
-    self._common = {"device": device_name(), "versions": versions()}
-
-  def write(self, **record) -> dict:
-    record = {**record, **self._common,
-              "time": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")}
-    with open(self.path, "a") as f:
-      f.write(json.dumps(record) + "\n")
-    return record
+from mjx_form.results import ResultWriter, device_name, versions  # noqa: E402,F401
 
 
 def default_results_path(what: str) -> str:

@@ -5,6 +5,9 @@ checkpoints, resume, and the exported policy. Each step of work is one compiled
 Run directory layout:
   config.json         the run's TrainConfig (a resumed run must match it)
   progress.csv        one row per logged iteration: env steps, wall clock, steps/s, returns, losses
+                      (wall clock counts on across resumes: a resumed run continues the clock
+                      of the checkpoint it starts from, and rows logged after that checkpoint
+                      are dropped)
   checkpoints/        orbax checkpoints of the whole TrainState (replay and env states included,
                       so a stopped and resumed run ends where an uninterrupted one ends)
   policy.npz          the final policy (+ observation normaliser), see mjx_form.policy_io
@@ -20,11 +23,15 @@ import time
 import jax
 import numpy as np
 
-from mjx_form import checkpoint, policy_io
+from mjx_form import checkpoint, policy_io, results
 from mjx_form.train import Trainer, TrainConfig, iterations_for
 
 # Settings that may change when a run is resumed (they do not change what is computed).
 RESUMABLE = ("total_env_steps", "log_every", "eval_every", "checkpoint_every")
+
+
+# Columns that not every row has (evaluation rows; devices that report memory).
+_OPTIONAL_COLUMNS = ("eval_return", "eval_return_std", "peak_memory_bytes")
 
 
 class RunError(ValueError):
@@ -52,9 +59,23 @@ class CsvLog:
     except ImportError:
       self._tb = None
 
+  def rewind(self, iteration: int) -> float:
+    """Drops the rows after `iteration` (logged after the checkpoint a run resumes from);
+    returns the wall clock of the last row kept (0 if none)."""
+    if not os.path.exists(self.path):
+      return 0.0
+    with open(self.path, newline="") as f:
+      rows = list(csv.DictReader(f))
+    kept = [r for r in rows if int(r["iteration"]) <= iteration]
+    with open(self.path, "w", newline="") as f:
+      writer = csv.DictWriter(f, fieldnames=self._columns)
+      writer.writeheader()
+      writer.writerows(kept)
+    return float(kept[-1]["wall_s"]) if kept else 0.0
+
   def write(self, row: dict) -> None:
     if self._columns is None:
-      self._columns = list(row)
+      self._columns = list(row) + [c for c in _OPTIONAL_COLUMNS if c not in row]
       with open(self.path, "w", newline="") as f:
         csv.writer(f).writerow(self._columns)
     with open(self.path, "a", newline="") as f:
@@ -68,8 +89,14 @@ class CsvLog:
 
 def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bool = False,
         log_every: int = 1, eval_every: int = 10, checkpoint_every: int = 50,
+        max_seconds: float | None = None, results_path: str | None = None,
         mesh=None, print_fn=print) -> dict:
-  """Trains until `total_env_steps`; returns the last logged row (with the final evaluation)."""
+  """Trains until `total_env_steps`; returns the last logged row (with the final evaluation).
+
+  `max_seconds`: stop once this process has run that long (checked after each iteration);
+  the state is checkpointed and the policy exported, so `resume=True` continues the run.
+  `results_path`: where `kind: learning_curve` records (one per evaluation) are appended.
+  """
   run_settings = {"total_env_steps": total_env_steps, "log_every": log_every,
                   "eval_every": eval_every, "checkpoint_every": checkpoint_every}
   full_config = {**config.to_dict(), **run_settings}
@@ -80,7 +107,10 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
                    "another --run_dir (nothing was overwritten)")
   if resume and not os.path.exists(config_path):
     raise RunError(f"--resume: {directory} holds no run to continue")
+  if max_seconds is not None and max_seconds <= 0:
+    raise RunError(f"max_seconds must be positive, got {max_seconds}")
 
+  process_start = time.perf_counter()
   trainer = Trainer(config, mesh)
   state = trainer.init(jax.random.PRNGKey(config.seed))
   if resume and checkpoint.latest_step(ckpt_dir) is not None:
@@ -90,6 +120,8 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
   with open(config_path, "w") as f:
     json.dump(full_config, f, indent=1)
   log = CsvLog(directory)
+  wall_offset = log.rewind(int(state.iteration)) if resume else 0.0
+  curve = results.ResultWriter(results_path) if results_path else None
 
   total_iterations = iterations_for(config, total_env_steps)
   steps_per_iteration = config.env_steps_per_iteration
@@ -99,9 +131,8 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
            f"{total_iterations} iterations, physics {config.physics}, "
            f"{trainer.mesh.devices.size} {jax.default_backend()} device(s)")
   eval_key = jax.random.PRNGKey(config.seed + 1)
-  start_time = time.perf_counter()
   start_iteration = int(state.iteration)
-  timed_steps, timed_seconds, row = 0, 0.0, {}
+  timed_steps, timed_seconds, eval_seconds, row = 0, 0.0, 0.0, {}
   while int(state.iteration) < total_iterations:
     t0 = time.perf_counter()
     state, metrics = trainer.iteration(state)
@@ -111,25 +142,59 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
     if iteration > start_iteration + 1:  # the first call compiles
       timed_steps += steps_per_iteration
       timed_seconds += seconds
-    last = iteration == total_iterations
+    finished = iteration == total_iterations
+    out_of_time = (max_seconds is not None
+                   and time.perf_counter() - process_start >= max_seconds)
+    last = finished or out_of_time
     row = {"iteration": iteration, "env_steps": iteration * steps_per_iteration,
-           "updates": int(state.learner.updates), "wall_s": time.perf_counter() - start_time,
+           "updates": int(state.learner.updates),
            "steps_per_s": timed_steps / timed_seconds if timed_seconds else float("nan"),
            **{k: _scalar(v) for k, v in metrics.items()}}
     if iteration % eval_every == 0 or last:
+      t0 = time.perf_counter()
       returns = np.asarray(trainer.evaluate(state.learner.policy, state.normalizer, eval_key))
+      eval_seconds += time.perf_counter() - t0
       row.update(eval_return=float(returns.mean()), eval_return_std=float(returns.std()))
-    if iteration % log_every == 0 or last or "eval_return" in row:
+    # Wall clock of the run so far (compilation and evaluation included); eval_s is the part
+    # spent in evaluation in this process.
+    row["wall_s"] = wall_offset + time.perf_counter() - process_start
+    row["eval_s"] = eval_seconds
+    peak = results.peak_memory_bytes()
+    if peak is not None:
+      row["peak_memory_bytes"] = peak
+    checkpointed = iteration % checkpoint_every == 0 or last
+    if iteration % log_every == 0 or last or "eval_return" in row or checkpointed:
       log.write(row)
       evaluated = f"  eval {row['eval_return']:.1f}" if "eval_return" in row else ""
       print_fn(f"iter {iteration}/{total_iterations}  steps {row['env_steps']:,}  "
-               f"{row['steps_per_s']:,.0f} steps/s  train return {row['train_return']:.1f}"
-               f"{evaluated}  q {row['q_mean']:.2f}  critic {row['critic_loss']:.3f}")
-    if iteration % checkpoint_every == 0 or last:
+               f"{row['wall_s']:.0f}s  {row['steps_per_s']:,.0f} steps/s  "
+               f"train return {row['train_return']:.1f}{evaluated}  q {row['q_mean']:.2f}  "
+               f"critic {row['critic_loss']:.3f}")
+    if curve is not None and "eval_return" in row:
+      _write_curve_point(curve, config, row, eval_episodes=returns.size,
+                         total_env_steps=total_env_steps, devices=trainer.mesh.devices.size)
+    if checkpointed:
       checkpoint.save(ckpt_dir, iteration, state, full_config)
+    if out_of_time and not finished:
+      print_fn(f"stopped after {max_seconds:.0f}s at iteration {iteration}/{total_iterations} "
+               f"(checkpointed; continue with --resume)")
+      break
 
   export_policy(trainer, state, os.path.join(directory, "policy.npz"), row)
   return row
+
+
+def _write_curve_point(writer: results.ResultWriter, config: TrainConfig, row: dict, *,
+                       eval_episodes: int, total_env_steps: int, devices: int) -> None:
+  """One `kind: learning_curve` record: evaluation return at this point of the run."""
+  settings = {**config.to_dict(), "updates_per_env_step": config.updates_per_env_step,
+              "replay_ratio": config.replay_ratio, "total_env_steps": total_env_steps,
+              "eval_episodes": eval_episodes, "devices": devices}
+  fields = ("iteration", "env_steps", "updates", "wall_s", "eval_s", "steps_per_s",
+            "eval_return", "eval_return_std", "train_return", "peak_memory_bytes")
+  writer.write(kind="learning_curve", task=config.task, method="expert",
+               physics=config.physics, num_envs=config.num_envs, seed=config.seed,
+               settings=settings, **{k: row[k] for k in fields if k in row})
 
 
 def export_policy(trainer: Trainer, state, path: str, row: dict) -> None:

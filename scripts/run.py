@@ -72,6 +72,12 @@ def parse_args(argv=None) -> argparse.Namespace:
   train.add_argument("--eval_envs", type=int, default=defaults.eval_envs)
   train.add_argument("--eval_every", type=int, default=10, help="iterations between evaluations")
   train.add_argument("--checkpoint_every", type=int, default=50, help="iterations")
+  train.add_argument("--max_seconds", type=float, default=None,
+                     help="stop (checkpointed, policy exported) after this many seconds; "
+                          "--resume continues")
+  train.add_argument("--results", default=None,
+                     help="append kind=learning_curve records (one per evaluation) to this "
+                          ".jsonl file (default <run_dir>/learning_curve.jsonl)")
   args = parser.parse_args(argv)
   if args.list:
     return args
@@ -82,6 +88,8 @@ def parse_args(argv=None) -> argparse.Namespace:
   for name in ("num_envs", "steps", "log_every", "env_steps", "eval_every", "checkpoint_every"):
     if getattr(args, name) <= 0:
       parser.error(f"--{name} must be a positive integer, got {getattr(args, name)}")
+  if args.max_seconds is not None and args.max_seconds <= 0:
+    parser.error(f"--max_seconds must be positive, got {args.max_seconds}")
   return args
 
 
@@ -155,12 +163,17 @@ def main(argv=None) -> int:
       config.check(mesh.devices.size)
       row = runner.run(config, run_dir, args.env_steps, resume=args.resume,
                        log_every=args.log_every, eval_every=args.eval_every,
-                       checkpoint_every=args.checkpoint_every, mesh=mesh,
+                       checkpoint_every=args.checkpoint_every, max_seconds=args.max_seconds,
+                       results_path=args.results or os.path.join(run_dir,
+                                                                 "learning_curve.jsonl"),
+                       mesh=mesh,
                        print_fn=lambda line: print(line, flush=True))
     except ValueError as e:  # bad settings, an existing run, a checkpoint of another config
       print(f"error: {e}", file=sys.stderr)
       return 2
-    print(f"done: eval return {row.get('eval_return', float('nan')):.1f} after "
+    finished = row["env_steps"] >= args.env_steps
+    print(f"{'done' if finished else 'stopped'}: "
+          f"eval return {row.get('eval_return', float('nan')):.1f} after "
           f"{row['env_steps']:,} env steps; policy in {os.path.join(run_dir, 'policy.npz')}")
     return 0
   try:

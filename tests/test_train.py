@@ -1,6 +1,7 @@
 """The compiled training loop: device-count independence, exact resume, reward routing,
 settings checks and the command line (small sizes, reacher_easy: no contacts, cheap to compile)."""
 
+import csv
 import dataclasses
 import importlib.util
 import json
@@ -135,12 +136,28 @@ def _cli_args(run_dir, *extra):
 def test_command_line_trains_resumes_and_refuses_mismatches(tmp_path, capsys):
   cli = _load_script("run")
   run_dir = tmp_path / "run"
-  assert cli.main(_cli_args(run_dir, "--env_steps", "80")) == 0  # 2 iterations
+  curve = tmp_path / "curve.jsonl"
+  # A time budget stops the run after its first iteration, checkpointed and exported ...
+  assert cli.main(_cli_args(run_dir, "--env_steps", "80", "--max_seconds", "0.001",
+                            "--results", str(curve))) == 0  # 2 iterations asked for
   out = capsys.readouterr().out
-  assert "eval" in out and "steps/s" in out
+  assert "stopped after" in out and "eval" in out and "steps/s" in out
+  assert checkpoint.latest_step(str(run_dir / "checkpoints")) == 1
+  assert policy_io.load_policy(run_dir / "policy.npz", task="reacher_easy")[1]["env_steps"] == 40
+  # ... and --resume finishes it, the wall clock continuing from the checkpoint's.
+  assert cli.main(_cli_args(run_dir, "--env_steps", "80", "--resume",
+                            "--results", str(curve))) == 0
+  assert "resumed from iteration 1" in capsys.readouterr().out
   with open(run_dir / "progress.csv") as f:
-    rows = f.read().splitlines()
-  assert rows[0].startswith("iteration,env_steps") and len(rows) == 3
+    rows = list(csv.DictReader(f))
+  assert [int(r["iteration"]) for r in rows] == [1, 2]
+  assert all(r["eval_return"] != "" for r in rows)  # both evaluated (the stop, then the end)
+  assert float(rows[1]["wall_s"]) > float(rows[0]["wall_s"]) > 0
+  records = [json.loads(line) for line in open(curve)]
+  assert [(r["kind"], r["task"], r["iteration"], r["env_steps"]) for r in records] == [
+      ("learning_curve", "reacher_easy", 1, 40), ("learning_curve", "reacher_easy", 2, 80)]
+  assert records[1]["wall_s"] == float(rows[1]["wall_s"])
+  assert records[0]["settings"]["replay_ratio"] == 2 * 4 / 4  # updates x batch / envs
   params, meta = policy_io.load_policy(run_dir / "policy.npz", task="reacher_easy")
   assert meta["env_steps"] == 80 and "policy" in params and "normalizer" in params
   assert json.load(open(run_dir / "config.json"))["num_envs"] == 4
