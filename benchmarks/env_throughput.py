@@ -10,7 +10,9 @@ actions drawn on the device:
   - peer: MuJoCo Playground's version of the task (`impl="jax"`, its own settings), where one
           exists (none for quadruped), its unwrapped `step`.
 All three run `--steps` control steps inside one jitted `lax.scan`; the time is the best of
-`--repeats` calls after a warm-up call, compile time recorded apart.
+`--repeats` calls after a warm-up call, compile time recorded apart. Tasks are prepared and
+compiled in parallel threads first (`--compile_threads`); then the timed calls run one at a
+time, so no measurement shares the device or the host with other work.
 
   python benchmarks/env_throughput.py --tasks cheetah_run --num_envs 2048 8192
 """
@@ -18,9 +20,12 @@ All three run `--steps` control steps inside one jitted `lax.scan`; the time is 
 from __future__ import annotations
 
 import argparse
+import concurrent.futures
 import hashlib
 import os
 import sys
+import threading
+import time
 import xml.etree.ElementTree as ET
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
@@ -109,6 +114,62 @@ def model_digest(env) -> str:
   return hashlib.sha256(xml.encode()).hexdigest()[:16]
 
 
+class Job:
+  """One function to time: compiled ahead (possibly in a worker thread), timed later."""
+
+  def __init__(self, label: str, fn, fn_args: tuple, steps: int, num_envs: int):
+    self.label, self.fn, self.fn_args, self.steps, self.num_envs = (
+        label, fn, fn_args, steps, num_envs)
+    self.exe, self.compile_s, self.sps = None, None, None
+
+  def compile(self) -> "Job":
+    t0 = time.perf_counter()
+    self.exe = self.fn.lower(*self.fn_args).compile()
+    self.compile_s = time.perf_counter() - t0
+    return self
+
+  def time(self, repeats: int) -> float:
+    self.sps = common.time_executable(self.exe, self.fn_args, self.steps, self.num_envs,
+                                      repeats)
+    print(f"{self.label:<40}{self.sps:>14,.0f} steps/s  (compile {self.compile_s:.0f}s)",
+          flush=True)
+    self.fn_args = None  # frees the device buffers
+    return self.sps
+
+
+def task_jobs(name: str, args, key, peer_lock: threading.Lock) -> list[dict]:
+  """The jobs of one task: for each size, the peer (if any) and, per physics mode, ours and
+  raw. Returns one entry per (size, physics) with its jobs; raw jobs may be shared later."""
+  base = min(args.num_envs)
+  envs = {physics: tasks.make(name, physics=physics) for physics in args.physics}
+  reset = jax.jit(lambda k, env: AutoReset(env).reset(k, base), static_argnums=1)
+  starts = {physics: jax.block_until_ready(reset(key, env)) for physics, env in envs.items()}
+  entries = []
+  for num_envs in args.num_envs:
+    peer = None
+    if not args.no_peer and name in PEERS:
+      steps = args.steps or 50
+      try:
+        with peer_lock:  # Playground's registry is not known to be thread-safe
+          peer_reset, peer_run, settings = peer_fns(name, num_envs, steps)
+        peer = Job(f"{name} peer {num_envs}", peer_run, (peer_reset(key), key), steps, num_envs)
+        peer.settings = {"name": PEERS[name], **settings, "steps": steps}
+      except Exception as e:  # e.g. Playground 0.2.0's reacher needs a newer MuJoCo API
+        print(f"{name}: peer unavailable ({type(e).__name__}: {e})", flush=True)
+    for physics, env in envs.items():
+      steps = args.steps or (10 if physics == "parity" else 50)
+      times = num_envs // base
+      ours = Job(f"{name} {physics} {num_envs} ours", ours_fn(env, num_envs, steps),
+                 (_tile(starts[physics], times), key), steps, num_envs)
+      raw = Job(f"{name} {physics} {num_envs} raw", raw_fn(env, num_envs, steps),
+                (_tile(starts[physics].data, times), key), steps, num_envs)
+      entries.append({"task": name, "physics": physics, "num_envs": num_envs, "env": env,
+                      "steps": steps, "ours": ours, "raw": raw,
+                      "raw_key": (model_digest(env), env.n_substeps, num_envs, steps),
+                      "peer": peer})
+  return entries
+
+
 def main(argv=None) -> int:
   parser = argparse.ArgumentParser(description=__doc__,
                                    formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -119,64 +180,63 @@ def main(argv=None) -> int:
   parser.add_argument("--steps", type=int, default=0,
                       help="control steps per timed call (0: 10 in parity mode, 50 in fast)")
   parser.add_argument("--repeats", type=int, default=2)
+  parser.add_argument("--compile_threads", type=int, default=8,
+                      help="tasks prepared and compiled in parallel (host CPU threads); the "
+                           "timing itself is always sequential")
   parser.add_argument("--no_peer", action="store_true")
   parser.add_argument("--out", default=common.default_results_path("env_throughput"))
   args = parser.parse_args(argv)
   base = min(args.num_envs)
   if any(n % base for n in args.num_envs):
     parser.error("every --num_envs must be a multiple of the smallest")
+  if args.compile_threads <= 0:
+    parser.error("--compile_threads must be positive")
   writer = common.ResultWriter(args.out)
   key = jax.random.PRNGKey(0)
-  raw_results = {}  # the raw physics of tasks that share a model is measured once
+  peer_lock, raw_lock = threading.Lock(), threading.Lock()
+  raw_jobs = {}  # tasks that share a model (XML, settings, size) share its raw measurement
 
-  def measure(fn, fn_args, steps, num_envs, label):
-    """Compiles, warms up and times `fn`; returns (steps/s, compile seconds)."""
-    sps, compile_s = common.time_compiled(fn, fn_args, steps, num_envs, args.repeats)
-    print(f"{label:<40}{sps:>14,.0f} steps/s  (compile {compile_s:.0f}s)", flush=True)
-    return sps, compile_s
+  def prepare(name):
+    """Builds and compiles a task's jobs."""
+    entries = task_jobs(name, args, key, peer_lock)
+    for entry in entries:
+      mine = entry["raw"]
+      with raw_lock:
+        entry["raw"] = raw_jobs.setdefault(entry["raw_key"], mine)
+      for job in (entry["peer"], entry["ours"], mine if entry["raw"] is mine else None):
+        if job is not None and job.exe is None:
+          job.compile()
+    return entries
 
-  # Sequential, one record written per (task, physics, size) as soon as it is measured, so a
-  # run stopped at its time limit keeps what it measured.
-  for name in args.tasks:
-    envs = {physics: tasks.make(name, physics=physics) for physics in args.physics}
-    reset = jax.jit(lambda k, env: AutoReset(env).reset(k, base), static_argnums=1)
-    starts = {physics: jax.block_until_ready(reset(key, env)) for physics, env in envs.items()}
-    for num_envs in args.num_envs:
-      peer, peer_reset = {}, None
-      if not args.no_peer and name in PEERS:
-        steps = args.steps or 50
-        try:
-          peer_reset, peer_run, settings = peer_fns(name, num_envs, steps)
-        except Exception as e:  # e.g. Playground 0.2.0's reacher needs a newer MuJoCo API
-          print(f"{name}: peer unavailable ({type(e).__name__}: {e})", flush=True)
-          peer_reset = None
-      if peer_reset is not None:
-        sps, compile_s = measure(peer_run, (peer_reset(key), key), steps, num_envs,
-                                 f"{name} peer {num_envs}")
-        peer = {"peer_sps": sps, "peer_compile_s": compile_s,
-                "peer": {"name": PEERS[name], **settings, "steps": steps}}
-      for physics, env in envs.items():
-        steps = args.steps or (10 if physics == "parity" else 50)
-        start = _tile(starts[physics], num_envs // base)
-        sps, compile_s = measure(ours_fn(env, num_envs, steps), (start, key), steps, num_envs,
-                                 f"{name} {physics} {num_envs} ours")
-        raw_key = (model_digest(env), env.n_substeps, num_envs, steps)
-        if raw_key not in raw_results:
-          raw_results[raw_key] = measure(
-              raw_fn(env, num_envs, steps), (_tile(starts[physics].data, num_envs // base), key),
-              steps, num_envs, f"{name} {physics} {num_envs} raw")
-        raw_sps, raw_compile_s = raw_results[raw_key]
-        result = {"sps": sps, "raw_sps": raw_sps, "ratio_to_raw": sps / raw_sps,
-                  "compile_s": compile_s, "raw_compile_s": raw_compile_s}
-        settings = {"num_envs": num_envs, "physics": physics, "steps": steps,
-                    "repeats": args.repeats, "solver": vars(env.solver_settings),
-                    "n_substeps": env.n_substeps}
-        if peer:
-          result.update(peer_sps=peer["peer_sps"], ratio_to_peer=sps / peer["peer_sps"],
-                        peer_compile_s=peer["peer_compile_s"])
-          settings["peer"] = peer["peer"]
-        writer.write(kind="env_throughput", task=name, physics=physics, num_envs=num_envs,
-                     settings=settings, **result)
+  # Compile everything in parallel threads (XLA compiles outside the GIL) first, then time one
+  # job at a time, so no measurement shares the host with a compile. One record is written
+  # per (task, physics, size) as soon as it is measured.
+  with concurrent.futures.ThreadPoolExecutor(args.compile_threads) as pool:
+    prepared = list(pool.map(prepare, args.tasks))
+  for entries in prepared:
+    peers_timed = set()
+    for entry in entries:
+      peer = entry["peer"]
+      if peer is not None and id(peer) not in peers_timed:
+        peer.time(args.repeats)
+        peers_timed.add(id(peer))
+      ours, raw = entry["ours"], entry["raw"]
+      ours.time(args.repeats)
+      if raw.sps is None:
+        raw.time(args.repeats)
+      env = entry["env"]
+      result = {"sps": ours.sps, "raw_sps": raw.sps, "ratio_to_raw": ours.sps / raw.sps,
+                "compile_s": ours.compile_s, "raw_compile_s": raw.compile_s}
+      settings = {"num_envs": entry["num_envs"], "physics": entry["physics"],
+                  "steps": entry["steps"], "repeats": args.repeats,
+                  "solver": vars(env.solver_settings), "n_substeps": env.n_substeps,
+                  "compile_threads": args.compile_threads}
+      if peer is not None:
+        result.update(peer_sps=peer.sps, ratio_to_peer=ours.sps / peer.sps,
+                      peer_compile_s=peer.compile_s)
+        settings["peer"] = peer.settings
+      writer.write(kind="env_throughput", task=entry["task"], physics=entry["physics"],
+                   num_envs=entry["num_envs"], settings=settings, **result)
   print(f"results appended to {args.out}")
   return 0
 

@@ -1,0 +1,125 @@
+#!/usr/bin/env python3
+"""End-to-end environment steps per second of the training loop, beside env-only throughput.
+
+For each task and size, in one process on one device, it times:
+  - env:     `AutoReset(task).step` with uniform random actions, `unroll_length` steps per
+             jitted call (what env_throughput.py calls "ours");
+  - collect: the loop's collection alone (policy network + env step, unrolls out);
+  - loop:    one whole `Trainer.iteration`: collect, normaliser, replay insert and
+             `updates_per_iteration` MPO/Retrace updates;
+and records the peak device memory of the process (run one size per process for a clean
+peak: the peak only grows within a process). Each is timed as the best of `--repeats` calls
+after a warm-up call; compile times are recorded apart.
+
+  python benchmarks/train_throughput.py --tasks humanoid_run cheetah_run --num_envs 2048
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+
+import common  # noqa: E402  (puts the repository on sys.path)
+from mjx_form.cpu import configure_cpu_xla  # noqa: E402
+
+configure_cpu_xla()
+
+import jax  # noqa: E402
+
+import tasks  # noqa: E402
+from env_throughput import ours_fn  # noqa: E402
+from mjx_form import results  # noqa: E402
+from mjx_form.physics import DEFAULT_PHYSICS, PHYSICS_MODES  # noqa: E402
+from mjx_form.train import Trainer, TrainConfig  # noqa: E402
+from mjx_form.wrappers import AutoReset  # noqa: E402
+
+
+def time_iterations(trainer: Trainer, state, repeats: int):
+  """(seconds per iteration, compile seconds, state); the state is donated call to call."""
+  t0 = time.perf_counter()
+  exe = trainer.iteration.lower(state).compile()
+  compile_s = time.perf_counter() - t0
+  state, metrics = exe(state)  # warm-up
+  jax.block_until_ready(metrics)
+  times = []
+  for _ in range(repeats):
+    t0 = time.perf_counter()
+    state, metrics = exe(state)
+    jax.block_until_ready((state, metrics))
+    times.append(time.perf_counter() - t0)
+  return min(times), compile_s, state
+
+
+def time_collect(trainer: Trainer, state, repeats: int):
+  """(seconds per collection of num_envs x unroll_length steps, compile seconds)."""
+  collect = jax.jit(lambda s, k: trainer._collect(s, k)[0])  # env states out only
+  key = jax.random.PRNGKey(1)
+  t0 = time.perf_counter()
+  exe = collect.lower(state, key).compile()
+  compile_s = time.perf_counter() - t0
+  jax.block_until_ready(exe(state, key))
+  times = []
+  for _ in range(repeats):
+    t0 = time.perf_counter()
+    jax.block_until_ready(exe(state, key))
+    times.append(time.perf_counter() - t0)
+  return min(times), compile_s
+
+
+def main(argv=None) -> int:
+  parser = argparse.ArgumentParser(description=__doc__,
+                                   formatter_class=argparse.RawDescriptionHelpFormatter)
+  parser.add_argument("--tasks", nargs="*", default=["humanoid_run", "cheetah_run"],
+                      choices=tasks.TASKS, metavar="TASK")
+  parser.add_argument("--num_envs", nargs="*", type=int, default=[2048])
+  parser.add_argument("--physics", default=DEFAULT_PHYSICS, choices=PHYSICS_MODES)
+  parser.add_argument("--updates_per_iteration", type=int,
+                      default=TrainConfig.updates_per_iteration)
+  parser.add_argument("--repeats", type=int, default=3)
+  parser.add_argument("--out", default=common.default_results_path("train_throughput"))
+  args = parser.parse_args(argv)
+  writer = common.ResultWriter(args.out)
+  key = jax.random.PRNGKey(0)
+
+  for name in args.tasks:
+    for num_envs in args.num_envs:
+      config = TrainConfig(task=name, physics=args.physics, num_envs=num_envs,
+                           updates_per_iteration=args.updates_per_iteration)
+      trainer = Trainer(config)
+      steps = config.unroll_length
+      env = trainer.env
+      start = jax.jit(lambda k: AutoReset(env).reset(k, num_envs))(key)
+      env_sps, env_compile_s = common.time_compiled(ours_fn(env, num_envs, steps), (start, key),
+                                                    steps, num_envs, args.repeats)
+      state = trainer.init(key)
+      collect_s, collect_compile_s = time_collect(trainer, state, args.repeats)
+      iteration_s, loop_compile_s, state = time_iterations(trainer, state, args.repeats)
+      per_iteration = config.env_steps_per_iteration
+      result = {
+          "sps": per_iteration / iteration_s, "env_sps": env_sps,
+          "collect_sps": per_iteration / collect_s, "ratio_to_env": per_iteration / iteration_s
+          / env_sps, "iteration_s": iteration_s, "collect_s": collect_s,
+          "update_ms": 1e3 * max(iteration_s - collect_s, 0.0) / config.updates_per_iteration,
+          "peak_memory_bytes": results.peak_memory_bytes(), "compile_s": loop_compile_s,
+          "env_compile_s": env_compile_s, "collect_compile_s": collect_compile_s}
+      settings = {**config.to_dict(), "updates_per_env_step": config.updates_per_env_step,
+                  "replay_ratio": config.replay_ratio, "repeats": args.repeats}
+      writer.write(kind="train_throughput", task=name, method="expert", physics=args.physics,
+                   num_envs=num_envs, settings=settings, **result)
+      memory = result["peak_memory_bytes"]
+      print(f"{name} {num_envs} envs: loop {result['sps']:,.0f} steps/s, env only "
+            f"{env_sps:,.0f} (ratio {result['ratio_to_env']:.2f}), collect "
+            f"{result['collect_sps']:,.0f}, {result['update_ms']:.1f} ms/update, peak memory "
+            f"{'n/a' if memory is None else f'{memory / 2**30:.1f} GiB'} (compile "
+            f"{loop_compile_s:.0f}s)", flush=True)
+      del state
+  print(f"results appended to {args.out}")
+  return 0
+
+
+if __name__ == "__main__":
+  sys.exit(main())
