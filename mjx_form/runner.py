@@ -42,6 +42,10 @@ def _scalar(x) -> float:
   return float(np.asarray(x))
 
 
+def _show(x: float) -> str:
+  return f"{x:.1f}" if np.isfinite(x) else "-"
+
+
 class CsvLog:
   """Appends rows to progress.csv (columns fixed by the first row) and, when tensorboardX is
   installed, the same scalars to TensorBoard event files in the run directory."""
@@ -168,7 +172,7 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
       evaluated = f"  eval {row['eval_return']:.1f}" if "eval_return" in row else ""
       print_fn(f"iter {iteration}/{total_iterations}  steps {row['env_steps']:,}  "
                f"{row['wall_s']:.0f}s  {row['steps_per_s']:,.0f} steps/s  "
-               f"train return {row['train_return']:.1f}{evaluated}  q {row['q_mean']:.2f}  "
+               f"train return {_show(row['train_return'])}{evaluated}  q {row['q_mean']:.2f}  "
                f"critic {row['critic_loss']:.3f}")
     if curve is not None and "eval_return" in row:
       _write_curve_point(curve, config, row, eval_episodes=returns.size,
@@ -194,7 +198,8 @@ def _write_curve_point(writer: results.ResultWriter, config: TrainConfig, row: d
             "eval_return", "eval_return_std", "train_return", "peak_memory_bytes")
   writer.write(kind="learning_curve", task=config.task, method="expert",
                physics=config.physics, num_envs=config.num_envs, seed=config.seed,
-               settings=settings, **{k: row[k] for k in fields if k in row})
+               settings=settings,
+               **{k: row[k] for k in fields if k in row and np.isfinite(row[k])})
 
 
 def export_policy(trainer: Trainer, state, path: str, row: dict) -> None:

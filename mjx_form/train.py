@@ -201,7 +201,9 @@ class Trainer:
     unrolls = jax.lax.with_sharding_constraint(unrolls, self._batch)
     episodes = jnp.sum(traj["done"])
     stats = {"episodes": episodes,
-             "train_return": jnp.sum(traj["finished_return"]) / jnp.maximum(episodes, 1),
+             # NaN in an iteration where no episode ended (not a return of 0)
+             "train_return": jnp.where(episodes > 0, jnp.sum(traj["finished_return"])
+                                       / jnp.maximum(episodes, 1), jnp.nan),
              "train_reward": jnp.mean(traj["reward"]),
              "physics_errors": jnp.sum(traj["error"])}
     return env_state, running, unrolls, stats

@@ -1,5 +1,6 @@
 #!/usr/bin/env python3
-"""Writes the README's throughput and parity tables from benchmarks/results/*.jsonl.
+"""Writes the README's tables (throughput, parity, solver sweep, learning, loop throughput)
+from benchmarks/results/*.jsonl.
 
   python scripts/report.py           # rewrite the tables in README.md
   python scripts/report.py --check   # exit 1 if README.md is not what the results give
@@ -133,9 +134,66 @@ def sweep_table(records: list[dict]) -> str:
   return "\n".join(lines)
 
 
+def _duration(seconds: float) -> str:
+  return f"{seconds / 60:.1f} min" if seconds >= 600 else f"{seconds:.0f} s"
+
+
+def learning_table(records: list[dict], threshold: float = 800.0) -> str:
+  """One row per learning run (a result file's records of one task and seed)."""
+  rows = [r for r in records if r.get("kind") == "learning_curve"]
+  if not rows:
+    return "No learning results yet."
+  runs: dict[tuple, list[dict]] = {}
+  for r in rows:
+    runs.setdefault((r["_file"], r["task"], r["seed"]), []).append(r)
+  lines = [f"Expert runs (MPO + Retrace on the task reward, one seed each). Evaluation: mean "
+           f"task return of {rows[0]['settings']['eval_episodes']} full episodes with the "
+           f"policy's mean action. Wall clock includes compilation (and each restart's "
+           f"compilation where a run was continued with --resume).", "",
+           "| task | device | envs | updates / iteration (replay ratio) | env steps | wall clock "
+           f"| final eval | best eval | first eval >= {threshold:.0f}: wall clock (env steps) |",
+           "|---|---|---|---|---|---|---|---|---|"]
+  for (_, task, _), curve in sorted(runs.items(),
+                                    key=lambda kv: (_order(kv[0][1]), kv[1][0]["num_envs"])):
+    curve = sorted(curve, key=lambda r: r["env_steps"])
+    last, best = curve[-1], max(curve, key=lambda r: r["eval_return"])
+    reached = next((r for r in curve if r["eval_return"] >= threshold), None)
+    first = (f"{_duration(reached['wall_s'])} ({reached['env_steps'] / 1e6:.1f}M)" if reached
+             else "not reached")
+    settings = last["settings"]
+    lines.append(f"| {task} | `{last['device']}` | {last['num_envs']} | "
+                 f"{settings['updates_per_iteration']} ({settings['replay_ratio']:g}) | "
+                 f"{last['env_steps'] / 1e6:.1f}M | {_duration(last['wall_s'])} | "
+                 f"{last['eval_return']:.1f} | {best['eval_return']:.1f} | {first} |")
+  return "\n".join(lines)
+
+
+def train_throughput_table(records: list[dict]) -> str:
+  rows = [r for r in records if r.get("kind") == "train_throughput"]
+  if not rows:
+    return "No training-loop throughput results yet."
+  newest = _newest(rows, lambda r: (r["task"], r["num_envs"], r["device"],
+                                    r["settings"]["updates_per_iteration"]))
+  lines = ["Environment steps per second of one whole training iteration (collect 100-step "
+           "unrolls, normaliser, replay insert, MPO/Retrace updates) beside env-only "
+           "`AutoReset(task).step` with random actions, in the same process; peak device memory "
+           "of that process (replay of 10,000 unrolls included):", "",
+           "| task | device | physics | envs | updates / iteration | loop | env only | "
+           "loop/env | ms / update | peak memory |", "|---|---|---|---|---|---|---|---|---|---|"]
+  for r in sorted(newest.values(), key=lambda r: (_order(r["task"]), r["num_envs"])):
+    memory = r.get("peak_memory_bytes")
+    lines.append(f"| {r['task']} | `{r['device']}` | {r['physics']} | {r['num_envs']} | "
+                 f"{r['settings']['updates_per_iteration']} | {_k(r['sps'])} | "
+                 f"{_k(r['env_sps'])} | {r['ratio_to_env']:.2f} | {r['update_ms']:.1f} | "
+                 f"{'-' if memory is None else f'{memory / 2**30:.1f} GiB'} |")
+  return "\n".join(lines)
+
+
 def render(readme: str, records: list[dict]) -> str:
   for name, table in (("throughput", throughput_table(records)),
-                      ("parity", parity_table(records)), ("sweep", sweep_table(records))):
+                      ("parity", parity_table(records)), ("sweep", sweep_table(records)),
+                      ("learning", learning_table(records)),
+                      ("train_throughput", train_throughput_table(records))):
     pattern = re.compile(rf"(<!-- {name}:begin -->\n).*?(\n<!-- {name}:end -->)", re.S)
     if not pattern.search(readme):
       raise ValueError(f"README.md has no <!-- {name}:begin/end --> markers")
