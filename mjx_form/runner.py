@@ -9,7 +9,12 @@ Run directory layout:
                       of the checkpoint it starts from, and rows logged after that checkpoint
                       are dropped)
   checkpoints/        orbax checkpoints of the whole TrainState (replay and env states included,
-                      so a stopped and resumed run ends where an uninterrupted one ends)
+                      so a stopped and resumed run ends where an uninterrupted one ends), or with
+                      `checkpoint_replay=False` lean ones: networks, optimiser and dual states,
+                      normaliser, reward source, RNG key and iteration (a few MB, small enough to
+                      carry between machines); a run resumed from a lean checkpoint starts with
+                      an empty replay and fresh episodes, so it does not repeat an uninterrupted
+                      run exactly
   policy.npz          the final policy (+ observation normaliser), see mjx_form.policy_io
 """
 
@@ -94,15 +99,17 @@ class CsvLog:
 def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bool = False,
         log_every: int = 1, eval_every: int = 10, checkpoint_every: int = 50,
         max_seconds: float | None = None, results_path: str | None = None,
-        mesh=None, print_fn=print) -> dict:
+        checkpoint_replay: bool = True, mesh=None, print_fn=print) -> dict:
   """Trains until `total_env_steps`; returns the last logged row (with the final evaluation).
 
   `max_seconds`: stop once this process has run that long (checked after each iteration);
   the state is checkpointed and the policy exported, so `resume=True` continues the run.
   `results_path`: where `kind: learning_curve` records (one per evaluation) are appended.
+  `checkpoint_replay`: False writes lean checkpoints (see the module docstring).
   """
   run_settings = {"total_env_steps": total_env_steps, "log_every": log_every,
-                  "eval_every": eval_every, "checkpoint_every": checkpoint_every}
+                  "eval_every": eval_every, "checkpoint_every": checkpoint_every,
+                  "checkpoint_replay": checkpoint_replay}
   full_config = {**config.to_dict(), **run_settings}
   ckpt_dir = os.path.join(os.path.abspath(directory), "checkpoints")
   config_path = os.path.join(directory, "config.json")
@@ -118,7 +125,9 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
   trainer = Trainer(config, mesh)
   state = trainer.init(jax.random.PRNGKey(config.seed))
   if resume and checkpoint.latest_step(ckpt_dir) is not None:
-    state = checkpoint.restore(ckpt_dir, state, full_config, ignore=RESUMABLE)
+    restored = checkpoint.restore(ckpt_dir, _checkpointed(state, checkpoint_replay),
+                                  full_config, ignore=RESUMABLE)
+    state = restored if checkpoint_replay else state._replace(**restored)
     print_fn(f"resumed from iteration {int(state.iteration)} ({ckpt_dir})")
   os.makedirs(directory, exist_ok=True)
   with open(config_path, "w") as f:
@@ -178,7 +187,7 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
       _write_curve_point(curve, config, row, eval_episodes=returns.size,
                          total_env_steps=total_env_steps, devices=trainer.mesh.devices.size)
     if checkpointed:
-      checkpoint.save(ckpt_dir, iteration, state, full_config)
+      checkpoint.save(ckpt_dir, iteration, _checkpointed(state, checkpoint_replay), full_config)
     if out_of_time and not finished:
       print_fn(f"stopped after {max_seconds:.0f}s at iteration {iteration}/{total_iterations} "
                f"(checkpointed; continue with --resume)")
@@ -186,6 +195,14 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
 
   export_policy(trainer, state, os.path.join(directory, "policy.npz"), row)
   return row
+
+
+def _checkpointed(state, with_replay: bool):
+  """What a checkpoint holds: the whole TrainState, or its lean part (no replay, no envs)."""
+  if with_replay:
+    return state
+  return {"learner": state.learner, "normalizer": state.normalizer, "source": state.source,
+          "key": state.key, "iteration": state.iteration}
 
 
 def _write_curve_point(writer: results.ResultWriter, config: TrainConfig, row: dict, *,

@@ -75,6 +75,10 @@ def parse_args(argv=None) -> argparse.Namespace:
   train.add_argument("--max_seconds", type=float, default=None,
                      help="stop (checkpointed, policy exported) after this many seconds; "
                           "--resume continues")
+  train.add_argument("--lean_checkpoints", action="store_true",
+                     help="checkpoints without replay and environment states (a few MB, to "
+                          "carry between machines); a resumed run then starts with an empty "
+                          "replay and fresh episodes")
   train.add_argument("--results", default=None,
                      help="append kind=learning_curve records (one per evaluation) to this "
                           ".jsonl file (default <run_dir>/learning_curve.jsonl)")
@@ -164,6 +168,7 @@ def main(argv=None) -> int:
       row = runner.run(config, run_dir, args.env_steps, resume=args.resume,
                        log_every=args.log_every, eval_every=args.eval_every,
                        checkpoint_every=args.checkpoint_every, max_seconds=args.max_seconds,
+                       checkpoint_replay=not args.lean_checkpoints,
                        results_path=args.results or os.path.join(run_dir,
                                                                  "learning_curve.jsonl"),
                        mesh=mesh,

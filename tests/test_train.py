@@ -11,7 +11,7 @@ import jax
 import numpy as np
 import pytest
 
-from mjx_form import checkpoint, mesh as mesh_lib, policy_io
+from mjx_form import checkpoint, mesh as mesh_lib, policy_io, runner
 from mjx_form.learner import LearnerConfig
 from mjx_form.train import Trainer, TrainConfig
 
@@ -172,6 +172,27 @@ def test_command_line_trains_resumes_and_refuses_mismatches(tmp_path, capsys):
   assert cli.main(_cli_args(run_dir, "--env_steps", "120", "--resume")) == 0
   assert "resumed from iteration 2" in capsys.readouterr().out
   assert checkpoint.latest_step(str(run_dir / "checkpoints")) == 3
+
+
+def test_lean_checkpoints_hold_no_replay_and_resume(trainers, tmp_path):
+  run_dir, quiet = tmp_path / "lean", (lambda *_: None)
+  total = 2 * CONFIG.env_steps_per_iteration
+  row = runner.run(CONFIG, str(run_dir), total, max_seconds=1e-3, checkpoint_replay=False,
+                   eval_every=2, print_fn=quiet)  # stops after iteration 1
+  assert row["iteration"] == 1
+  ckpt_dir, config = str(run_dir / "checkpoints"), json.load(open(run_dir / "config.json"))
+  full = trainers[1].init(jax.random.PRNGKey(0))
+  with pytest.raises(checkpoint.CheckpointError):  # no replay or env states stored
+    checkpoint.restore(ckpt_dir, full, config)
+  lean = checkpoint.restore(ckpt_dir, runner._checkpointed(full, False), config)
+  assert int(lean["iteration"]) == 1
+  assert int(lean["learner"].updates) == CONFIG.updates_per_iteration
+  with pytest.raises(checkpoint.CheckpointError, match="checkpoint_replay"):
+    runner.run(CONFIG, str(run_dir), total, resume=True, checkpoint_replay=True, print_fn=quiet)
+  row = runner.run(CONFIG, str(run_dir), total, resume=True, checkpoint_replay=False,
+                   eval_every=2, print_fn=quiet)
+  assert row["iteration"] == 2 and row["updates"] == 2 * CONFIG.updates_per_iteration
+  assert np.isfinite(row["eval_return"])
 
 
 def test_expert_learns_reacher_easy():
