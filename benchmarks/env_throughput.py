@@ -10,9 +10,10 @@ actions drawn on the device:
   - peer: MuJoCo Playground's version of the task (`impl="jax"`, its own settings), where one
           exists (none for quadruped), its unwrapped `step`.
 All three run `--steps` control steps inside one jitted `lax.scan`; the time is the best of
-`--repeats` calls after a warm-up call, compile time recorded apart. Tasks are prepared and
-compiled in parallel threads first (`--compile_threads`); then the timed calls run one at a
-time, so no measurement shares the device or the host with other work.
+`--repeats` calls after a warm-up call, compile time recorded apart. Tasks go in batches
+(`--batch_tasks`) whose functions are compiled in parallel threads (`--compile_threads`); then
+the timed calls run one at a time, so no measurement shares the device or the host with a
+compile.
 
   python benchmarks/env_throughput.py --tasks cheetah_run --num_envs 2048 8192
 """
@@ -181,39 +182,33 @@ def main(argv=None) -> int:
                       help="control steps per timed call (0: 10 in parity mode, 50 in fast)")
   parser.add_argument("--repeats", type=int, default=2)
   parser.add_argument("--compile_threads", type=int, default=8,
-                      help="tasks prepared and compiled in parallel (host CPU threads); the "
-                           "timing itself is always sequential")
+                      help="jobs compiled in parallel (host CPU threads); the timing itself is "
+                           "always sequential")
+  parser.add_argument("--batch_tasks", type=int, default=4,
+                      help="tasks compiled together before they are timed")
   parser.add_argument("--no_peer", action="store_true")
   parser.add_argument("--out", default=common.default_results_path("env_throughput"))
   args = parser.parse_args(argv)
   base = min(args.num_envs)
   if any(n % base for n in args.num_envs):
     parser.error("every --num_envs must be a multiple of the smallest")
-  if args.compile_threads <= 0:
-    parser.error("--compile_threads must be positive")
+  if args.compile_threads <= 0 or args.batch_tasks <= 0:
+    parser.error("--compile_threads and --batch_tasks must be positive")
   writer = common.ResultWriter(args.out)
   key = jax.random.PRNGKey(0)
   peer_lock, raw_lock = threading.Lock(), threading.Lock()
   raw_jobs = {}  # tasks that share a model (XML, settings, size) share its raw measurement
 
   def prepare(name):
-    """Builds and compiles a task's jobs."""
+    """A task's jobs, not yet compiled; the raw job of a model already seen is reused."""
     entries = task_jobs(name, args, key, peer_lock)
     for entry in entries:
-      mine = entry["raw"]
       with raw_lock:
-        entry["raw"] = raw_jobs.setdefault(entry["raw_key"], mine)
-      for job in (entry["peer"], entry["ours"], mine if entry["raw"] is mine else None):
-        if job is not None and job.exe is None:
-          job.compile()
+        entry["raw"] = raw_jobs.setdefault(entry["raw_key"], entry["raw"])
     return entries
 
-  # Compile everything in parallel threads (XLA compiles outside the GIL) first, then time one
-  # job at a time, so no measurement shares the host with a compile. One record is written
-  # per (task, physics, size) as soon as it is measured.
-  with concurrent.futures.ThreadPoolExecutor(args.compile_threads) as pool:
-    prepared = list(pool.map(prepare, args.tasks))
-  for entries in prepared:
+  def time_entries(entries):
+    """Times a task's compiled jobs and writes its records."""
     peers_timed = set()
     for entry in entries:
       peer = entry["peer"]
@@ -230,13 +225,27 @@ def main(argv=None) -> int:
       settings = {"num_envs": entry["num_envs"], "physics": entry["physics"],
                   "steps": entry["steps"], "repeats": args.repeats,
                   "solver": vars(env.solver_settings), "n_substeps": env.n_substeps,
-                  "compile_threads": args.compile_threads}
+                  "compile_threads": args.compile_threads, "batch_tasks": args.batch_tasks}
       if peer is not None:
         result.update(peer_sps=peer.sps, ratio_to_peer=ours.sps / peer.sps,
                       peer_compile_s=peer.compile_s)
         settings["peer"] = peer.settings
       writer.write(kind="env_throughput", task=entry["task"], physics=entry["physics"],
                    num_envs=entry["num_envs"], settings=settings, **result)
+
+  # Tasks go in batches of --batch_tasks: a batch's jobs are compiled in parallel threads (XLA
+  # compiles outside the GIL), then timed one at a time, so no measurement shares the host with
+  # a compile. One record is written per (task, physics, size) as soon as it is measured; a run
+  # stopped at its time limit keeps the batches it finished.
+  with concurrent.futures.ThreadPoolExecutor(args.compile_threads) as pool:
+    for first in range(0, len(args.tasks), args.batch_tasks):
+      batch = list(pool.map(prepare, args.tasks[first:first + args.batch_tasks]))
+      jobs = {id(job): job for entries in batch for entry in entries
+              for job in (entry["peer"], entry["ours"], entry["raw"])
+              if job is not None and job.exe is None and job.sps is None}
+      list(pool.map(Job.compile, jobs.values()))
+      for entries in batch:
+        time_entries(entries)
   print(f"results appended to {args.out}")
   return 0
 
