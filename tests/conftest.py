@@ -20,6 +20,7 @@ jax.config.update("jax_compilation_cache_dir", _CACHE)
 jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)
 
 import json  # noqa: E402
+import warnings  # noqa: E402
 
 import pytest  # noqa: E402
 
@@ -34,6 +35,37 @@ class _ReportRows:
 
   def append(self, row: dict) -> None:
     self._node.user_properties.append(("parity_row", json.dumps(row)))
+
+
+@pytest.hookimpl(trylast=True)
+def pytest_collection_modifyitems(config, items):
+  """Makes `--dist loadgroup` group again under pytest >= 9.2.
+
+  xdist's workers mark a test's group by appending '@group' to `item._nodeid`; pytest 9.2
+  builds node ids from a structured `item._id` instead, so the suffix is lost and every test of
+  a group is scheduled on its own (pytest-dev/pytest-xdist#1386). The tests then compile the
+  shared MJX functions once per worker instead of once per group. This runs after xdist's hook
+  (on the workers, where `config.option.loadgroup` is set) and adds the suffix where it is
+  missing, the way xdist would.
+  """
+  if not getattr(config.option, "loadgroup", False):
+    return
+  for item in items:
+    names = sorted({str(m.args[0] if m.args else m.kwargs.get("name", "default"))
+                    for m in item.iter_markers("xdist_group")})
+    if not names:
+      continue
+    suffix = "@" + "_".join(names)
+    if item.nodeid.endswith(suffix):
+      continue  # xdist's own suffix took effect (pytest < 9.2)
+    try:
+      from _pytest.nodeid import NodeId
+      item._id = NodeId.parse(item.nodeid + suffix)
+    except (ImportError, AttributeError):
+      pass
+    if not item.nodeid.endswith(suffix):
+      warnings.warn(f"xdist_group {suffix[1:]!r} of {item.nodeid} has no effect: the test is "
+                    "scheduled on its own (see tests/conftest.py)")
 
 
 @pytest.fixture
