@@ -19,6 +19,13 @@ _CACHE = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))
 jax.config.update("jax_compilation_cache_dir", _CACHE)
 jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)
 
+# XLA options for the functions the tests compile (test_parity, test_resets, test_env): with
+# XLA's newer fusion emitters off, MJX steps and resets compile with ~35% less CPU time and run
+# as fast (measured on this 2-core CPU: walker's parity step 27 s CPU instead of 45 s,
+# quadruped's reset 68 s instead of 100 s). The results agree to rounding; every check keeps its
+# tolerance. CPU only: the tests run on the CPU.
+CPU_COMPILER_OPTIONS = {"xla_cpu_use_fusion_emitters": False}
+
 import json  # noqa: E402
 import warnings  # noqa: E402
 

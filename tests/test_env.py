@@ -16,12 +16,15 @@ import numpy as np
 import pytest
 
 import tasks
+from conftest import CPU_COMPILER_OPTIONS
 from mjx_form import env as env_lib
 from mjx_form import mesh as mesh_lib
 from mjx_form.wrappers import AutoReset
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 NUM_ENVS = 4
+# The tests that use `compiled()` run in one xdist worker, which compiles reset and step once.
+COMPILED_ONCE = pytest.mark.xdist_group("env")
 
 
 @functools.cache
@@ -32,9 +35,11 @@ def reacher():
 @functools.cache
 def compiled():
   env = reacher()
-  return jax.jit(env.reset, static_argnums=1), jax.jit(env.step)
+  return (jax.jit(env.reset, static_argnums=1, compiler_options=CPU_COMPILER_OPTIONS),
+          jax.jit(env.step, compiler_options=CPU_COMPILER_OPTIONS))
 
 
+@COMPILED_ONCE
 def test_state_shapes_under_jit_and_vmap():
   reset, step = compiled()
   state = reset(jax.random.PRNGKey(0), NUM_ENVS)
@@ -48,6 +53,7 @@ def test_state_shapes_under_jit_and_vmap():
                              state.obs)
 
 
+@COMPILED_ONCE
 def test_nan_or_inf_action_resets_that_env_and_is_counted():
   reset, step = compiled()
   state = step(reset(jax.random.PRNGKey(1), NUM_ENVS), jnp.zeros((NUM_ENVS, 2)))
@@ -64,6 +70,7 @@ def test_nan_or_inf_action_resets_that_env_and_is_counted():
   np.testing.assert_array_equal(again.info["physics_errors"], [0, 2, 0, 2])
 
 
+@COMPILED_ONCE
 def test_nan_in_physics_state_is_detected():
   reset, step = compiled()
   state = reset(jax.random.PRNGKey(2), NUM_ENVS)
@@ -73,10 +80,11 @@ def test_nan_in_physics_state_is_detected():
   assert np.isfinite(after.data.qvel).all()
 
 
+@COMPILED_ONCE
 def test_episode_lasts_1000_steps_and_restarts_from_fresh_draws():
   env = reacher()
 
-  @jax.jit
+  @functools.partial(jax.jit, compiler_options=CPU_COMPILER_OPTIONS)
   def run(state):
     def body(state, _):
       state = env.step(state, jnp.full((NUM_ENVS, 2), 0.3))
@@ -96,6 +104,7 @@ def test_episode_lasts_1000_steps_and_restarts_from_fresh_draws():
   assert np.all(np.asarray(last.info["final_obs"])[:, 4:] != 0)  # moving at the end
 
 
+@COMPILED_ONCE
 def test_two_devices_match_one():
   """The same rollout with the batch sharded over 2 (forced host) devices and on 1."""
   assert jax.device_count() >= 2, "tests run with --xla_force_host_platform_device_count=2"
@@ -112,7 +121,8 @@ def test_two_devices_match_one():
   for devices in (jax.devices()[:1], jax.devices()[:2]):
     mesh = mesh_lib.make_mesh(devices)
     state = mesh_lib.shard_batch(compiled()[0](jax.random.PRNGKey(6), NUM_ENVS), mesh)
-    final, rewards = jax.jit(rollout)(state, mesh_lib.shard_batch(actions.swapaxes(0, 1), mesh))
+    run = jax.jit(rollout, compiler_options=CPU_COMPILER_OPTIONS)
+    final, rewards = run(state, mesh_lib.shard_batch(actions.swapaxes(0, 1), mesh))
     assert len(final.obs.sharding.device_set) == len(devices)
     results.append((np.asarray(final.obs), np.asarray(rewards)))
   np.testing.assert_allclose(results[0][0], results[1][0], rtol=1e-5, atol=1e-6)
@@ -128,8 +138,12 @@ def test_mesh_rejects_bad_batch_sizes():
 
 
 def _run_cli(*args):
+  # The command line compiles with the tests' CPU options too (XLA reads them from XLA_FLAGS).
+  flags = " ".join([os.environ.get("XLA_FLAGS", "")] +
+                   [f"--{k}={str(v).lower()}" for k, v in CPU_COMPILER_OPTIONS.items()])
   return subprocess.run([sys.executable, os.path.join(ROOT, "scripts", "run.py"), *args],
-                        capture_output=True, text=True, timeout=300, cwd=ROOT)
+                        capture_output=True, text=True, timeout=300, cwd=ROOT,
+                        env={**os.environ, "XLA_FLAGS": flags.strip()})
 
 
 def test_cli_lists_tasks_and_rejects_bad_input():

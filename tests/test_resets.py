@@ -13,6 +13,7 @@ import pytest
 from scipy import stats
 
 import tasks
+from conftest import CPU_COMPILER_OPTIONS
 from mjx_form import parity
 
 NUM_RESETS = 200
@@ -25,7 +26,8 @@ DOMAIN_TASKS = [pytest.param(name, marks=pytest.mark.xdist_group(name.split("_")
 @functools.cache
 def our_resets(name: str):
   env = tasks.make(name)
-  states = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.PRNGKey(7), NUM_RESETS))
+  reset = jax.jit(jax.vmap(env.reset), compiler_options=CPU_COMPILER_OPTIONS)
+  states = reset(jax.random.split(jax.random.PRNGKey(7), NUM_RESETS))
   return env, jax.tree.map(np.asarray, states)
 
 
@@ -145,7 +147,8 @@ def test_cheetah_settling_is_dm_controls():
   limited = m.jnt_limited == 1
   with jax.enable_x64(True):
     env = tasks.make("cheetah_run", physics="parity")
-    settle = jax.jit(lambda qpos: env.settle(mjx.make_data(env.mjx_model), qpos))
+    settle = jax.jit(lambda qpos: env.settle(mjx.make_data(env.mjx_model), qpos),
+                     compiler_options=CPU_COMPILER_OPTIONS)
     for _ in range(3):
       qpos = np.zeros(m.nq)
       qpos[limited] = rng.uniform(*m.jnt_range[limited].T)
