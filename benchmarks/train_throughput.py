@@ -43,15 +43,11 @@ def time_iterations(trainer: Trainer, state, repeats: int):
   t0 = time.perf_counter()
   exe = trainer.iteration.lower(state).compile()
   compile_s = time.perf_counter() - t0
-  state, metrics = exe(state)  # warm-up
-  jax.block_until_ready(metrics)
-  times = []
-  for _ in range(repeats):
-    t0 = time.perf_counter()
-    state, metrics = exe(state)
-    jax.block_until_ready((state, metrics))
-    times.append(time.perf_counter() - t0)
-  return min(times), compile_s, state
+  holder = [jax.block_until_ready(exe(state)[0])]  # warm-up
+
+  def call():
+    holder[0] = jax.block_until_ready(exe(holder[0]))[0]
+  return common.best_time(call, repeats), compile_s, holder[0]
 
 
 def time_collect(trainer: Trainer, state, repeats: int):
@@ -61,13 +57,8 @@ def time_collect(trainer: Trainer, state, repeats: int):
   t0 = time.perf_counter()
   exe = collect.lower(state, key).compile()
   compile_s = time.perf_counter() - t0
-  jax.block_until_ready(exe(state, key))
-  times = []
-  for _ in range(repeats):
-    t0 = time.perf_counter()
-    jax.block_until_ready(exe(state, key))
-    times.append(time.perf_counter() - t0)
-  return min(times), compile_s
+  jax.block_until_ready(exe(state, key))  # warm-up
+  return common.best_time(lambda: jax.block_until_ready(exe(state, key)), repeats), compile_s
 
 
 def main(argv=None) -> int:
