@@ -3,6 +3,7 @@
 
   python scripts/make_demos.py --policy runs/cheetah_run_expert_seed0/policy.npz \\
       --episodes 1000 --out demos/cheetah_run.npz [--actions]
+  python scripts/make_demos.py --task cheetah_run --out demos/cheetah_run.npz  # shipped expert
 
 The file format is documented in mjx_form/demos.py (observations [K, 1001, D], actions only with
 --actions, for BC; task, observation layout, physics, expert and checksum in the metadata).
@@ -33,7 +34,9 @@ from mjx_form.physics import DEFAULT_PHYSICS, PHYSICS_MODES  # noqa: E402
 def main(argv=None) -> int:
   parser = argparse.ArgumentParser(description=__doc__,
                                    formatter_class=argparse.RawDescriptionHelpFormatter)
-  parser.add_argument("--policy", required=True, help="an expert's policy.npz")
+  source = parser.add_mutually_exclusive_group(required=True)
+  source.add_argument("--policy", help="an expert's policy.npz")
+  source.add_argument("--task", help="use the expert shipped in tasks/experts/ for this task")
   parser.add_argument("--out", required=True, help="the demonstration file to write")
   parser.add_argument("--episodes", type=int, default=1000)
   parser.add_argument("--chunk", type=int, default=1000, help="episodes recorded at once")
@@ -51,6 +54,8 @@ def main(argv=None) -> int:
     print(f"error: {args.out} exists (pass --overwrite to replace it)", file=sys.stderr)
     return 2
   try:
+    if args.task is not None:
+      args.policy = tasks.bundled_expert(args.task)
     _, metadata = policy_io.load_policy(args.policy)
     physics = args.physics or metadata.get("physics", DEFAULT_PHYSICS)
     env = tasks.make(metadata["task"], physics=physics)

@@ -1,6 +1,6 @@
 #!/usr/bin/env python3
 """Writes the README's tables (throughput, parity, solver sweep, learning, loop throughput)
-from benchmarks/results/*.jsonl.
+from benchmarks/results/*.jsonl, and the table of shipped experts from tasks/experts/*.npz.
 
   python scripts/report.py           # rewrite the tables in README.md
   python scripts/report.py --check   # exit 1 if README.md is not what the results give
@@ -19,6 +19,17 @@ import re
 import sys
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+sys.path.insert(0, ROOT)
+
+from mjx_form import policy_io  # noqa: E402  (numpy only; no JAX)
+
+EXPERTS = os.path.join(ROOT, "tasks", "experts")
+# Expert returns of the paper's Table 1 (mean over 3 seeds), for comparison only.
+PAPER_EXPERT = {"reacher_easy": 974.6, "reacher_hard": 981.3, "cheetah_run": 930.5,
+                "quadruped_walk": 972.4, "quadruped_run": 962.9, "hopper_stand": 965.8,
+                "hopper_hop": 711.5, "walker_stand": 993.6, "walker_walk": 983.2,
+                "walker_run": 952.1, "humanoid_stand": 905.9, "humanoid_walk": 809.5,
+                "humanoid_run": 736.6}
 RESULTS = os.path.join(ROOT, "benchmarks", "results")
 README = os.path.join(ROOT, "README.md")
 TASK_ORDER = ["reacher_easy", "reacher_hard", "cheetah_run", "quadruped_walk", "quadruped_run",
@@ -189,8 +200,31 @@ def train_throughput_table(records: list[dict]) -> str:
   return "\n".join(lines)
 
 
+def experts_table(folder: str = EXPERTS) -> str:
+  """One row per shipped expert file, from its metadata (the file's checksum is verified)."""
+  rows = []
+  for path in sorted(glob.glob(os.path.join(folder, "*.npz"))):
+    _, meta = policy_io.load_policy(path)
+    rows.append((meta, os.path.basename(path)))
+  if not rows:
+    return "No shipped experts yet."
+  lines = ["Expert policies shipped in `tasks/experts/` (`scripts/make_demos.py --task <name>` "
+           "records demonstrations from them). Return: mean of the evaluation episodes at export "
+           "(policy mean action), on the device it was trained on:", "",
+           "| task | file | return | paper's expert | env steps | envs | updates / iteration | "
+           "physics | sha256 |", "|---|---|---|---|---|---|---|---|---|"]
+  for meta, name in sorted(rows, key=lambda r: _order(r[0]["task"])):
+    config = meta.get("train_config", {})
+    paper = PAPER_EXPERT.get(meta["task"])
+    lines.append(f"| {meta['task']} | `{name}` | {meta['eval_return']:.1f} | "
+                 f"{'-' if paper is None else f'{paper:.1f}'} | {meta['env_steps'] / 1e6:.1f}M | "
+                 f"{config.get('num_envs', '-')} | {config.get('updates_per_iteration', '-')} | "
+                 f"{meta.get('physics', '-')} | `{meta['sha256'][:12]}` |")
+  return "\n".join(lines)
+
+
 def render(readme: str, records: list[dict]) -> str:
-  for name, table in (("throughput", throughput_table(records)),
+  for name, table in (("experts", experts_table()),("throughput", throughput_table(records)),
                       ("parity", parity_table(records)), ("sweep", sweep_table(records)),
                       ("learning", learning_table(records)),
                       ("train_throughput", train_throughput_table(records))):

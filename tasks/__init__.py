@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from typing import Callable
 
 from mjx_form.env import Task
@@ -25,6 +26,9 @@ _REGISTRY: dict[str, Callable[[str], Task]] = {
 }
 TASKS: tuple[str, ...] = tuple(_REGISTRY)
 
+# Trained expert policies shipped with the suite: experts/<task>.npz (mjx_form.policy_io format).
+EXPERTS_DIR = os.path.join(os.path.dirname(os.path.abspath(__file__)), "experts")
+
 
 def make(name: str, physics: str = DEFAULT_PHYSICS) -> Task:
   """Builds the task `name` (e.g. 'humanoid_run') with the physics mode 'parity' or 'fast'."""
@@ -33,4 +37,21 @@ def make(name: str, physics: str = DEFAULT_PHYSICS) -> Task:
   return _REGISTRY[name](check_physics_mode(physics))
 
 
-__all__ = ["TASKS", "PHYSICS_MODES", "make"]
+def bundled_experts() -> dict[str, str]:
+  """{task name: path} of the expert policies shipped in tasks/experts/, in task order."""
+  return {name: os.path.join(EXPERTS_DIR, f"{name}.npz") for name in TASKS
+          if os.path.isfile(os.path.join(EXPERTS_DIR, f"{name}.npz"))}
+
+
+def bundled_expert(name: str) -> str:
+  """The path of the shipped expert policy for task `name`; a clear error if there is none."""
+  if name not in _REGISTRY:
+    raise ValueError(f"unknown task {name!r}; valid tasks: {', '.join(TASKS)}")
+  available = bundled_experts()
+  if name not in available:
+    raise ValueError(f"no shipped expert for {name!r} (shipped: {', '.join(available) or 'none'});"
+                     f" train one with: scripts/run.py --task {name} --method expert")
+  return available[name]
+
+
+__all__ = ["TASKS", "PHYSICS_MODES", "EXPERTS_DIR", "bundled_expert", "bundled_experts", "make"]
