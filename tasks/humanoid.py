@@ -53,7 +53,9 @@ class Humanoid(ControlSuiteTask):
     def penetrating(carry):
       return carry[2] & (carry[3] < MAX_RESET_DRAWS)
 
-    _, qpos, still_penetrating, draws = jax.lax.while_loop(penetrating, redraw, (*draw(key), 1))
+    # The first draw happens inside the loop (draws 0 -> 1), so the contact check is traced once.
+    start = (key, data.qpos, jnp.bool_(True), jnp.int32(0))
+    _, qpos, still_penetrating, draws = jax.lax.while_loop(penetrating, redraw, start)
     return data.replace(qpos=qpos), {"reset_draws": draws,
                                      "reset_penetrating": still_penetrating}
 
