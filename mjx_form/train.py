@@ -14,11 +14,18 @@ axis; parameters, optimiser states and normaliser are replicated; XLA averages g
 Every random draw is made on global arrays, so a run does not depend on the device count
 beyond float rounding.
 
+Episode phases: with `stagger_episodes` (the default) each environment starts its first episode
+at a random multiple of `unroll_length` steps into the 1000 (a shorter first episode, left out
+of `train_return`), so every iteration collects every phase of an episode. Started together,
+thousands of environments would stay in lockstep (no task ends early), and a replay holding
+fewer than 1000 / unroll_length iterations (10,000 unrolls at more than 1000 envs) would hold
+only the same few hundred steps of every episode at a time, cycling through the episode.
+
 Episode ends inside an unroll: the transition whose next observation belongs to a new episode
-gets discount 0 (no bootstrap). With `unroll_length` dividing the 1000-step episodes and all
-environments started together (the default), time-limit ends fall on the last step of an
-unroll, where the episode's final observation is kept and bootstrapped from; only an episode
-cut short by a physics error (NaN/inf) puts an environment out of phase.
+gets discount 0 (no bootstrap). With `unroll_length` dividing the 1000-step episodes, time-limit
+ends fall on the last step of an unroll (staggered starts are multiples of it), where the
+episode's final observation is kept and bootstrapped from; only an episode cut short by a
+physics error (NaN/inf) puts an environment off those boundaries.
 """
 
 from __future__ import annotations
@@ -57,6 +64,7 @@ class TrainConfig:
   normalizer_decay: float = 0.99  # observation EMA decay per iteration
   eval_envs: int = 16
   seed: int = 0
+  stagger_episodes: bool = True  # first episodes start at random phases (see module docstring)
   learner: learner_lib.LearnerConfig = learner_lib.LearnerConfig()
 
   def check(self, num_devices: int) -> None:
@@ -101,7 +109,8 @@ class TrainState(NamedTuple):
   normalizer: normalizer.NormalizerState
   replay: replay.ReplayState
   env: env_lib.State  # batched [N]
-  episode_return: jax.Array  # [N] task return of each env's running episode (for logging)
+  episode_return: jax.Array  # [N] task return of each env's running episode (for logging);
+                             # NaN while an env runs its shortened (staggered) first episode
   source: Any  # the reward source's state
   key: jax.Array
   iteration: jax.Array  # int32 []
@@ -146,14 +155,23 @@ class Trainer:
     storage = jax.tree.map(lambda x: jnp.zeros((cfg.replay_capacity,) + x.shape, x.dtype),
                            example)
     storage = jax.lax.with_sharding_constraint(storage, self._batch)
-    env_state = jax.lax.with_sharding_constraint(
-        self.auto_reset.reset(env_key, cfg.num_envs), self._batch)
+    key, stagger_key = jax.random.split(key)
+    env_state = self.auto_reset.reset(env_key, cfg.num_envs)
+    episode_return = jnp.zeros((cfg.num_envs,))
+    if cfg.stagger_episodes:
+      phases = max(1, env_lib.EPISODE_LENGTH // cfg.unroll_length)
+      start = cfg.unroll_length * jax.random.randint(stagger_key, (cfg.num_envs,), 0, phases)
+      env_state = env_state.replace(info=dict(
+          env_state.info, step=start.astype(env_state.info["step"].dtype)))
+      episode_return = jnp.where(start > 0, jnp.nan, 0.0)  # partial episodes: not reported
+    env_state = jax.lax.with_sharding_constraint(env_state, self._batch)
     return TrainState(
         learner=learner_lib.init(self.networks, cfg.learner, learner_key,
                                  self.env.observation_size, self.env.action_size),
         normalizer=normalizer.init(self.env.observation_size),
         replay=replay.ReplayState(storage, jnp.zeros((), jnp.int32), jnp.zeros((), jnp.int32)),
-        env=env_state, episode_return=jnp.zeros((cfg.num_envs,)),
+        env=env_state,
+        episode_return=jax.lax.with_sharding_constraint(episode_return, self._batch),
         source=self.source.init(source_key, self.env.observation_size, self.env.action_size),
         key=key, iteration=jnp.zeros((), jnp.int32))
 
@@ -180,10 +198,11 @@ class Trainer:
       stepped = self.auto_reset.step(env_state, action)
       running = running + stepped.reward
       done = stepped.done > 0
+      whole = done & jnp.isfinite(running)  # a whole episode ended (not a staggered first one)
       out = {"observation": env_state.obs, "action": action,
              "behaviour_log_prob": pi.log_prob(action), "reward": stepped.reward,
-             "done": done, "error": stepped.info["physics_error"] > 0,
-             "finished_return": jnp.where(done, running, 0.0)}
+             "done": done, "whole": whole, "error": stepped.info["physics_error"] > 0,
+             "finished_return": jnp.where(whole, running, 0.0)}
       return (stepped, jnp.where(done, 0.0, running)), out
 
     keys = jax.random.split(key, self.config.unroll_length)
@@ -199,11 +218,11 @@ class Trainer:
       unrolls["reward"] = traj["reward"]
     unrolls = jax.tree.map(lambda x: jnp.swapaxes(x, 0, 1), unrolls)  # [N, T(+1), ...]
     unrolls = jax.lax.with_sharding_constraint(unrolls, self._batch)
-    episodes = jnp.sum(traj["done"])
+    episodes, whole = jnp.sum(traj["done"]), jnp.sum(traj["whole"])
     stats = {"episodes": episodes,
-             # NaN in an iteration where no episode ended (not a return of 0)
-             "train_return": jnp.where(episodes > 0, jnp.sum(traj["finished_return"])
-                                       / jnp.maximum(episodes, 1), jnp.nan),
+             # NaN in an iteration where no whole episode ended (not a return of 0)
+             "train_return": jnp.where(whole > 0, jnp.sum(traj["finished_return"])
+                                       / jnp.maximum(whole, 1), jnp.nan),
              "train_reward": jnp.mean(traj["reward"]),
              "physics_errors": jnp.sum(traj["error"])}
     return env_state, running, unrolls, stats

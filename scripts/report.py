@@ -160,10 +160,13 @@ def learning_table(records: list[dict], threshold: float = 800.0) -> str:
   lines = [f"Expert runs (MPO + Retrace on the task reward, one seed each). Evaluation: mean "
            f"task return of {rows[0]['settings']['eval_episodes']} full episodes with the "
            f"policy's mean action. Wall clock includes compilation (and each restart's "
-           f"compilation where a run was continued with --resume).", "",
-           "| task | device | envs | updates / iteration (replay ratio) | env steps | wall clock "
-           f"| final eval | best eval | first eval >= {threshold:.0f}: wall clock (env steps) |",
-           "|---|---|---|---|---|---|---|---|---|"]
+           f"compilation where a run was continued with --resume). First episodes: `lockstep` "
+           f"= all environments started together, `staggered` = at random phases (see "
+           f"above).", "",
+           "| task | device | envs | updates / iteration (replay ratio) | first episodes | "
+           "env steps | wall clock | final eval | best eval | first eval >= "
+           f"{threshold:.0f}: wall clock (env steps) |",
+           "|---|---|---|---|---|---|---|---|---|---|"]
   for (_, task, _), curve in sorted(runs.items(),
                                     key=lambda kv: (_order(kv[0][1]), kv[1][0]["num_envs"])):
     curve = sorted(curve, key=lambda r: r["env_steps"])
@@ -174,6 +177,7 @@ def learning_table(records: list[dict], threshold: float = 800.0) -> str:
     settings = last["settings"]
     lines.append(f"| {task} | `{last['device']}` | {last['num_envs']} | "
                  f"{settings['updates_per_iteration']} ({settings['replay_ratio']:g}) | "
+                 f"{'staggered' if settings.get('stagger_episodes') else 'lockstep'} | "
                  f"{last['env_steps'] / 1e6:.1f}M | {_duration(last['wall_s'])} | "
                  f"{last['eval_return']:.1f} | {best['eval_return']:.1f} | {first} |")
   return "\n".join(lines)

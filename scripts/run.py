@@ -70,6 +70,10 @@ def parse_args(argv=None) -> argparse.Namespace:
   train.add_argument("--num_action_samples", type=int,
                      default=defaults.learner.num_action_samples)
   train.add_argument("--eval_envs", type=int, default=defaults.eval_envs)
+  train.add_argument("--lockstep_episodes", action="store_true",
+                     help="start every environment's first episode together (as runs before "
+                          "staggered starts did); by default first episodes start at random "
+                          "phases so that every iteration collects every phase of an episode")
   train.add_argument("--eval_every", type=int, default=10, help="iterations between evaluations")
   train.add_argument("--checkpoint_every", type=int, default=50, help="iterations")
   train.add_argument("--max_seconds", type=float, default=None,
@@ -104,7 +108,8 @@ def train_config(args: argparse.Namespace) -> TrainConfig:
                      replay_capacity=args.replay_capacity,
                      updates_per_iteration=args.updates_per_iteration,
                      network_width=args.network_width, eval_envs=args.eval_envs,
-                     seed=args.seed, learner=learner)
+                     seed=args.seed, stagger_episodes=not args.lockstep_episodes,
+                     learner=learner)
 
 
 def random_rollout(args: argparse.Namespace, mesh) -> dict:

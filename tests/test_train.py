@@ -62,6 +62,29 @@ def test_two_devices_match_one_device(trainers):
   assert int(s1.learner.updates) == 8
 
 
+def test_first_episodes_start_at_staggered_phases(trainers):
+  """Environments start their first episode at random multiples of the unroll length, so each
+  iteration ends some episodes (on unroll boundaries); the shortened first episodes are not
+  reported as returns."""
+  trainer, _ = trainers
+  state = trainer.init(jax.random.PRNGKey(7))
+  start = np.asarray(state.env.info["step"])
+  unroll = CONFIG.unroll_length
+  assert ((start % unroll == 0) & (start >= 0) & (start < 1000)).all()
+  assert len(set(start.tolist())) > 1, start  # not in lockstep
+  np.testing.assert_array_equal(np.isnan(np.asarray(state.episode_return)), start > 0)
+  period = 1000 // unroll  # iterations per episode
+  state, metrics = run_iterations(trainer, state, 2 * period)
+  ends = (1000 - start) // unroll - 1  # the iteration in which each env's first episode ends
+  for i, m in enumerate(metrics):
+    ending = ends == i % period
+    assert m["episodes"] == np.sum(ending), i
+    whole = ending & (start == 0) if i < period else ending  # first episodes: only full ones
+    assert np.isfinite(m["train_return"]) == np.any(whole), i
+  np.testing.assert_array_equal(np.asarray(state.env.info["step"]), start)  # phases kept
+  assert np.isfinite(np.asarray(state.episode_return)).all()
+
+
 def test_resume_ends_where_an_uninterrupted_run_ends(trainers, tmp_path):
   _, trainer = trainers
   straight, _ = run_iterations(trainer, trainer.init(jax.random.PRNGKey(5)), 3)
@@ -196,11 +219,16 @@ def test_lean_checkpoints_hold_no_replay_and_resume(trainers, tmp_path):
 
 
 def test_expert_learns_reacher_easy():
-  """A short MPO run on the task reward (100 iterations of 1600 env steps): the mean-action
-  return of the same 16 evaluation episodes clearly improves."""
+  """A short MPO run on the task reward (100 iterations of 1600 env steps, replay ratio 16):
+  the mean-action return of the same 64 evaluation episodes clearly improves.
+
+  reacher's reward is sparse (1 inside the target), so when learning starts varies with the
+  seed: with these settings seeds 0, 1 and 3 gained 190-230 in 100 iterations (seed 3: +480
+  in 200), seed 2 stayed near its start for 200. A change that only reshuffles random streams
+  can therefore move this test; one that breaks learning fails it for every seed."""
   config = TrainConfig(task="reacher_easy", num_envs=32, unroll_length=50, batch_size=16,
-                       replay_capacity=2048, updates_per_iteration=16, network_width=64,
-                       eval_envs=16, learner=LearnerConfig(num_action_samples=8,
+                       replay_capacity=2048, updates_per_iteration=32, network_width=64,
+                       eval_envs=64, learner=LearnerConfig(num_action_samples=8,
                                                            target_update_period=50))
   trainer = Trainer(config)
   state = trainer.init(jax.random.PRNGKey(0))
@@ -209,7 +237,9 @@ def test_expert_learns_reacher_easy():
   state, metrics = run_iterations(trainer, state, 100)
   after = float(np.mean(trainer.evaluate(state.learner.policy, state.normalizer, eval_key)))
   assert after >= before + 150, (before, after)
-  assert metrics[-1]["train_return"] > 100  # the sampling policy improved too
+  # The sampling policy improved too (episodes end in every iteration: starts are staggered).
+  train_returns = np.array([m["train_return"] for m in metrics])
+  assert np.nanmean(train_returns[-20:]) > np.nanmean(train_returns[:20]) + 100, train_returns
   assert np.isfinite([m["critic_loss"] for m in metrics]).all()
 
 
