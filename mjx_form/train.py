@@ -163,7 +163,9 @@ class Trainer:
       start = cfg.unroll_length * jax.random.randint(stagger_key, (cfg.num_envs,), 0, phases)
       env_state = env_state.replace(info=dict(
           env_state.info, step=start.astype(env_state.info["step"].dtype)))
-      episode_return = jnp.where(start > 0, jnp.nan, 0.0)  # partial episodes: not reported
+      # Partial episodes are not reported. (float32, not weak-typed: a weak-typed leaf here
+      # would differ from the iteration's output and make its second call compile again.)
+      episode_return = jnp.where(start > 0, jnp.nan, 0.0).astype(jnp.float32)
     env_state = jax.lax.with_sharding_constraint(env_state, self._batch)
     return TrainState(
         learner=learner_lib.init(self.networks, cfg.learner, learner_key,

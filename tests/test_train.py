@@ -73,6 +73,8 @@ def test_first_episodes_start_at_staggered_phases(trainers):
   assert ((start % unroll == 0) & (start >= 0) & (start < 1000)).all()
   assert len(set(start.tolist())) > 1, start  # not in lockstep
   np.testing.assert_array_equal(np.isnan(np.asarray(state.episode_return)), start > 0)
+  types = lambda tree: [(x.shape, x.dtype, x.weak_type) for x in jax.tree.leaves(tree)]
+  init_types = types(state)
   period = 1000 // unroll  # iterations per episode
   state, metrics = run_iterations(trainer, state, 2 * period)
   ends = (1000 - start) // unroll - 1  # the iteration in which each env's first episode ends
@@ -83,6 +85,9 @@ def test_first_episodes_start_at_staggered_phases(trainers):
     assert np.isfinite(m["train_return"]) == np.any(whole), i
   np.testing.assert_array_equal(np.asarray(state.env.info["step"]), start)  # phases kept
   assert np.isfinite(np.asarray(state.episode_return)).all()
+  # The iteration returns the types it takes (a weak-typed leaf from init once made every run
+  # compile the iteration twice).
+  assert types(state) == init_types
 
 
 def test_resume_ends_where_an_uninterrupted_run_ends(trainers, tmp_path):
