@@ -23,6 +23,7 @@ sys.path.insert(0, ROOT)
 
 from mjx_form import policy_io  # noqa: E402  (numpy only; no JAX)
 
+# = tasks.EXPERTS_DIR (not imported from there: importing tasks starts JAX)
 EXPERTS = os.path.join(ROOT, "tasks", "experts")
 # Expert returns of the paper's Table 1 (mean over 3 seeds), for comparison only.
 PAPER_EXPERT = {"reacher_easy": 974.6, "reacher_hard": 981.3, "cheetah_run": 930.5,
@@ -228,7 +229,7 @@ def experts_table(folder: str = EXPERTS) -> str:
 
 
 def render(readme: str, records: list[dict]) -> str:
-  for name, table in (("experts", experts_table()),("throughput", throughput_table(records)),
+  for name, table in (("experts", experts_table()), ("throughput", throughput_table(records)),
                       ("parity", parity_table(records)), ("sweep", sweep_table(records)),
                       ("learning", learning_table(records)),
                       ("train_throughput", train_throughput_table(records))):

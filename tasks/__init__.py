@@ -30,23 +30,26 @@ TASKS: tuple[str, ...] = tuple(_REGISTRY)
 EXPERTS_DIR = os.path.join(os.path.dirname(os.path.abspath(__file__)), "experts")
 
 
-def make(name: str, physics: str = DEFAULT_PHYSICS) -> Task:
-  """Builds the task `name` (e.g. 'humanoid_run') with the physics mode 'parity' or 'fast'."""
+def _check_name(name: str) -> None:
   if name not in _REGISTRY:
     raise ValueError(f"unknown task {name!r}; valid tasks: {', '.join(TASKS)}")
+
+
+def make(name: str, physics: str = DEFAULT_PHYSICS) -> Task:
+  """Builds the task `name` (e.g. 'humanoid_run') with the physics mode 'parity' or 'fast'."""
+  _check_name(name)
   return _REGISTRY[name](check_physics_mode(physics))
 
 
 def bundled_experts() -> dict[str, str]:
   """{task name: path} of the expert policies shipped in tasks/experts/, in task order."""
-  return {name: os.path.join(EXPERTS_DIR, f"{name}.npz") for name in TASKS
-          if os.path.isfile(os.path.join(EXPERTS_DIR, f"{name}.npz"))}
+  paths = {name: os.path.join(EXPERTS_DIR, f"{name}.npz") for name in TASKS}
+  return {name: path for name, path in paths.items() if os.path.isfile(path)}
 
 
 def bundled_expert(name: str) -> str:
   """The path of the shipped expert policy for task `name`; a clear error if there is none."""
-  if name not in _REGISTRY:
-    raise ValueError(f"unknown task {name!r}; valid tasks: {', '.join(TASKS)}")
+  _check_name(name)
   available = bundled_experts()
   if name not in available:
     raise ValueError(f"no shipped expert for {name!r} (shipped: {', '.join(available) or 'none'});"

@@ -26,6 +26,7 @@ jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)
 # tolerance. CPU only: the tests run on the CPU.
 CPU_COMPILER_OPTIONS = {"xla_cpu_use_fusion_emitters": False}
 
+import importlib.util  # noqa: E402
 import json  # noqa: E402
 import warnings  # noqa: E402
 
@@ -42,6 +43,16 @@ class _ReportRows:
 
   def append(self, row: dict) -> None:
     self._node.user_properties.append(("parity_row", json.dumps(row)))
+
+
+def load_script(name: str):
+  """scripts/<name>.py as a module, so its main() runs in this process (compiles are shared)."""
+  path = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "scripts",
+                      f"{name}.py")
+  spec = importlib.util.spec_from_file_location(f"script_{name}", path)
+  module = importlib.util.module_from_spec(spec)
+  spec.loader.exec_module(module)
+  return module
 
 
 @pytest.hookimpl(trylast=True)

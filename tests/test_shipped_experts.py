@@ -1,25 +1,14 @@
 """The expert policies shipped in tasks/experts/: each loads for its task only, and the
 reacher_easy one, recorded through scripts/make_demos.py --task, does reach its targets."""
 
-import importlib.util
-import os
-
 import numpy as np
 import pytest
 
 import tasks
+from conftest import load_script
 from mjx_form import demos, experts, policy_io
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 SHIPPED = tasks.bundled_experts()
-
-
-def _make_demos_cli():
-  path = os.path.join(ROOT, "scripts", "make_demos.py")
-  spec = importlib.util.spec_from_file_location("make_demos", path)
-  module = importlib.util.module_from_spec(spec)
-  spec.loader.exec_module(module)
-  return module
 
 
 def test_the_readme_experts_are_shipped():
@@ -42,14 +31,14 @@ def test_unknown_or_unshipped_task_is_a_clear_error(tmp_path, capsys):
   with pytest.raises(ValueError, match="no shipped expert for 'humanoid_run'.*reacher_easy"):
     tasks.bundled_expert("humanoid_run")
   out = tmp_path / "demos.npz"
-  assert _make_demos_cli().main(["--task", "humanoid_run", "--out", str(out)]) == 2
+  assert load_script("make_demos").main(["--task", "humanoid_run", "--out", str(out)]) == 2
   assert "no shipped expert" in capsys.readouterr().err and not out.exists()
 
 
 def test_demonstrations_from_the_shipped_reacher_expert(tmp_path):
   """16 full episodes on the CPU: the expert reaches its targets (random actions score ~0-50)."""
   out = tmp_path / "demos.npz"
-  assert _make_demos_cli().main(["--task", "reacher_easy", "--episodes", "16",
+  assert load_script("make_demos").main(["--task", "reacher_easy", "--episodes", "16",
                                  "--out", str(out)]) == 0
   loaded = demos.load_demonstrations(out, task="reacher_easy", observation_size=6)
   assert loaded.observations.shape == (16, 1001, 6) and loaded.actions is None

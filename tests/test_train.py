@@ -3,14 +3,13 @@ settings checks and the command line (small sizes, reacher_easy: no contacts, ch
 
 import csv
 import dataclasses
-import importlib.util
 import json
-import os
 
 import jax
 import numpy as np
 import pytest
 
+from conftest import load_script
 from mjx_form import checkpoint, mesh as mesh_lib, policy_io, runner
 from mjx_form.learner import LearnerConfig
 from mjx_form.train import Trainer, TrainConfig
@@ -144,15 +143,6 @@ def test_bad_settings_are_refused(change, message):
     dataclasses.replace(CONFIG, **change).check(2)
 
 
-def _load_script(name: str):
-  """scripts/<name>.py as a module, so its main() runs in this process (compiles are shared)."""
-  path = os.path.join(os.path.dirname(os.path.dirname(__file__)), "scripts", f"{name}.py")
-  spec = importlib.util.spec_from_file_location(f"script_{name}", path)
-  module = importlib.util.module_from_spec(spec)
-  spec.loader.exec_module(module)
-  return module
-
-
 def _cli_args(run_dir, *extra):
   return ["--task", "reacher_easy", "--method", "expert", "--num_envs", "4",
           "--unroll_length", "10", "--batch_size", "4", "--replay_capacity", "12",
@@ -162,7 +152,7 @@ def _cli_args(run_dir, *extra):
 
 
 def test_command_line_trains_resumes_and_refuses_mismatches(tmp_path, capsys):
-  cli = _load_script("run")
+  cli = load_script("run")
   run_dir = tmp_path / "run"
   curve = tmp_path / "curve.jsonl"
   # A time budget stops the run after its first iteration, checkpointed and exported ...
@@ -255,7 +245,7 @@ def test_demonstrations_from_an_exported_expert(tmp_path, capsys):
   trainer = Trainer(CONFIG)
   state = trainer.init(jax.random.PRNGKey(0))
   runner.export_policy(trainer, state, str(tmp_path / "policy.npz"), {"env_steps": 0})
-  cli = _load_script("make_demos")
+  cli = load_script("make_demos")
   out = tmp_path / "demos.npz"
   args = ["--policy", str(tmp_path / "policy.npz"), "--out", str(out), "--episodes", "3",
           "--chunk", "2", "--actions"]
