@@ -3,7 +3,10 @@
 
 Reads the reference transitions written by scripts/make_reference.py and records, per task and
 mode, the largest absolute error per transition in qpos, qvel, observation and reward (median,
-90th percentile, max over transitions) as `kind: parity` records.
+90th percentile, max over transitions) as `kind: parity` records. The physics runs at full
+float32 matmul precision on every device (`mjx_form.physics.full_precision`); the records of
+2026-11-21 with `matmul_precision: default` measured it with JAX's GPU default (TF32) before
+that was fixed.
 
   python benchmarks/parity_error.py --reference .ref --out benchmarks/results/X.jsonl
 """

@@ -115,6 +115,7 @@ class Task(abc.ABC):
   def control_timestep(self) -> float:
     return float(self.mj_model.opt.timestep) * self.n_substeps
 
+  @physics_lib.full_precision
   def reset(self, key: jax.Array) -> State:
     """Draws a fresh initial state from dm_control's reset distribution."""
     key, init_key = jax.random.split(key)
@@ -128,13 +129,15 @@ class Task(abc.ABC):
     return State(data=data, obs=flatten_observation(obs_parts), obs_parts=dict(obs_parts),
                  reward=zero, done=zero, truncation=zero, task=task, info=info)
 
+  @physics_lib.full_precision
   def step(self, state: State, action: jax.Array) -> State:
     """One control step. Actions are written to `ctrl` unclipped; MuJoCo clamps them to
     `ctrlrange` and the control-cost rewards see them as given, as in dm_control.
 
     A NaN/inf in the action or the resulting physics state ends the episode with
     `info['physics_error'] = 1`, zero reward and the previous observation; the auto-reset
-    wrapper then draws a new start.
+    wrapper then draws a new start. Physics, observation and reward run at full float32
+    matmul precision (`physics.full_precision`), also on GPUs.
     """
     action = jnp.asarray(action, state.data.ctrl.dtype)
     data = state.data.replace(ctrl=action)

@@ -139,6 +139,7 @@ def observe_batch(env: Task, data: mjx.Data, task: dict,
 @functools.cache
 def _observe_fn(env: Task, options: tuple = ()):
   """One jitted observe per task object, so repeated calls (a rollout) do not re-trace."""
+  @physics_lib.full_precision
   def one(d, t):
     return flatten_observation(env.get_observation(d, t)), env.get_reward(d, t)
   return jax.jit(jax.vmap(one), compiler_options=dict(options) or None)

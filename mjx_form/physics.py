@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import functools
 import xml.etree.ElementTree as ET
 
 import jax
@@ -23,6 +24,22 @@ from mjx_form import mjx_patches  # noqa: F401  (MJX corrections for parity with
 
 PHYSICS_MODES = ("parity", "fast")
 DEFAULT_PHYSICS = "fast"  # as exact as parity in one-step error, 2.5-7x faster (README)
+
+# JAX lets float32 matmuls run as TF32 (10-bit mantissa) on NVIDIA GPUs by default. Measured on
+# an H200 (benchmarks/results/*parity_error_gpu*), that put one control step 100-1000x further
+# from dm_control than the CPU is (walker qvel: max error 0.1 against 4e-4 at full precision).
+# Everything that simulates, observes or rewards is therefore traced at full float32; the
+# networks keep JAX's default.
+PHYSICS_MATMUL_PRECISION = "highest"
+
+
+def full_precision(fn):
+  """Decorator: `fn` is traced with float32 matmuls at full precision (no TF32 on GPUs)."""
+  @functools.wraps(fn)
+  def wrapped(*args, **kwargs):
+    with jax.default_matmul_precision(PHYSICS_MATMUL_PRECISION):
+      return fn(*args, **kwargs)
+  return wrapped
 
 
 @dataclasses.dataclass(frozen=True)
@@ -84,6 +101,7 @@ def without_actuation(mj_model: mujoco.MjModel) -> mjx.Model:
   return put_model(model)
 
 
+@full_precision
 def position_velocity_stages(m: mjx.Model, d: mjx.Data) -> mjx.Data:
   """MuJoCo's `mj_step1`: position and velocity stages with their sensors."""
   d = mjx.fwd_position(m, d)
@@ -92,6 +110,7 @@ def position_velocity_stages(m: mjx.Model, d: mjx.Data) -> mjx.Data:
   return mjx.sensor_vel(m, d)
 
 
+@full_precision
 def acceleration_stage_and_integrate(m: mjx.Model, d: mjx.Data) -> mjx.Data:
   """MuJoCo's `mj_step2` for the Euler integrator: forces, constraint solve, sensors, advance."""
   d = mjx.fwd_actuation(m, d)
@@ -104,6 +123,7 @@ def acceleration_stage_and_integrate(m: mjx.Model, d: mjx.Data) -> mjx.Data:
   return mjx.euler(m, d)
 
 
+@full_precision
 def physics_step(m: mjx.Model, d: mjx.Data, n_substeps: int) -> mjx.Data:
   """dm_control's `physics.step(n)`: `mj_step2; mj_step(n - 1); mj_step1`.
 
@@ -118,6 +138,7 @@ def physics_step(m: mjx.Model, d: mjx.Data, n_substeps: int) -> mjx.Data:
   return d
 
 
+@full_precision
 def has_contacts(m: mjx.Model, d: mjx.Data) -> jax.Array:
   """Whether MuJoCo's collision detection reports any contact (`ncon > 0`) at d.qpos."""
   d = mjx.kinematics(m, d)

@@ -45,7 +45,11 @@ class ResultWriter:
   def __init__(self, path: str):
     os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
     self.path = path
-    self._common = {"device": device_name(), "versions": versions()}
+    from mjx_form.physics import PHYSICS_MATMUL_PRECISION
+    # Records without this field (written before the physics asked for full precision) simulated with JAX's default precision,
+    # which is TF32 on NVIDIA GPUs (see mjx_form/physics.py).
+    self._common = {"device": device_name(), "versions": versions(),
+                    "physics_matmul_precision": PHYSICS_MATMUL_PRECISION}
 
   def write(self, **record) -> dict:
     record = {**record, **self._common,

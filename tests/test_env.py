@@ -13,6 +13,7 @@ import sys
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.extend import core as jax_core
 import pytest
 
 import tasks
@@ -166,3 +167,28 @@ def test_cli_random_rollout_reports_steps_per_second():
                     "--log_every", "10")
   assert result.returncode == 0, result.stderr
   assert "steps/s" in result.stdout and "done:" in result.stdout
+
+
+def _dot_precisions(jaxpr) -> list:
+  """The `precision` of every dot_general in a jaxpr, its sub-jaxprs included."""
+  found = []
+  for eqn in jaxpr.eqns:
+    if eqn.primitive.name == "dot_general":
+      found.append(eqn.params["precision"])
+    for sub in jax_core.jaxprs_in_params(eqn.params):
+      found += _dot_precisions(sub)
+  return found
+
+
+def test_physics_matmuls_run_at_full_precision():
+  """On GPUs JAX's default runs float32 matmuls as TF32, which put one step 100-1000x further
+  from dm_control (README); reset and step must ask for full precision in every matmul."""
+  env = AutoReset(tasks.make("cheetah_run"))  # contacts, and 200 settling steps in its reset
+  key = jax.random.PRNGKey(0)
+  state = jax.eval_shape(lambda k: env.reset(k, 2), key)
+  action = jnp.zeros((2, env.env.action_size))
+  for fn, args in ((lambda k: env.reset(k, 2), (key,)), (env.step, (state, action))):
+    precisions = _dot_precisions(jax.make_jaxpr(fn)(*args).jaxpr)
+    assert precisions, "expected matrix products in the physics"
+    highest = (jax.lax.Precision.HIGHEST, jax.lax.Precision.HIGHEST)
+    assert all(p == highest for p in precisions), set(map(str, precisions))
