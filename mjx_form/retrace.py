@@ -22,8 +22,12 @@ def importance_weights(log_rhos: jax.Array, lambda_: float = 1.0) -> jax.Array:
 
 
 def retrace_targets(q_t: jax.Array, v_tp1: jax.Array, rewards: jax.Array, discounts: jax.Array,
-                    log_rhos: jax.Array, lambda_: float = 1.0) -> jax.Array:
+                    log_rhos: jax.Array, lambda_: float = 1.0,
+                    unroll: int | bool = 1) -> jax.Array:
   """Retrace targets for one sequence; all inputs [T], returns [T] (no gradient flows back).
+
+  `unroll` is the backward recursion's `lax.scan` unroll (True: straight-line code, no loop);
+  it changes how the targets are computed on the device, not their values.
 
   q_t[t]:       Q_target(x_t, a_t) (q_t[0] is not used).
   v_tp1[t]:     E_{a~pi} Q_target(x_{t+1}, a).
@@ -45,5 +49,5 @@ def retrace_targets(q_t: jax.Array, v_tp1: jax.Array, rewards: jax.Array, discou
     return g, g
 
   xs = (rewards.astype(dtype), discounts.astype(dtype), v_tp1.astype(dtype), c_next, q_next)
-  _, targets = jax.lax.scan(step, jnp.zeros((), dtype), xs, reverse=True)
+  _, targets = jax.lax.scan(step, jnp.zeros((), dtype), xs, reverse=True, unroll=unroll)
   return targets

@@ -38,13 +38,14 @@ def _random_sequence(rng, T, boundaries=(), gamma=0.97):
   return [v.astype(np.float32) for v in (q_t, v_tp1, r, discounts, log_rhos)]
 
 
+@pytest.mark.parametrize("unroll", [1, True])  # a loop, and straight-line code (the learner's)
 @pytest.mark.parametrize("lambda_", [1.0, 0.9])
 @pytest.mark.parametrize("boundaries", [(), (3,), (0, 6, 7)])
-def test_matches_numpy_reference(lambda_, boundaries):
+def test_matches_numpy_reference(lambda_, boundaries, unroll):
   rng = np.random.default_rng(len(boundaries))
   args = _random_sequence(rng, 12, boundaries)
   assert (args[-1] > 0).any() and (args[-1] < 0).any()
-  got = retrace.retrace_targets(*args, lambda_=lambda_)
+  got = retrace.retrace_targets(*args, lambda_=lambda_, unroll=unroll)
   np.testing.assert_allclose(got, _reference(*args, lambda_), rtol=1e-5, atol=1e-5)
 
 

@@ -1,0 +1,147 @@
+#!/usr/bin/env python3
+"""Milliseconds per MPO/Retrace learner update, and what its parts cost.
+
+The learner update (`mjx_form.learner.update`) on a random batch of the paper's size (64 unrolls
+of 100 steps), `--updates` updates per jitted `lax.scan` as in the training loop, timed as the
+best of `--repeats` calls after a warm-up call. Variants, each compiled on its own:
+  - base:        the default LearnerConfig;
+  - samples_1:   one sampled action per state instead of 20 (what the sampled critic costs);
+  - highest:     float32 matmuls at 'highest' precision (the default lets the GPU use TF32);
+  - retrace_*:   the Retrace targets of one batch alone, as a loop and unrolled (the learner
+                 unrolls it).
+Records `kind: update_speed` with `update_ms` (or `retrace_ms`).
+
+  python benchmarks/update_speed.py --tasks cheetah_run humanoid_run
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import dataclasses
+import os
+import sys
+import time
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+
+import common  # noqa: E402  (puts the repository on sys.path)
+from mjx_form.cpu import configure_cpu_xla  # noqa: E402
+
+configure_cpu_xla()
+
+import jax  # noqa: E402
+import jax.numpy as jnp  # noqa: E402
+
+import tasks  # noqa: E402
+from mjx_form import learner, normalizer, retrace  # noqa: E402
+from mjx_form.networks import make_networks  # noqa: E402
+
+VARIANTS = ("base", "samples_1", "highest")
+
+
+def random_batch(key, batch: int, length: int, obs_size: int, action_size: int):
+  """A batch shaped like the replay's: observations [B, T+1, D], actions [B, T, A], ..."""
+  k = jax.random.split(key, 4)
+  return {"observation": jax.random.normal(k[0], (batch, length + 1, obs_size)),
+          "action": jax.random.uniform(k[1], (batch, length, action_size), minval=-1, maxval=1),
+          "behaviour_log_prob": -jax.random.uniform(k[2], (batch, length)) * action_size,
+          "discount": jnp.ones((batch, length))}, jax.random.normal(k[3], (batch, length))
+
+
+def update_fn(networks, config: learner.LearnerConfig, updates: int):
+  def run(state, norm, batch, rewards, key):
+    def one(state, key):
+      return learner.update(networks, config, state, norm, batch, rewards, key)[0], None
+    return jax.lax.scan(one, state, jax.random.split(key, updates))[0]
+  return jax.jit(run, donate_argnums=0)
+
+
+def retrace_fn(unroll, calls: int):
+  def run(args):
+    def one(carry, _):
+      # Feed the result back so the calls cannot be hoisted out of the loop.
+      targets = jax.vmap(retrace.retrace_targets, in_axes=(0, 0, 0, 0, 0, None, None))(
+          *args[:-1], carry, 1.0, unroll)
+      return carry + 1e-6 * targets, None
+    return jax.lax.scan(one, args[-1], None, length=calls)[0]
+  return jax.jit(run)
+
+
+def time_call(fn, args, repeats: int, donate_first: bool):
+  """(best seconds per call, compile seconds) of jitted fn on args."""
+  t0 = time.perf_counter()
+  exe = fn.lower(*args).compile()
+  compile_s = time.perf_counter() - t0
+  holder = [exe(*args)]
+  jax.block_until_ready(holder[0])
+
+  def call():
+    out = exe(holder[0], *args[1:]) if donate_first else exe(*args)
+    holder[0] = jax.block_until_ready(out)
+  return common.best_time(call, repeats), compile_s
+
+
+def main(argv=None) -> int:
+  parser = argparse.ArgumentParser(description=__doc__,
+                                   formatter_class=argparse.RawDescriptionHelpFormatter)
+  parser.add_argument("--tasks", nargs="*", default=["cheetah_run", "humanoid_run"],
+                      choices=tasks.TASKS, metavar="TASK")
+  parser.add_argument("--variants", nargs="*", default=list(VARIANTS), choices=VARIANTS)
+  parser.add_argument("--updates", type=int, default=64, help="updates per timed call")
+  parser.add_argument("--batch_size", type=int, default=64)
+  parser.add_argument("--unroll_length", type=int, default=100)
+  parser.add_argument("--repeats", type=int, default=3)
+  parser.add_argument("--out", default=common.default_results_path("update_speed"))
+  args = parser.parse_args(argv)
+  if min(args.updates, args.batch_size, args.unroll_length, args.repeats) <= 0:
+    parser.error("--updates, --batch_size, --unroll_length and --repeats must be positive")
+  writer = common.ResultWriter(args.out)
+  key = jax.random.PRNGKey(0)
+  shape = {"batch_size": args.batch_size, "unroll_length": args.unroll_length}
+
+  for name in args.tasks:
+    env = tasks.make(name)
+    obs_size, action_size = env.observation_size, env.action_size
+    batch, rewards = random_batch(key, args.batch_size, args.unroll_length, obs_size,
+                                  action_size)
+    norm = normalizer.init(obs_size)
+    for variant in args.variants:
+      config = learner.LearnerConfig()
+      if variant == "samples_1":
+        config = dataclasses.replace(config, num_action_samples=1)
+      networks = make_networks(action_size)
+      state = learner.init(networks, config, key, obs_size, action_size)
+      # Targets start as the online parameters; donation needs a buffer per leaf.
+      state = jax.tree.map(lambda x: jnp.array(x, copy=True), state)
+      precision = (jax.default_matmul_precision("highest") if variant == "highest"
+                   else contextlib.nullcontext())
+      with precision:
+        seconds, compile_s = time_call(
+            update_fn(networks, config, args.updates), (state, norm, batch, rewards, key),
+            args.repeats, donate_first=True)
+      ms = 1e3 * seconds / args.updates
+      result = {"update_ms": ms, "compile_s": compile_s}
+      writer.write(kind="update_speed", task=name, variant=variant,
+                   settings={**shape, "updates": args.updates, "repeats": args.repeats,
+                             "observation_size": obs_size, "action_size": action_size,
+                             "learner": dataclasses.asdict(config)}, **result)
+      print(f"{name:<16}{variant:<12}{ms:8.2f} ms/update  (compile {compile_s:.0f}s)",
+            flush=True)
+    retrace_args = tuple(jax.random.normal(k, (args.batch_size, args.unroll_length))
+                         for k in jax.random.split(key, 5))
+    retrace_args = retrace_args[:3] + (jnp.full_like(retrace_args[3], 0.99),) + retrace_args[4:]
+    for label, unroll in (("retrace_loop", 1), ("retrace_unrolled", True)):
+      seconds, compile_s = time_call(retrace_fn(unroll, args.updates), (retrace_args,),
+                                        args.repeats, donate_first=False)
+      ms = 1e3 * seconds / args.updates
+      writer.write(kind="update_speed", task=name, variant=label,
+                   settings={**shape, "updates": args.updates, "repeats": args.repeats},
+                   retrace_ms=ms, compile_s=compile_s)
+      print(f"{name:<16}{label:<18}{ms:8.3f} ms/call  (compile {compile_s:.0f}s)", flush=True)
+  print(f"results appended to {args.out}")
+  return 0
+
+
+if __name__ == "__main__":
+  sys.exit(main())
