@@ -4,11 +4,15 @@
 For every task, physics mode and batch size it times, on one device, with uniform random
 actions drawn on the device:
   - ours: `AutoReset(task).step` (physics, observation, reward, NaN checks, auto-reset);
-  - raw:  a plain `mjx.step` loop (n_substeps per control step) on the same MJX model and
-          solver settings, no observation, reward or reset: the floor an env step cannot beat
+  - step: with `--unwrapped`, also `vmap(task.step)` without the auto-reset wrapper, to split
+          the wrapper's cost from the environment's (field `step_sps`);
+  - raw:  a plain `mjx.step` loop (n_substeps per control step) on the same MJX model, solver
+          settings and matmul precision (full float32, as our physics), no observation, reward
+          or reset: the floor an env step cannot beat
           (measured once per model, settings and size; tasks of a domain share a model);
   - peer: MuJoCo Playground's version of the task (`impl="jax"`, its own settings), where one
-          exists (none for quadruped), its unwrapped `step`.
+          exists (none for quadruped), its unwrapped `step` (JAX's default matmul precision: TF32
+          on NVIDIA GPUs).
 All three run `--steps` control steps inside one jitted `lax.scan`; the time is the best of
 `--repeats` calls after a warm-up call, compile time recorded apart. Tasks go in batches
 (`--batch_tasks`) whose functions are compiled in parallel threads (`--compile_threads`); then
@@ -41,7 +45,7 @@ import jax.numpy as jnp  # noqa: E402
 from mujoco import mjx  # noqa: E402
 
 import tasks  # noqa: E402
-from mjx_form.physics import PHYSICS_MODES, apply_solver_settings  # noqa: E402
+from mjx_form.physics import PHYSICS_MODES, apply_solver_settings, full_precision  # noqa: E402
 from mjx_form.wrappers import AutoReset  # noqa: E402
 
 PEERS = {  # our name -> MuJoCo Playground's name
@@ -76,12 +80,24 @@ def ours_fn(env, num_envs: int, steps: int):
   return jax.jit(run, donate_argnums=0)
 
 
+def step_fn(env, num_envs: int, steps: int):
+  """`vmap(env.step)` alone: ours without the auto-reset wrapper."""
+  step = jax.vmap(env.step)
+
+  def run(state, key):
+    def body(state, key):
+      return step(state, _random_actions(key, num_envs, env.action_size)), None
+    return jax.lax.scan(body, state, jax.random.split(key, steps))[0]
+  return jax.jit(run, donate_argnums=0)
+
+
 def raw_fn(env, num_envs: int, steps: int):
   model, n_substeps = env.mjx_model, env.n_substeps
 
   def control_step(data):
     return jax.lax.scan(lambda d, _: (mjx.step(model, d), None), data, None, length=n_substeps)[0]
 
+  @full_precision  # as our step: float32 matmuls at full precision
   def run(data, key):
     def body(data, key):
       data = data.replace(ctrl=_random_actions(key, num_envs, env.action_size))
@@ -164,8 +180,12 @@ def task_jobs(name: str, args, key, peer_lock: threading.Lock) -> list[dict]:
                  (_tile(starts[physics], times), key), steps, num_envs)
       raw = Job(f"{name} {physics} {num_envs} raw", raw_fn(env, num_envs, steps),
                 (_tile(starts[physics].data, times), key), steps, num_envs)
+      unwrapped = None
+      if args.unwrapped:
+        unwrapped = Job(f"{name} {physics} {num_envs} step", step_fn(env, num_envs, steps),
+                        (_tile(starts[physics], times), key), steps, num_envs)
       entries.append({"task": name, "physics": physics, "num_envs": num_envs, "env": env,
-                      "steps": steps, "ours": ours, "raw": raw,
+                      "steps": steps, "ours": ours, "raw": raw, "step": unwrapped,
                       "raw_key": (model_digest(env), env.n_substeps, num_envs, steps),
                       "peer": peer})
   return entries
@@ -187,6 +207,8 @@ def main(argv=None) -> int:
   parser.add_argument("--batch_tasks", type=int, default=4,
                       help="tasks compiled together before they are timed")
   parser.add_argument("--no_peer", action="store_true")
+  parser.add_argument("--unwrapped", action="store_true",
+                      help="also time vmap(task.step) without the auto-reset wrapper (step_sps)")
   parser.add_argument("--out", default=common.default_results_path("env_throughput"))
   args = parser.parse_args(argv)
   base = min(args.num_envs)
@@ -222,6 +244,10 @@ def main(argv=None) -> int:
       env = entry["env"]
       result = {"sps": ours.sps, "raw_sps": raw.sps, "ratio_to_raw": ours.sps / raw.sps,
                 "compile_s": ours.compile_s, "raw_compile_s": raw.compile_s}
+      if entry["step"] is not None:
+        unwrapped = entry["step"]
+        unwrapped.time(args.repeats)
+        result.update(step_sps=unwrapped.sps, step_ratio_to_raw=unwrapped.sps / raw.sps)
       settings = {"num_envs": entry["num_envs"], "physics": entry["physics"],
                   "steps": entry["steps"], "repeats": args.repeats,
                   "solver": vars(env.solver_settings), "n_substeps": env.n_substeps,
@@ -241,7 +267,7 @@ def main(argv=None) -> int:
     for first in range(0, len(args.tasks), args.batch_tasks):
       batch = list(pool.map(prepare, args.tasks[first:first + args.batch_tasks]))
       jobs = {id(job): job for entries in batch for entry in entries
-              for job in (entry["peer"], entry["ours"], entry["raw"])
+              for job in (entry["peer"], entry["ours"], entry["raw"], entry["step"])
               if job is not None and job.exe is None and job.sps is None}
       list(pool.map(Job.compile, jobs.values()))
       for entries in batch:
