@@ -70,6 +70,14 @@ def _solver(settings: dict) -> str:
                  if settings.get("max_contact_points") else "")
 
 
+def _matmuls(r: dict) -> str:
+  """How the physics' float32 matmuls ran: 'float32', or 'TF32' for GPU records made before the
+  physics asked for full precision (they carry no `physics_matmul_precision`; JAX's default on
+  NVIDIA GPUs is TF32)."""
+  precision = r.get("physics_matmul_precision") or r.get("matmul_precision")
+  return "float32" if precision == "highest" or not r["device"].startswith("gpu") else "TF32"
+
+
 def throughput_table(records: list[dict]) -> str:
   rows = [r for r in records if r.get("kind") == "env_throughput"]
   if not rows:
@@ -82,10 +90,12 @@ def throughput_table(records: list[dict]) -> str:
     lines += [f"Control steps per second on `{device}` (jax {versions.get('jax')}, mujoco "
               f"{versions.get('mujoco')}); ours = `AutoReset(task).step`, raw = plain `mjx.step` "
               "loop on the same model and settings, peer = MuJoCo Playground (`impl=\"jax\"`, its "
-              "own settings, unwrapped step):", "",
-              "| task | physics | solver | envs | ours | raw | ours/raw | peer | ours/peer | "
-              "peer settings |",
-              "|---|---|---|---|---|---|---|---|---|---|"]
+              "own settings, unwrapped step); unwrapped = `vmap(task.step)` without auto-reset, "
+              "where measured; physics matmuls = how our and raw physics ran its float32 matrix "
+              "products:", "",
+              "| task | physics | solver | envs | physics matmuls | ours | raw | ours/raw | "
+              "unwrapped/raw | peer | ours/peer | peer settings |",
+              "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in sorted(sel, key=lambda r: (_order(r["task"]), r["physics"] != "parity",
                                         r["num_envs"])):
       peer = f"{_k(r['peer_sps'])}" if "peer_sps" in r else "-"
@@ -93,10 +103,11 @@ def throughput_table(records: list[dict]) -> str:
       p = r["settings"].get("peer")
       peer_settings = (f"dt {p['sim_dt']}, {p['n_substeps']} substeps, {p['iterations']}/"
                        f"{p['ls_iterations']} iterations" if p else "-")
+      unwrapped = f"{r['step_ratio_to_raw']:.2f}" if "step_ratio_to_raw" in r else "-"
       lines.append(f"| {r['task']} | {r['physics']} | {_solver(r['settings']['solver'])} | "
-                   f"{r['num_envs']} | {_k(r['sps'])} | "
-                   f"{_k(r['raw_sps'])} | {r['ratio_to_raw']:.2f} | {peer} | {ratio_peer} | "
-                   f"{peer_settings} |")
+                   f"{r['num_envs']} | {_matmuls(r)} | {_k(r['sps'])} | "
+                   f"{_k(r['raw_sps'])} | {r['ratio_to_raw']:.2f} | {unwrapped} | {peer} | "
+                   f"{ratio_peer} | {peer_settings} |")
     lines.append("")
   return "\n".join(lines).rstrip()
 
@@ -105,14 +116,14 @@ def parity_table(records: list[dict]) -> str:
   rows = [r for r in records if r.get("kind") == "parity"]
   if not rows:
     return "No parity results yet."
-  newest = _newest(rows, lambda r: (r["task"], r["physics"], r["device"]))
+  newest = _newest(rows, lambda r: (r["task"], r["physics"], r["device"], _matmuls(r)))
   lines = []
-  for device in sorted({r["device"] for r in newest.values()}):
-    sel = [r for r in newest.values() if r["device"] == device]
+  for device, matmuls in sorted({(r["device"], _matmuls(r)) for r in newest.values()}):
+    sel = [r for r in newest.values() if (r["device"], _matmuls(r)) == (device, matmuls)]
     n = sel[0]["settings"].get("num_transitions")
     lines += [f"One control step from {n} dm_control states under random actions, float32 on "
-              f"`{device}`: largest absolute error per transition against dm_control's next "
-              "state, median / max over transitions:", "",
+              f"`{device}`, matmuls in {matmuls}: largest absolute error per transition against "
+              "dm_control's next state, median / max over transitions:", "",
               "| task | physics | qpos | qvel | observation | reward |", "|---|---|---|---|---|---|"]
     for r in sorted(sel, key=lambda r: (_order(r["task"]), r["physics"] != "parity")):
       cells = [f"{r[f]['median']:.0e} / {r[f]['max']:.0e}"
@@ -164,10 +175,10 @@ def learning_table(records: list[dict], threshold: float = 800.0) -> str:
            f"compilation where a run was continued with --resume). First episodes: `lockstep` "
            f"= all environments started together, `staggered` = at random phases (see "
            f"above).", "",
-           "| task | device | envs | updates / iteration (replay ratio) | first episodes | "
-           "env steps | wall clock | final eval | best eval | first eval >= "
+           "| task | device | physics matmuls | envs | updates / iteration (replay ratio) | "
+           "first episodes | env steps | wall clock | final eval | best eval | first eval >= "
            f"{threshold:.0f}: wall clock (env steps) |",
-           "|---|---|---|---|---|---|---|---|---|---|"]
+           "|---|---|---|---|---|---|---|---|---|---|---|"]
   for (_, task, _), curve in sorted(runs.items(),
                                     key=lambda kv: (_order(kv[0][1]), kv[1][0]["num_envs"])):
     curve = sorted(curve, key=lambda r: r["env_steps"])
@@ -176,7 +187,7 @@ def learning_table(records: list[dict], threshold: float = 800.0) -> str:
     first = (f"{_duration(reached['wall_s'])} ({reached['env_steps'] / 1e6:.1f}M)" if reached
              else "not reached")
     settings = last["settings"]
-    lines.append(f"| {task} | `{last['device']}` | {last['num_envs']} | "
+    lines.append(f"| {task} | `{last['device']}` | {_matmuls(last)} | {last['num_envs']} | "
                  f"{settings['updates_per_iteration']} ({settings['replay_ratio']:g}) | "
                  f"{'staggered' if settings.get('stagger_episodes') else 'lockstep'} | "
                  f"{last['env_steps'] / 1e6:.1f}M | {_duration(last['wall_s'])} | "
@@ -194,12 +205,13 @@ def train_throughput_table(records: list[dict]) -> str:
            "unrolls, normaliser, replay insert, MPO/Retrace updates) beside env-only "
            "`AutoReset(task).step` with random actions, in the same process; peak device memory "
            "of that process (replay of 10,000 unrolls included):", "",
-           "| task | device | physics | envs | updates / iteration | loop | env only | "
-           "loop/env | ms / update | peak memory |", "|---|---|---|---|---|---|---|---|---|---|"]
+           "| task | device | physics | physics matmuls | envs | updates / iteration | loop | "
+           "env only | loop/env | ms / update | peak memory |",
+           "|---|---|---|---|---|---|---|---|---|---|---|"]
   for r in sorted(newest.values(), key=lambda r: (_order(r["task"]), r["num_envs"])):
     memory = r.get("peak_memory_bytes")
-    lines.append(f"| {r['task']} | `{r['device']}` | {r['physics']} | {r['num_envs']} | "
-                 f"{r['settings']['updates_per_iteration']} | {_k(r['sps'])} | "
+    lines.append(f"| {r['task']} | `{r['device']}` | {r['physics']} | {_matmuls(r)} | "
+                 f"{r['num_envs']} | {r['settings']['updates_per_iteration']} | {_k(r['sps'])} | "
                  f"{_k(r['env_sps'])} | {r['ratio_to_env']:.2f} | {r['update_ms']:.1f} | "
                  f"{'-' if memory is None else f'{memory / 2**30:.1f} GiB'} |")
   return "\n".join(lines)

@@ -12,7 +12,8 @@ SHIPPED = tasks.bundled_experts()
 
 
 def test_the_readme_experts_are_shipped():
-  assert {"reacher_easy", "reacher_hard", "cheetah_run", "walker_walk"} <= set(SHIPPED)
+  assert {"reacher_easy", "reacher_hard", "cheetah_run", "walker_stand",
+          "walker_walk"} <= set(SHIPPED)
 
 
 @pytest.mark.parametrize("name", sorted(SHIPPED))
