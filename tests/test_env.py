@@ -184,11 +184,10 @@ def test_physics_matmuls_run_at_full_precision():
   """On GPUs JAX's default runs float32 matmuls as TF32, which put one step 100-1000x further
   from dm_control (README); reset and step must ask for full precision in every matmul."""
   env = AutoReset(tasks.make("cheetah_run"))  # contacts, and 200 settling steps in its reset
-  key = jax.random.PRNGKey(0)
-  state = jax.eval_shape(lambda k: env.reset(k, 2), key)
   action = jnp.zeros((2, env.env.action_size))
-  for fn, args in ((lambda k: env.reset(k, 2), (key,)), (env.step, (state, action))):
-    precisions = _dot_precisions(jax.make_jaxpr(fn)(*args).jaxpr)
-    assert precisions, "expected matrix products in the physics"
-    highest = (jax.lax.Precision.HIGHEST, jax.lax.Precision.HIGHEST)
-    assert all(p == highest for p in precisions), set(map(str, precisions))
+  # One trace of reset then step (the reset branch of the auto-reset is traced too).
+  jaxpr = jax.make_jaxpr(lambda k: env.step(env.reset(k, 2), action))(jax.random.PRNGKey(0))
+  precisions = _dot_precisions(jaxpr.jaxpr)
+  assert precisions, "expected matrix products in the physics"
+  highest = (jax.lax.Precision.HIGHEST, jax.lax.Precision.HIGHEST)
+  assert all(p == highest for p in precisions), set(map(str, precisions))

@@ -26,10 +26,32 @@ def test_report_detects_a_hand_edited_table():
 
 
 def test_throughput_table_lists_each_measurement():
-  records = [{"kind": "env_throughput", "task": "cheetah_run", "physics": "parity",
-              "num_envs": 2048, "device": "gpu:X", "versions": {}, "time": "t", "sps": 1.5e5,
-              "raw_sps": 2e5, "ratio_to_raw": 0.75,
-              "settings": {"solver": {"iterations": 10, "ls_iterations": 10,
-                                      "max_contact_points": 4}}}]
-  table = report.throughput_table(records)
-  assert "| cheetah_run | parity | 10/10 cull 4 | 2048 | 150k | 200k | 0.75 | - | - | - |" in table
+  record = {"kind": "env_throughput", "task": "cheetah_run", "physics": "parity",
+            "num_envs": 2048, "device": "gpu:X", "versions": {}, "time": "t", "sps": 1.5e5,
+            "raw_sps": 2e5, "ratio_to_raw": 0.75,
+            "settings": {"solver": {"iterations": 10, "ls_iterations": 10,
+                                    "max_contact_points": 4}}}
+  # A GPU record without the precision field predates the full-precision physics: TF32.
+  table = report.throughput_table([record])
+  assert ("| cheetah_run | parity | 10/10 cull 4 | 2048 | TF32 | 150k | 200k | 0.75 | - | - | - "
+          "| - |") in table
+  newer = dict(record, physics_matmul_precision="highest", step_sps=1.8e5,
+               step_ratio_to_raw=0.9, time="u")
+  table = report.throughput_table([record, newer])
+  assert ("| cheetah_run | parity | 10/10 cull 4 | 2048 | float32 | 150k | 200k | 0.75 | 0.90 | "
+          "- | - | - |") in table
+  assert "TF32" not in table.split("\n", 2)[2]  # only the newest record of a row is shown
+
+
+def test_parity_tables_are_per_device_and_precision():
+  error = {"median": 1e-6, "p90": 2e-6, "max": 3e-6}
+  base = {"kind": "parity", "task": "walker_walk", "physics": "fast", "time": "t",
+          "settings": {"num_transitions": 64}, "qpos_error": error, "qvel_error": error,
+          "obs_error": error, "reward_error": error}
+  records = [dict(base, device="cpu:cpu x1"),
+             dict(base, device="gpu:X", matmul_precision="default"),
+             dict(base, device="gpu:X", matmul_precision="highest")]
+  table = report.parity_table(records)
+  assert table.count("| walker_walk | fast |") == 3
+  assert "`gpu:X`, matmuls in TF32" in table and "`gpu:X`, matmuls in float32" in table
+  assert "`cpu:cpu x1`, matmuls in float32" in table
