@@ -26,7 +26,7 @@ PHYSICS_MODES = ("parity", "fast")
 DEFAULT_PHYSICS = "fast"  # as exact as parity in one-step error, 2.5-7x faster (README)
 
 # JAX lets float32 matmuls run as TF32 (10-bit mantissa) on NVIDIA GPUs by default. Measured on
-# an H200 (benchmarks/results/*parity_error_gpu*), that put one control step 100-1000x further
+# an H200 (benchmarks/results/*parity_error_h200_*), that put one control step 100-1000x further
 # from dm_control than the CPU is (walker qvel: max error 0.1 against 4e-4 at full precision).
 # Everything that simulates, observes or rewards is therefore traced at full float32; the
 # networks keep JAX's default.

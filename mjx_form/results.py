@@ -46,8 +46,8 @@ class ResultWriter:
     os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
     self.path = path
     from mjx_form.physics import PHYSICS_MATMUL_PRECISION
-    # Records without this field (written before the physics asked for full precision) simulated with JAX's default precision,
-    # which is TF32 on NVIDIA GPUs (see mjx_form/physics.py).
+    # Records without this field (written before the physics asked for full precision)
+    # simulated with JAX's default precision, TF32 on NVIDIA GPUs (see mjx_form/physics.py).
     self._common = {"device": device_name(), "versions": versions(),
                     "physics_matmul_precision": PHYSICS_MATMUL_PRECISION}
 
