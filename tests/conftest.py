@@ -8,9 +8,11 @@ sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 from mjx_form.cpu import configure_cpu_xla  # noqa: E402
 
-# Two host devices for the mesh tests. (XLA optimisation level 0 was tried: compiles ~30%
-# faster, but the learning and fixed-action tests ran 2-2.5x slower; no net gain.)
-configure_cpu_xla("--xla_force_host_platform_device_count=2")
+# Two host devices for the mesh tests. XLA's newer CPU fusion emitters off for every compile
+# of the session, command-line subprocesses included (see CPU_COMPILER_OPTIONS below for the
+# measurements; the train tests were 10-20% faster each). (XLA optimisation level 0 was tried:
+# compiles ~30% faster, but the learning and fixed-action tests ran 2-2.5x slower; no net gain.)
+configure_cpu_xla("--xla_force_host_platform_device_count=2 --xla_cpu_use_fusion_emitters=false")
 os.environ.setdefault("JAX_PLATFORMS", "cpu")
 
 import jax  # noqa: E402
