@@ -102,10 +102,6 @@ def _state_fields(arrays):
   return {f: arrays[f] for f in STATE_FIELDS}
 
 
-def _options_key(compiler_options: dict | None) -> tuple:
-  return tuple(sorted((compiler_options or {}).items()))
-
-
 def _physics_batch_fn(model, states, actions, n_substeps):
   def one(state, action):
     d = reference_data(model, state).replace(ctrl=jnp.asarray(action, state["qpos"].dtype))
@@ -113,33 +109,27 @@ def _physics_batch_fn(model, states, actions, n_substeps):
   return jax.vmap(one)(states, actions)
 
 
-@functools.cache
-def _physics_batch(options: tuple):
-  return jax.jit(_physics_batch_fn, static_argnums=3, compiler_options=dict(options) or None)
+_physics_batch = jax.jit(_physics_batch_fn, static_argnums=3)
 
 
-def physics_batch(env: Task, states: dict, actions,
-                  compiler_options: dict | None = None) -> mjx.Data:
+def physics_batch(env: Task, states: dict, actions) -> mjx.Data:
   """One control step of the physics alone from each recorded state (batched).
 
   The model is an argument of the compiled function, so tasks that share a domain's model
-  (walker stand/walk/run, ...) share one compilation. `compiler_options` are passed to XLA
-  (the CPU tests use options that compile faster).
+  (walker stand/walk/run, ...) share one compilation.
   """
-  fn = _physics_batch(_options_key(compiler_options))
-  return fn(env.mjx_model, _state_fields(states), actions, env.n_substeps)
+  return _physics_batch(env.mjx_model, _state_fields(states), actions, env.n_substeps)
 
 
-def observe_batch(env: Task, data: mjx.Data, task: dict,
-                  compiler_options: dict | None = None) -> tuple[jax.Array, jax.Array]:
+def observe_batch(env: Task, data: mjx.Data, task: dict) -> tuple[jax.Array, jax.Array]:
   """Flat observations and rewards of batched data (what `step` reports after physics)."""
-  return _observe_fn(env, _options_key(compiler_options))(data, task)
+  return _observe_fn(env)(data, task)
 
 
 @functools.cache
-def _observe_fn(env: Task, options: tuple = ()):
+def _observe_fn(env: Task):
   """One jitted observe per task object, so repeated calls (a rollout) do not re-trace."""
   @physics_lib.full_precision
   def one(d, t):
     return flatten_observation(env.get_observation(d, t)), env.get_reward(d, t)
-  return jax.jit(jax.vmap(one), compiler_options=dict(options) or None)
+  return jax.jit(jax.vmap(one))

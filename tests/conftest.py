@@ -9,9 +9,12 @@ sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 from mjx_form.cpu import configure_cpu_xla  # noqa: E402
 
 # Two host devices for the mesh tests. XLA's newer CPU fusion emitters off for every compile
-# of the session, command-line subprocesses included (see CPU_COMPILER_OPTIONS below for the
-# measurements; the train tests were 10-20% faster each). (XLA optimisation level 0 was tried:
-# compiles ~30% faster, but the learning and fixed-action tests ran 2-2.5x slower; no net gain.)
+# of the session, command-line subprocesses included (they inherit XLA_FLAGS): MJX steps and
+# resets compile with ~35% less CPU time and run as fast (measured on this 2-core CPU: walker's
+# parity step 27 s CPU instead of 45 s, quadruped's reset 68 s instead of 100 s; the train
+# tests 10-20% faster each). The results agree to rounding; every check keeps its tolerance.
+# (XLA optimisation level 0 was tried: compiles ~30% faster, but the learning and fixed-action
+# tests ran 2-2.5x slower; no net gain.)
 configure_cpu_xla("--xla_force_host_platform_device_count=2 --xla_cpu_use_fusion_emitters=false")
 os.environ.setdefault("JAX_PLATFORMS", "cpu")
 
@@ -20,13 +23,6 @@ import jax  # noqa: E402
 _CACHE = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), ".jax_cache")
 jax.config.update("jax_compilation_cache_dir", _CACHE)
 jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)
-
-# XLA options for the functions the tests compile (test_parity, test_resets, test_env): with
-# XLA's newer fusion emitters off, MJX steps and resets compile with ~35% less CPU time and run
-# as fast (measured on this 2-core CPU: walker's parity step 27 s CPU instead of 45 s,
-# quadruped's reset 68 s instead of 100 s). The results agree to rounding; every check keeps its
-# tolerance. CPU only: the tests run on the CPU.
-CPU_COMPILER_OPTIONS = {"xla_cpu_use_fusion_emitters": False}
 
 import importlib.util  # noqa: E402
 import json  # noqa: E402

@@ -17,7 +17,6 @@ from jax.extend import core as jax_core
 import pytest
 
 import tasks
-from conftest import CPU_COMPILER_OPTIONS
 from mjx_form import env as env_lib
 from mjx_form import mesh as mesh_lib
 from mjx_form.wrappers import AutoReset
@@ -36,8 +35,7 @@ def reacher():
 @functools.cache
 def compiled():
   env = reacher()
-  return (jax.jit(env.reset, static_argnums=1, compiler_options=CPU_COMPILER_OPTIONS),
-          jax.jit(env.step, compiler_options=CPU_COMPILER_OPTIONS))
+  return jax.jit(env.reset, static_argnums=1), jax.jit(env.step)
 
 
 @COMPILED_ONCE
@@ -85,7 +83,7 @@ def test_nan_in_physics_state_is_detected():
 def test_episode_lasts_1000_steps_and_restarts_from_fresh_draws():
   env = reacher()
 
-  @functools.partial(jax.jit, compiler_options=CPU_COMPILER_OPTIONS)
+  @jax.jit
   def run(state):
     def body(state, _):
       state = env.step(state, jnp.full((NUM_ENVS, 2), 0.3))
@@ -122,7 +120,7 @@ def test_two_devices_match_one():
   for devices in (jax.devices()[:1], jax.devices()[:2]):
     mesh = mesh_lib.make_mesh(devices)
     state = mesh_lib.shard_batch(compiled()[0](jax.random.PRNGKey(6), NUM_ENVS), mesh)
-    run = jax.jit(rollout, compiler_options=CPU_COMPILER_OPTIONS)
+    run = jax.jit(rollout)
     final, rewards = run(state, mesh_lib.shard_batch(actions.swapaxes(0, 1), mesh))
     assert len(final.obs.sharding.device_set) == len(devices)
     results.append((np.asarray(final.obs), np.asarray(rewards)))
@@ -139,12 +137,9 @@ def test_mesh_rejects_bad_batch_sizes():
 
 
 def _run_cli(*args):
-  # The command line compiles with the tests' CPU options too (XLA reads them from XLA_FLAGS).
-  flags = " ".join([os.environ.get("XLA_FLAGS", "")] +
-                   [f"--{k}={str(v).lower()}" for k, v in CPU_COMPILER_OPTIONS.items()])
+  # The command line inherits the tests' XLA_FLAGS (conftest), so it compiles as they do.
   return subprocess.run([sys.executable, os.path.join(ROOT, "scripts", "run.py"), *args],
-                        capture_output=True, text=True, timeout=300, cwd=ROOT,
-                        env={**os.environ, "XLA_FLAGS": flags.strip()})
+                        capture_output=True, text=True, timeout=300, cwd=ROOT)
 
 
 def test_cli_lists_tasks_and_rejects_bad_input():

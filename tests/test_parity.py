@@ -18,7 +18,6 @@ import numpy as np
 import pytest
 
 import tasks
-from conftest import CPU_COMPILER_OPTIONS
 from mjx_form import parity
 
 NUM_STATES = 24  # transitions sampled per task from dm_control rollouts (actions up to 1.2x range)
@@ -31,14 +30,6 @@ BY_DOMAIN = [pytest.param(name, marks=pytest.mark.xdist_group(name.split("_")[0]
 @functools.cache
 def env(name: str, physics: str = "parity"):
   return tasks.make(name, physics=physics)
-
-
-def physics_batch(ours, states, actions):
-  return parity.physics_batch(ours, states, actions, compiler_options=CPU_COMPILER_OPTIONS)
-
-
-def observe_batch(ours, data, task):
-  return parity.observe_batch(ours, data, task, compiler_options=CPU_COMPILER_OPTIONS)
 
 
 @functools.cache
@@ -71,8 +62,8 @@ def test_one_control_step_matches_dm_control(name, parity_report):
   """
   ref = reference(name)
   ours = env(name)
-  data = physics_batch(ours, ref, ref["action"])
-  obs, reward = observe_batch(ours, data, parity.reference_task(ref))
+  data = parity.physics_batch(ours, ref, ref["action"])
+  obs, reward = parity.observe_batch(ours, data, parity.reference_task(ref))
   qpos_err = _errors(data.qpos, ref["next_qpos"])
   qvel_err = _errors(data.qvel, ref["next_qvel"])
   obs_err, reward_err = _errors(obs, ref["obs"]), _errors(reward, ref["reward"])
@@ -93,8 +84,8 @@ def test_one_control_step_is_exact_in_float64(name, parity_report):
   ref = reference(name)
   with jax.enable_x64(True):
     ours = tasks.make(name, physics="parity")
-    data = physics_batch(ours, ref, ref["action"])
-    obs, reward = observe_batch(ours, data, parity.reference_task(ref))
+    data = parity.physics_batch(ours, ref, ref["action"])
+    obs, reward = parity.observe_batch(ours, data, parity.reference_task(ref))
     qpos_err = _errors(data.qpos, ref["next_qpos"])
     qvel_err = _errors(data.qvel, ref["next_qvel"])
   obs_err, reward_err = _errors(obs, ref["obs"]), _errors(reward, ref["reward"])
@@ -138,8 +129,8 @@ def test_fixed_action_sequence_divergence(name, parity_report):
   errors = []
   task_vars = parity.reference_task(states)
   for t in range(DIVERGENCE_STEPS):
-    data = physics_batch(ours, states, actions[:, t])
-    obs, _ = observe_batch(ours, data, task_vars)
+    data = parity.physics_batch(ours, states, actions[:, t])
+    obs, _ = parity.observe_batch(ours, data, task_vars)
     errors.append(_errors(obs, dm_obs[:, t]))
     states = {**states, **{f: np.asarray(getattr(data, f)) for f in parity.STATE_FIELDS}}
   errors = np.stack(errors, axis=1)  # (episodes, steps)

@@ -13,7 +13,6 @@ import pytest
 from scipy import stats
 
 import tasks
-from conftest import CPU_COMPILER_OPTIONS
 from mjx_form import parity
 
 NUM_RESETS = 200
@@ -26,7 +25,7 @@ DOMAIN_TASKS = [pytest.param(name, marks=pytest.mark.xdist_group(name.split("_")
 @functools.cache
 def our_resets(name: str):
   env = tasks.make(name)
-  reset = jax.jit(jax.vmap(env.reset), compiler_options=CPU_COMPILER_OPTIONS)
+  reset = jax.jit(jax.vmap(env.reset))
   states = reset(jax.random.split(jax.random.PRNGKey(7), NUM_RESETS))
   return env, jax.tree.map(np.asarray, states)
 
@@ -147,8 +146,7 @@ def test_cheetah_settling_is_dm_controls():
   limited = m.jnt_limited == 1
   with jax.enable_x64(True):
     env = tasks.make("cheetah_run", physics="parity")
-    settle = jax.jit(lambda qpos: env.settle(mjx.make_data(env.mjx_model), qpos),
-                     compiler_options=CPU_COMPILER_OPTIONS)
+    settle = jax.jit(lambda qpos: env.settle(mjx.make_data(env.mjx_model), qpos))
     for _ in range(3):
       qpos = np.zeros(m.nq)
       qpos[limited] = rng.uniform(*m.jnt_range[limited].T)
