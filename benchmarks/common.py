@@ -44,9 +44,16 @@ def time_compiled(fn, fn_args: tuple, steps: int, num_envs: int, repeats: int):
 def time_executable(exe, fn_args: tuple, steps: int, num_envs: int, repeats: int) -> float:
   """Control steps per second of compiled `exe(state, key)` (state donated): one warm-up call,
   then the best of `repeats` calls, each fed the previous output."""
+  return steps * num_envs / best_call_time(exe, fn_args, repeats)
+
+
+def best_call_time(exe, fn_args: tuple, repeats: int, feed_output: bool = True) -> float:
+  """Best seconds per call of compiled `exe` after one warm-up call. With `feed_output`, each
+  call gets the previous output as its first argument (for an `exe` that donates it)."""
   import jax
   holder = [jax.block_until_ready(exe(*fn_args))]  # warm-up
 
   def call():
-    holder[0] = jax.block_until_ready(exe(holder[0], fn_args[1]))
-  return steps * num_envs / best_time(call, repeats)
+    args = (holder[0], *fn_args[1:]) if feed_output else fn_args
+    holder[0] = jax.block_until_ready(exe(*args))
+  return best_time(call, repeats)

@@ -70,25 +70,23 @@ def _random_actions(key, num_envs, size):
   return jax.random.uniform(key, (num_envs, size), minval=-1.0, maxval=1.0)
 
 
-def ours_fn(env, num_envs: int, steps: int):
-  wrapped = AutoReset(env)
-
+def _random_rollout(step, num_envs: int, action_size: int, steps: int):
+  """Jitted `run(state, key)`: `steps` calls of batched `step` with uniform random actions
+  (state donated)."""
   def run(state, key):
     def body(state, key):
-      return wrapped.step(state, _random_actions(key, num_envs, env.action_size)), None
+      return step(state, _random_actions(key, num_envs, action_size)), None
     return jax.lax.scan(body, state, jax.random.split(key, steps))[0]
   return jax.jit(run, donate_argnums=0)
+
+
+def ours_fn(env, num_envs: int, steps: int):
+  return _random_rollout(AutoReset(env).step, num_envs, env.action_size, steps)
 
 
 def step_fn(env, num_envs: int, steps: int):
   """`vmap(env.step)` alone: ours without the auto-reset wrapper."""
-  step = jax.vmap(env.step)
-
-  def run(state, key):
-    def body(state, key):
-      return step(state, _random_actions(key, num_envs, env.action_size)), None
-    return jax.lax.scan(body, state, jax.random.split(key, steps))[0]
-  return jax.jit(run, donate_argnums=0)
+  return _random_rollout(jax.vmap(env.step), num_envs, env.action_size, steps)
 
 
 def raw_fn(env, num_envs: int, steps: int):
@@ -110,17 +108,13 @@ def peer_fns(name: str, num_envs: int, steps: int):
   from mujoco_playground import registry
   peer = registry.load(PEERS[name], config_overrides={"impl": "jax"})
 
-  def run(state, key):
-    def body(state, key):
-      return jax.vmap(peer.step)(state, _random_actions(key, num_envs, peer.action_size)), None
-    return jax.lax.scan(body, state, jax.random.split(key, steps))[0]
   reset = jax.jit(lambda key: jax.vmap(peer.reset)(jax.random.split(key, num_envs)))
   cfg = peer._config
   settings = {"ctrl_dt": float(cfg.ctrl_dt), "sim_dt": float(cfg.sim_dt),
               "n_substeps": int(round(cfg.ctrl_dt / cfg.sim_dt)),
               "iterations": int(peer.mj_model.opt.iterations),
               "ls_iterations": int(peer.mj_model.opt.ls_iterations)}
-  return reset, jax.jit(run, donate_argnums=0), settings
+  return reset, _random_rollout(jax.vmap(peer.step), num_envs, peer.action_size, steps), settings
 
 
 def model_digest(env) -> str:

@@ -73,13 +73,7 @@ def time_call(fn, args, repeats: int, donate_first: bool):
   t0 = time.perf_counter()
   exe = fn.lower(*args).compile()
   compile_s = time.perf_counter() - t0
-  holder = [exe(*args)]
-  jax.block_until_ready(holder[0])
-
-  def call():
-    out = exe(holder[0], *args[1:]) if donate_first else exe(*args)
-    holder[0] = jax.block_until_ready(out)
-  return common.best_time(call, repeats), compile_s
+  return common.best_call_time(exe, args, repeats, feed_output=donate_first), compile_s
 
 
 def main(argv=None) -> int:
