@@ -89,8 +89,7 @@ def losses(networks: Networks, config: LearnerConfig, online: tuple, state: Lear
   actions = batch["action"]
   target_pi = networks.policy.apply(state.target_policy, obs)  # [B, T+1, A]
   sampled = target_pi.sample(key, (config.num_action_samples,))  # [N, B, T+1, A]
-  obs_n = jnp.broadcast_to(obs, sampled.shape[:-1] + obs.shape[-1:])
-  q_sampled = networks.critic.apply(state.target_critic, obs_n, sampled)  # [N, B, T+1]
+  q_sampled = networks.critic.apply(state.target_critic, obs, sampled)  # [N, B, T+1]
   v = jnp.mean(q_sampled, axis=0)  # [B, T+1]
 
   obs_t = obs[:, :-1]

@@ -54,14 +54,20 @@ class GaussianPolicy(nn.Module):
 
 
 class Critic(nn.Module):
-  """(observation [..., D], action [..., A]) -> Q [...]."""
+  """(observation [..., D], action [..., A]) -> Q [...].
+
+  The observation's batch shape may be a suffix of the action's: Q of N sampled actions per
+  state takes obs [B, D] with actions [N, B, A], and the encoder runs once per state, not N times.
+  """
 
   width: int = 256
   layers: Sequence[int] = (256, 256, 256)
 
   @nn.compact
   def __call__(self, obs: jax.Array, action: jax.Array) -> jax.Array:
-    h = jnp.concatenate([Encoder(self.width)(obs), jnp.tanh(action)], axis=-1)
+    encoded = Encoder(self.width)(obs)  # [..., width], batch shape of obs
+    encoded = jnp.broadcast_to(encoded, action.shape[:-1] + encoded.shape[-1:])
+    h = jnp.concatenate([encoded, jnp.tanh(action)], axis=-1)
     h = jnp.tanh(nn.LayerNorm()(nn.Dense(self.width)(h)))
     for size in self.layers:
       h = nn.elu(nn.Dense(size)(h))

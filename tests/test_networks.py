@@ -1,0 +1,31 @@
+"""The MPO networks: shapes and the critic's one-encoding-per-state broadcast."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from mjx_form.networks import make_networks
+
+
+def test_critic_broadcasts_one_state_over_sampled_actions():
+  networks = make_networks(action_size=3, width=32)
+  obs = jax.random.normal(jax.random.PRNGKey(0), (4, 5, 7))  # [B, T, D]
+  actions = jax.random.normal(jax.random.PRNGKey(1), (6, 4, 5, 3))  # [N, B, T, A]
+  params = networks.critic.init(jax.random.PRNGKey(2), obs[:1, 0], actions[0, :1, 0])
+  q = networks.critic.apply(params, obs, actions)
+  q_tiled = networks.critic.apply(params, jnp.broadcast_to(obs, (6, 4, 5, 7)), actions)
+  assert q.shape == (6, 4, 5)
+  np.testing.assert_allclose(q, q_tiled, rtol=1e-6, atol=1e-6)
+  # Each sampled action is scored against its own state, not against another one.
+  q_single = networks.critic.apply(params, obs[2, 3], actions[1, 2, 3])
+  np.testing.assert_allclose(q[1, 2, 3], q_single, rtol=1e-6, atol=1e-6)
+  assert not np.allclose(q[1, 2, 3], q[1, 2, 4])
+
+
+def test_policy_shapes_and_positive_scale():
+  networks = make_networks(action_size=3, width=32)
+  obs = jax.random.normal(jax.random.PRNGKey(0), (4, 7))
+  params = networks.policy.init(jax.random.PRNGKey(1), obs)
+  pi = networks.policy.apply(params, obs)
+  assert pi.mean.shape == (4, 3) and pi.scale.shape == (4, 3)
+  assert bool(jnp.all(pi.scale > 0))
