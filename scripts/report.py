@@ -161,6 +161,11 @@ def _duration(seconds: float) -> str:
   return f"{seconds / 60:.1f} min" if seconds >= 600 else f"{seconds:.0f} s"
 
 
+def _episodes(record: dict) -> str:
+  """How a training run started its first episodes (records before staggering: lockstep)."""
+  return "staggered" if record["settings"].get("stagger_episodes") else "lockstep"
+
+
 def learning_table(records: list[dict], threshold: float = 800.0) -> str:
   """One row per learning run (a result file's records of one task and seed)."""
   rows = [r for r in records if r.get("kind") == "learning_curve"]
@@ -189,7 +194,7 @@ def learning_table(records: list[dict], threshold: float = 800.0) -> str:
     settings = last["settings"]
     lines.append(f"| {task} | `{last['device']}` | {_matmuls(last)} | {last['num_envs']} | "
                  f"{settings['updates_per_iteration']} ({settings['replay_ratio']:g}) | "
-                 f"{'staggered' if settings.get('stagger_episodes') else 'lockstep'} | "
+                 f"{_episodes(last)} | "
                  f"{last['env_steps'] / 1e6:.1f}M | {_duration(last['wall_s'])} | "
                  f"{last['eval_return']:.1f} | {best['eval_return']:.1f} | {first} |")
   return "\n".join(lines)
@@ -200,18 +205,19 @@ def train_throughput_table(records: list[dict]) -> str:
   if not rows:
     return "No training-loop throughput results yet."
   newest = _newest(rows, lambda r: (r["task"], r["num_envs"], r["device"],
-                                    r["settings"]["updates_per_iteration"]))
+                                    r["settings"]["updates_per_iteration"], _episodes(r)))
   lines = ["Environment steps per second of one whole training iteration (collect 100-step "
            "unrolls, normaliser, replay insert, MPO/Retrace updates) beside env-only "
            "`AutoReset(task).step` with random actions, in the same process; peak device memory "
            "of that process (replay of 10,000 unrolls included):", "",
-           "| task | device | physics | physics matmuls | envs | updates / iteration | loop | "
-           "env only | loop/env | ms / update | peak memory |",
-           "|---|---|---|---|---|---|---|---|---|---|---|"]
+           "| task | device | physics | physics matmuls | envs | updates / iteration | "
+           "first episodes | loop | env only | loop/env | ms / update | peak memory |",
+           "|---|---|---|---|---|---|---|---|---|---|---|---|"]
   for r in sorted(newest.values(), key=lambda r: (_order(r["task"]), r["num_envs"])):
     memory = r.get("peak_memory_bytes")
     lines.append(f"| {r['task']} | `{r['device']}` | {r['physics']} | {_matmuls(r)} | "
-                 f"{r['num_envs']} | {r['settings']['updates_per_iteration']} | {_k(r['sps'])} | "
+                 f"{r['num_envs']} | {r['settings']['updates_per_iteration']} | "
+                 f"{_episodes(r)} | {_k(r['sps'])} | "
                  f"{_k(r['env_sps'])} | {r['ratio_to_env']:.2f} | {r['update_ms']:.1f} | "
                  f"{'-' if memory is None else f'{memory / 2**30:.1f} GiB'} |")
   return "\n".join(lines)
