@@ -123,10 +123,18 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
 
   process_start = time.perf_counter()
   trainer = Trainer(config, mesh)
-  state = trainer.init(jax.random.PRNGKey(config.seed))
-  if resume and checkpoint.latest_step(ckpt_dir) is not None:
-    restored = checkpoint.restore(ckpt_dir, _checkpointed(state, checkpoint_replay),
+  restored = None
+  if resume and checkpoint.latest_step(ckpt_dir) is not None:  # refused before compiling
+    restored = checkpoint.restore(ckpt_dir, _checkpointed(trainer.abstract_state,
+                                                          checkpoint_replay),
                                   full_config, ignore=RESUMABLE)
+  eval_key = jax.random.PRNGKey(config.seed + 1)
+  trainer.compile_ahead(eval_key)
+  state = trainer.init(jax.random.PRNGKey(config.seed))
+  if restored is not None:
+    # Zero-size leaves are not stored; the restore left them abstract, init has them.
+    restored = jax.tree.map(lambda r, x: x if isinstance(r, jax.ShapeDtypeStruct) else r,
+                            restored, _checkpointed(state, checkpoint_replay))
     state = restored if checkpoint_replay else state._replace(**restored)
     print_fn(f"resumed from iteration {int(state.iteration)} ({ckpt_dir})")
   os.makedirs(directory, exist_ok=True)
@@ -143,7 +151,6 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
            f"{config.updates_per_env_step:.2e}, replay ratio {config.replay_ratio:.2f}), "
            f"{total_iterations} iterations, physics {config.physics}, "
            f"{trainer.mesh.devices.size} {jax.default_backend()} device(s)")
-  eval_key = jax.random.PRNGKey(config.seed + 1)
   start_iteration = int(state.iteration)
   timed_steps, timed_seconds, eval_seconds, row = 0, 0.0, 0.0, {}
   while int(state.iteration) < total_iterations:
@@ -152,7 +159,7 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
     metrics = jax.device_get(metrics)
     seconds = time.perf_counter() - t0
     iteration = int(state.iteration)
-    if iteration > start_iteration + 1:  # the first call compiles
+    if iteration > start_iteration + 1:  # the first call warms up
       timed_steps += steps_per_iteration
       timed_seconds += seconds
     finished = iteration == total_iterations

@@ -30,6 +30,7 @@ physics error (NaN/inf) puts an environment off those boundaries.
 
 from __future__ import annotations
 
+import concurrent.futures
 import dataclasses
 import math
 from typing import Any, NamedTuple
@@ -133,10 +134,27 @@ class Trainer:
     self._replicated = mesh_lib.replicated(self.mesh)
     abstract = jax.eval_shape(self._init, jax.random.PRNGKey(0))
     self.state_sharding = self._shardings(abstract)
+    self.abstract_state = jax.tree.map(  # shapes, dtypes, shardings
+        lambda a, s: jax.ShapeDtypeStruct(a.shape, a.dtype, sharding=s), abstract,
+        self.state_sharding)
     self.init = jax.jit(self._init, out_shardings=self.state_sharding)
     self.iteration = jax.jit(self._iteration, donate_argnums=0,
                              out_shardings=(self.state_sharding, self._replicated))
     self.evaluate = jax.jit(self._evaluate, out_shardings=self._replicated)
+
+  def compile_ahead(self, key: jax.Array) -> None:
+    """Compiles `init`, `iteration` and `evaluate` at once, in threads, before their first call.
+
+    Without it each program compiles at its first call, one after the other; XLA compiles in
+    parallel threads (tracing takes turns), so a run starts sooner. The compiled programs land in
+    JAX's cache; the later calls (`key` of the kind that will be passed) reuse them.
+    """
+    state = self.abstract_state
+    jobs = [(self.init, (key,)), (self.iteration, (state,)),
+            (self.evaluate, (state.learner.policy, state.normalizer, key))]
+    with concurrent.futures.ThreadPoolExecutor(len(jobs)) as pool:
+      for future in [pool.submit(lambda f=f, a=a: f.lower(*a).compile()) for f, a in jobs]:
+        future.result()
 
   # --- state ------------------------------------------------------------------------------
 

@@ -1,6 +1,7 @@
 """The compiled training loop: device-count independence, exact resume, reward routing,
 settings checks and the command line (small sizes, reacher_easy: no contacts, cheap to compile)."""
 
+import contextlib
 import csv
 import dataclasses
 import json
@@ -22,12 +23,46 @@ CONFIG = TrainConfig(task="reacher_easy", num_envs=4, unroll_length=10, batch_si
                                                         target_update_period=3))
 
 
+@contextlib.contextmanager
+def count_compiles():
+  """Yields a list that collects one entry per XLA compilation inside the block."""
+  compiles = []
+  def listener(event, duration, **_):
+    if event == "/jax/core/compile/backend_compile_duration":
+      compiles.append(duration)
+  jax.monitoring.register_event_duration_secs_listener(listener)
+  try:
+    yield compiles
+  finally:
+    jax.monitoring.unregister_event_duration_listener(listener)
+
+
+FIRST_CALL_COMPILES = []  # filled by the `trainers` fixture
+
+
 @pytest.fixture(scope="module")
 def trainers():
-  """The same config on one device and on two (conftest forces two host devices)."""
+  """The same config on one device and on two (conftest forces two host devices), compiled
+  ahead; the compilations their first calls still did go to FIRST_CALL_COMPILES."""
   assert jax.device_count() == 2
-  return (Trainer(CONFIG, mesh_lib.make_mesh(jax.devices()[:1])),
-          Trainer(CONFIG, mesh_lib.make_mesh()))
+  trainers = (Trainer(CONFIG, mesh_lib.make_mesh(jax.devices()[:1])),
+              Trainer(CONFIG, mesh_lib.make_mesh()))
+  key = jax.random.PRNGKey(0)
+  for trainer in trainers:
+    trainer.compile_ahead(key)
+  with count_compiles() as compiles:
+    for trainer in trainers:
+      state, _ = trainer.iteration(trainer.init(key))
+      jax.block_until_ready(trainer.evaluate(state.learner.policy, state.normalizer, key))
+  FIRST_CALL_COMPILES.extend(compiles)
+  return trainers
+
+
+def test_programs_compiled_ahead_are_reused(trainers):
+  assert FIRST_CALL_COMPILES == []  # init, iteration and evaluate ran without compiling
+  with count_compiles() as compiles:  # and the counter does see a compilation
+    jax.block_until_ready(jax.jit(lambda x: 3 * x + 1)(np.ones(3)))
+  assert len(compiles) == 1
 
 
 def run_iterations(trainer, state, n):
