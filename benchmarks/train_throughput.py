@@ -70,6 +70,9 @@ def main(argv=None) -> int:
   parser.add_argument("--physics", default=DEFAULT_PHYSICS, choices=PHYSICS_MODES)
   parser.add_argument("--updates_per_iteration", type=int,
                       default=TrainConfig.updates_per_iteration)
+  parser.add_argument("--lockstep_episodes", action="store_true",
+                      help="start every environment's first episode together (default: staggered "
+                      "phases, whose resets then run in every iteration)")
   parser.add_argument("--repeats", type=int, default=3)
   parser.add_argument("--out", default=common.default_results_path("train_throughput"))
   args = parser.parse_args(argv)
@@ -79,7 +82,8 @@ def main(argv=None) -> int:
   for name in args.tasks:
     for num_envs in args.num_envs:
       config = TrainConfig(task=name, physics=args.physics, num_envs=num_envs,
-                           updates_per_iteration=args.updates_per_iteration)
+                           updates_per_iteration=args.updates_per_iteration,
+                           stagger_episodes=not args.lockstep_episodes)
       trainer = Trainer(config)
       steps = config.unroll_length
       env = trainer.env

@@ -69,6 +69,9 @@ def parse_args(argv=None) -> argparse.Namespace:
   train.add_argument("--network_width", type=int, default=defaults.network_width)
   train.add_argument("--num_action_samples", type=int,
                      default=defaults.learner.num_action_samples)
+  train.add_argument("--target_update_period", type=int,
+                     default=defaults.learner.target_update_period,
+                     help="learner updates between copies of the online networks to the targets")
   train.add_argument("--eval_envs", type=int, default=defaults.eval_envs)
   train.add_argument("--lockstep_episodes", action="store_true",
                      help="start every environment's first episode together (as runs before "
@@ -102,7 +105,8 @@ def parse_args(argv=None) -> argparse.Namespace:
 
 
 def train_config(args: argparse.Namespace) -> TrainConfig:
-  learner = dataclasses.replace(LearnerConfig(), num_action_samples=args.num_action_samples)
+  learner = dataclasses.replace(LearnerConfig(), num_action_samples=args.num_action_samples,
+                                target_update_period=args.target_update_period)
   return TrainConfig(task=args.task, physics=args.physics, num_envs=args.num_envs,
                      unroll_length=args.unroll_length, batch_size=args.batch_size,
                      replay_capacity=args.replay_capacity,

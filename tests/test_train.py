@@ -179,17 +179,20 @@ def test_bad_settings_are_refused(change, message):
 
 
 def _cli_args(run_dir, *extra):
+  """CONFIG on the command line (the same programs as the fixture's 2-device trainer, so the
+  persistent compilation cache serves them)."""
   return ["--task", "reacher_easy", "--method", "expert", "--num_envs", "4",
           "--unroll_length", "10", "--batch_size", "4", "--replay_capacity", "12",
           "--updates_per_iteration", "2", "--network_width", "32", "--num_action_samples", "4",
-          "--eval_envs", "2", "--eval_every", "2", "--checkpoint_every", "1",
-          "--run_dir", str(run_dir), *extra]
+          "--target_update_period", "3", "--eval_envs", "2", "--eval_every", "2",
+          "--checkpoint_every", "1", "--run_dir", str(run_dir), *extra]
 
 
 def test_command_line_trains_resumes_and_refuses_mismatches(tmp_path, capsys):
   cli = load_script("run")
   run_dir = tmp_path / "run"
   curve = tmp_path / "curve.jsonl"
+  assert cli.train_config(cli.parse_args(_cli_args(run_dir))) == CONFIG
   # A time budget stops the run after its first iteration, checkpointed and exported ...
   assert cli.main(_cli_args(run_dir, "--env_steps", "80", "--max_seconds", "0.001",
                             "--results", str(curve))) == 0  # 2 iterations asked for
