@@ -129,7 +129,10 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
                                                           checkpoint_replay),
                                   full_config, ignore=RESUMABLE)
   eval_key = jax.random.PRNGKey(config.seed + 1)
+  print_fn("compiling the run's programs (init, iteration, evaluation) ...")
+  compile_start = time.perf_counter()
   trainer.compile_ahead(eval_key)
+  print_fn(f"compiled in {time.perf_counter() - compile_start:.0f}s")
   state = trainer.init(jax.random.PRNGKey(config.seed))
   if restored is not None:
     # Zero-size leaves are not stored; the restore left them abstract, init has them.
