@@ -84,6 +84,10 @@ class TrainConfig:
     if self.num_envs > self.replay_capacity:
       raise ValueError(f"replay_capacity={self.replay_capacity} must hold at least one "
                        f"iteration's unrolls (num_envs={self.num_envs})")
+    for name in ("num_action_samples", "target_update_period"):
+      value = getattr(self.learner, name)
+      if not isinstance(value, int) or value <= 0:
+        raise ValueError(f"{name} must be a positive integer, got {value!r}")
     if not 0.0 <= self.normalizer_decay < 1.0:
       raise ValueError(f"normalizer_decay must be in [0, 1), got {self.normalizer_decay}")
 

@@ -172,6 +172,8 @@ def test_task_reward_is_not_stored_for_other_reward_sources():
     (dict(task="reacher_medium"), "unknown task"),
     (dict(replay_capacity=2), "must hold at least one iteration"),
     (dict(unroll_length=0), "unroll_length must be a positive integer"),
+    (dict(learner=LearnerConfig(target_update_period=0)), "target_update_period must be a pos"),
+    (dict(learner=LearnerConfig(num_action_samples=0)), "num_action_samples must be a positive"),
 ])
 def test_bad_settings_are_refused(change, message):
   with pytest.raises(ValueError, match=message):
