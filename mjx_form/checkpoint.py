@@ -189,7 +189,8 @@ def _is_empty(x) -> bool:
 
 def _flat(tree) -> dict:
   """{'a/b/c': leaf} of the leaves with data. Zero-size arrays (e.g. MJX's `act` for a model
-  without actuator state) are not stored (orbax cannot); `restore` takes them from the target."""
+  without actuator state) are not stored (orbax cannot); `restore` takes them from the target
+  (`_empty_like`)."""
   return {_path_name(p): x for p, x in jax.tree_util.tree_flatten_with_path(tree)[0]
           if not _is_empty(x)}
 
@@ -202,6 +203,13 @@ def _abstract(x):
       sharding = jax.sharding.SingleDeviceSharding(jax.devices()[0])
     return jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=sharding)
   return x  # numpy arrays and Python scalars are restored as such
+
+
+def _empty_like(x):
+  """A zero-size target leaf as restored: an abstract one becomes an array with its sharding."""
+  if isinstance(x, jax.ShapeDtypeStruct):
+    return jax.device_put(np.zeros(x.shape, x.dtype), _abstract(x).sharding)
+  return x
 
 
 def _stored_form(x) -> tuple[tuple, np.dtype | None]:
@@ -266,4 +274,4 @@ def restore(directory, target, config: dict, step: int | None = None, *,
         state=ocp.args.StandardRestore(abstract)))["state"]
   paths, treedef = jax.tree_util.tree_flatten_with_path(target)
   return jax.tree_util.tree_unflatten(treedef, [
-      x if _is_empty(x) else restored[_path_name(p)] for p, x in paths])
+      _empty_like(x) if _is_empty(x) else restored[_path_name(p)] for p, x in paths])

@@ -135,9 +135,6 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
   print_fn(f"compiled in {time.perf_counter() - compile_start:.0f}s")
   state = trainer.init(jax.random.PRNGKey(config.seed))
   if restored is not None:
-    # Zero-size leaves are not stored; the restore left them abstract, init has them.
-    restored = jax.tree.map(lambda r, x: x if isinstance(r, jax.ShapeDtypeStruct) else r,
-                            restored, _checkpointed(state, checkpoint_replay))
     state = restored if checkpoint_replay else state._replace(**restored)
     print_fn(f"resumed from iteration {int(state.iteration)} ({ckpt_dir})")
   os.makedirs(directory, exist_ok=True)

@@ -63,6 +63,17 @@ def test_round_trip(tmp_path):
   assert info["format"] == checkpoint.FORMAT and info["versions"]["jax"] == jax.__version__
 
 
+def test_zero_size_leaves_come_back_as_arrays(tmp_path):
+  """They are not stored (orbax cannot); an abstract target still gets arrays for them."""
+  state = {"act": jnp.zeros((4, 0)), "x": jnp.ones(2)}
+  checkpoint.save(tmp_path, 1, state, CONFIG)
+  abstract = jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype), state)
+  for target in (state, abstract):
+    restored = checkpoint.restore(tmp_path, target, CONFIG)
+    assert isinstance(restored["act"], jax.Array) and restored["act"].shape == (4, 0)
+    assert_same(restored, state)
+
+
 def test_typed_prng_key(tmp_path):
   state = {"key": jax.random.key(3), "x": jnp.ones(2)}
   checkpoint.save(tmp_path, 1, state, CONFIG)
