@@ -61,6 +61,11 @@ class Task(abc.ABC):
     self.mj_model = physics_lib.compile_model(root, self.model_assets())
     self.mjx_model = physics_lib.put_model(self.mj_model)
     self._reset_model = physics_lib.without_actuation(self.mj_model)
+    # Jitted per task object, so the rollout, the auto-reset's restarts and the evaluation of a
+    # run all reuse one trace of each for the same argument types: tracing MJX in Python, not
+    # XLA, was most of a run's start-up (README). XLA inlines the nested programs.
+    self.reset = jax.jit(self.reset)
+    self.step = jax.jit(self.step)
 
   # --- what each task defines -------------------------------------------------------------
 

@@ -131,10 +131,10 @@ class Trainer:
     config.check(self.mesh.devices.size)
     self.config = config
     self.env = tasks.make(config.task, physics=config.physics)
-    self.auto_reset = AutoReset(self.env)
+    self._batch = mesh_lib.batch_sharding(self.mesh)
+    self.auto_reset = AutoReset(self.env, self._batch)
     self.networks = make_networks(self.env.action_size, config.network_width)
     self.source = reward_source or make_reward_source(config.reward_source)
-    self._batch = mesh_lib.batch_sharding(self.mesh)
     self._replicated = mesh_lib.replicated(self.mesh)
     abstract = jax.eval_shape(self._init, jax.random.PRNGKey(0))
     self.state_sharding = self._shardings(abstract)
@@ -285,7 +285,7 @@ class Trainer:
                 key: jax.Array) -> jax.Array:
     """Task returns [eval_envs] of full episodes with the policy's mean action."""
     n = self.config.eval_envs
-    states = jax.vmap(self.env.reset)(jax.random.split(key, n))
+    states = self.auto_reset.reset(key, n)  # (its info keys too: the same env.step trace)
     states = jax.lax.with_sharding_constraint(states, self._batch)
 
     def step(carry, _):

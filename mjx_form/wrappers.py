@@ -29,12 +29,21 @@ class AutoReset:
   environment, the episodes cut short by NaN/inf in actions or physics.
   """
 
-  def __init__(self, env: Task):
+  def __init__(self, env: Task, sharding=None):
+    """`sharding`: where the batch lives on a device mesh (None: wherever JAX puts it). Fresh
+    starts are drawn from keys placed there, so `env.reset` sees the same argument types in
+    `reset` as in the restarts of `step` and is traced once for both."""
     self.env = env
+    self.sharding = sharding
+
+  def _constrain(self, tree):
+    if self.sharding is None:
+      return tree
+    return jax.lax.with_sharding_constraint(tree, self.sharding)
 
   def reset(self, key: jax.Array, num_envs: int) -> State:
     """`num_envs` independent fresh starts; every leaf gets a leading (num_envs,) axis."""
-    state = jax.vmap(self.env.reset)(jax.random.split(key, num_envs))
+    state = jax.vmap(self.env.reset)(self._constrain(jax.random.split(key, num_envs)))
     info = dict(state.info, final_obs=state.obs, physics_errors=jnp.zeros((num_envs,)))
     return state.replace(info=info)
 

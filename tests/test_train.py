@@ -14,6 +14,7 @@ from conftest import load_script
 from mjx_form import checkpoint, mesh as mesh_lib, policy_io, runner
 from mjx_form.learner import LearnerConfig
 from mjx_form.train import Trainer, TrainConfig
+import tasks
 
 pytestmark = pytest.mark.xdist_group("train")  # one worker compiles the loop once
 
@@ -37,7 +38,27 @@ def count_compiles():
     jax.monitoring.unregister_event_duration_listener(listener)
 
 
+@contextlib.contextmanager
+def count_calls(cls, *names):
+  """Yields a dict counting the calls of the methods `names` of `cls` inside the block."""
+  calls = dict.fromkeys(names, 0)
+  originals = {name: getattr(cls, name) for name in names}
+  def counting(name):
+    def method(*args, **kwargs):
+      calls[name] += 1
+      return originals[name](*args, **kwargs)
+    return method
+  for name in names:
+    setattr(cls, name, counting(name))
+  try:
+    yield calls
+  finally:
+    for name, original in originals.items():
+      setattr(cls, name, original)
+
+
 FIRST_CALL_COMPILES = []  # filled by the `trainers` fixture
+TRACES = {}  # task methods called while building and compiling one trainer (each call: a trace)
 
 
 @pytest.fixture(scope="module")
@@ -45,11 +66,13 @@ def trainers():
   """The same config on one device and on two (conftest forces two host devices), compiled
   ahead; the compilations their first calls still did go to FIRST_CALL_COMPILES."""
   assert jax.device_count() == 2
-  trainers = (Trainer(CONFIG, mesh_lib.make_mesh(jax.devices()[:1])),
-              Trainer(CONFIG, mesh_lib.make_mesh()))
   key = jax.random.PRNGKey(0)
-  for trainer in trainers:
-    trainer.compile_ahead(key)
+  with count_calls(type(tasks.make(CONFIG.task)), "initialize_episode", "get_reward") as calls:
+    first = Trainer(CONFIG, mesh_lib.make_mesh(jax.devices()[:1]))
+    first.compile_ahead(key)
+  TRACES.update(calls)
+  trainers = (first, Trainer(CONFIG, mesh_lib.make_mesh()))
+  trainers[1].compile_ahead(key)
   with count_compiles() as compiles:
     for trainer in trainers:
       state, _ = trainer.iteration(trainer.init(key))
@@ -63,6 +86,13 @@ def test_programs_compiled_ahead_are_reused(trainers):
   with count_compiles() as compiles:  # and the counter does see a compilation
     jax.block_until_ready(jax.jit(lambda x: 3 * x + 1)(np.ones(3)))
   assert len(compiles) == 1
+
+
+def test_env_step_and_reset_are_traced_once_per_run(trainers):
+  # The step is traced for the rollout and reused by the evaluation; the reset is traced for
+  # the observation layout and once for init, the auto-reset's restarts and the evaluation.
+  # (Tracing MJX is most of a run's start-up; before: 2 and 5.)
+  assert TRACES == {"get_reward": 1, "initialize_episode": 2}
 
 
 def run_iterations(trainer, state, n):
