@@ -8,6 +8,7 @@ the measured fields).
 
 from __future__ import annotations
 
+import contextlib
 import datetime
 import json
 import os
@@ -37,6 +38,22 @@ def peak_memory_bytes() -> int | None:
     if stats and "peak_bytes_in_use" in stats:
       peaks.append(int(stats["peak_bytes_in_use"]))
   return max(peaks) if peaks else None
+
+
+@contextlib.contextmanager
+def count_persistent_cache_hits():
+  """Yields a one-element list counting programs loaded from JAX's persistent compilation
+  cache (instead of compiled) inside the block."""
+  import jax
+  hits = [0]
+  def listener(event, **_):
+    if event == "/jax/compilation_cache/cache_hits":
+      hits[0] += 1
+  jax.monitoring.register_event_listener(listener)
+  try:
+    yield hits
+  finally:
+    jax.monitoring.unregister_event_listener(listener)
 
 
 class ResultWriter:

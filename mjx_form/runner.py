@@ -131,9 +131,14 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
   eval_key = jax.random.PRNGKey(config.seed + 1)
   print_fn("compiling the run's programs (init, iteration, evaluation) ...")
   compile_start = time.perf_counter()
-  trainer.compile_ahead(eval_key)
-  print_fn(f"compiled in {time.perf_counter() - compile_start:.0f}s")
+  with results.count_persistent_cache_hits() as cache_hits:
+    trainer.compile_ahead(eval_key)
+  print_fn(f"compiled in {time.perf_counter() - compile_start:.0f}s"
+           + (f" ({cache_hits[0]} programs from the persistent cache)" if cache_hits[0] else ""))
   state = trainer.init(jax.random.PRNGKey(config.seed))
+  # This process's time before its first iteration: building, tracing, compiling, init.
+  startup = {"startup_s": time.perf_counter() - process_start,
+             "persistent_cache_hits": cache_hits[0]}
   if restored is not None:
     state = restored if checkpoint_replay else state._replace(**restored)
     print_fn(f"resumed from iteration {int(state.iteration)} ({ckpt_dir})")
@@ -192,7 +197,8 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
                f"critic {row['critic_loss']:.3f}")
     if curve is not None and "eval_return" in row:
       _write_curve_point(curve, config, row, eval_episodes=returns.size,
-                         total_env_steps=total_env_steps, devices=trainer.mesh.devices.size)
+                         total_env_steps=total_env_steps, devices=trainer.mesh.devices.size,
+                         startup=startup)
     if checkpointed:
       checkpoint.save(ckpt_dir, iteration, _checkpointed(state, checkpoint_replay), full_config)
     if out_of_time and not finished:
@@ -213,8 +219,13 @@ def _checkpointed(state, with_replay: bool):
 
 
 def _write_curve_point(writer: results.ResultWriter, config: TrainConfig, row: dict, *,
-                       eval_episodes: int, total_env_steps: int, devices: int) -> None:
-  """One `kind: learning_curve` record: evaluation return at this point of the run."""
+                       eval_episodes: int, total_env_steps: int, devices: int,
+                       startup: dict) -> None:
+  """One `kind: learning_curve` record: evaluation return at this point of the run.
+
+  `startup`: `startup_s`, this process's seconds before its first iteration, and
+  `persistent_cache_hits`, the programs it loaded from JAX's persistent compilation cache.
+  """
   settings = {**config.to_dict(), "updates_per_env_step": config.updates_per_env_step,
               "replay_ratio": config.replay_ratio, "total_env_steps": total_env_steps,
               "eval_episodes": eval_episodes, "devices": devices}
@@ -222,7 +233,7 @@ def _write_curve_point(writer: results.ResultWriter, config: TrainConfig, row: d
             "eval_return", "eval_return_std", "train_return", "peak_memory_bytes")
   writer.write(kind="learning_curve", task=config.task, method="expert",
                physics=config.physics, num_envs=config.num_envs, seed=config.seed,
-               settings=settings,
+               settings=settings, **startup,
                **{k: row[k] for k in fields if k in row and np.isfinite(row[k])})
 
 

@@ -166,6 +166,20 @@ def _episodes(record: dict) -> str:
   return "staggered" if record["settings"].get("stagger_episodes") else "lockstep"
 
 
+def _startup(record: dict) -> str:
+  """The first process's start-up of a run (records before 2026-11-22 lack it)."""
+  if "startup_s" not in record:
+    return "-"
+  return f"{record['startup_s']:.0f} s" + (" cached" if record["persistent_cache_hits"] else "")
+
+
+def _run_label(path: str, task: str) -> str:
+  """A run's result file, shortened: its date and what its name adds to the task's."""
+  name = os.path.basename(path).removesuffix(".jsonl")
+  suffix = name.split(task, 1)[1].strip("_") if task in name else ""
+  return f"{name[:10]}{' ' + suffix if suffix else ''}"
+
+
 def learning_table(records: list[dict], threshold: float = 800.0) -> str:
   """One row per learning run (a result file's records of one task and seed)."""
   rows = [r for r in records if r.get("kind") == "learning_curve"]
@@ -177,13 +191,15 @@ def learning_table(records: list[dict], threshold: float = 800.0) -> str:
   lines = [f"Expert runs (MPO + Retrace on the task reward, one seed each). Evaluation: mean "
            f"task return of {rows[0]['settings']['eval_episodes']} full episodes with the "
            f"policy's mean action. Wall clock includes compilation (and each restart's "
-           f"compilation where a run was continued with --resume). First episodes: `lockstep` "
+           f"compilation where a run was continued with --resume); start-up: its part before the "
+           f"first iteration (building, tracing, compiling; `cached`: programs loaded from JAX's "
+           f"persistent compilation cache), recorded since 2026-11-22. First episodes: `lockstep` "
            f"= all environments started together, `staggered` = at random phases (see "
            f"above).", "",
            "| task | device | physics matmuls | envs | updates / iteration (replay ratio) | "
-           "first episodes | env steps | wall clock | final eval | best eval | first eval >= "
-           f"{threshold:.0f}: wall clock (env steps) |",
-           "|---|---|---|---|---|---|---|---|---|---|---|"]
+           "first episodes | env steps | wall clock | start-up | final eval | best eval | "
+           f"first eval >= {threshold:.0f}: wall clock (env steps) | result file |",
+           "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
   for (_, task, _), curve in sorted(runs.items(),
                                     key=lambda kv: (_order(kv[0][1]), kv[1][0]["num_envs"])):
     curve = sorted(curve, key=lambda r: r["env_steps"])
@@ -196,7 +212,9 @@ def learning_table(records: list[dict], threshold: float = 800.0) -> str:
                  f"{settings['updates_per_iteration']} ({settings['replay_ratio']:g}) | "
                  f"{_episodes(last)} | "
                  f"{last['env_steps'] / 1e6:.1f}M | {_duration(last['wall_s'])} | "
-                 f"{last['eval_return']:.1f} | {best['eval_return']:.1f} | {first} |")
+                 f"{_startup(curve[0])} | "
+                 f"{last['eval_return']:.1f} | {best['eval_return']:.1f} | {first} | "
+                 f"{_run_label(last['_file'], task)} |")
   return "\n".join(lines)
 
 

@@ -246,6 +246,11 @@ def test_command_line_trains_resumes_and_refuses_mismatches(tmp_path, capsys):
       ("learning_curve", "reacher_easy", 1, 40), ("learning_curve", "reacher_easy", 2, 80)]
   assert records[1]["wall_s"] == float(rows[1]["wall_s"])
   assert records[0]["settings"]["replay_ratio"] == 2 * 4 / 4  # updates x batch / envs
+  # Each process's start-up (before its first iteration) is recorded: the resumed process's
+  # is its own, not the first's, and under the stopped run's wall clock.
+  startups = [r["startup_s"] for r in records]
+  assert 0 < startups[0] < records[0]["wall_s"] and startups[1] != startups[0]
+  assert all(isinstance(r["persistent_cache_hits"], int) for r in records)
   params, meta = policy_io.load_policy(run_dir / "policy.npz", task="reacher_easy")
   assert meta["env_steps"] == 80 and "policy" in params and "normalizer" in params
   assert json.load(open(run_dir / "config.json"))["num_envs"] == 4

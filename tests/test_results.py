@@ -1,0 +1,23 @@
+"""Result records' helpers."""
+
+import jax
+import numpy as np
+
+import conftest  # noqa: F401  (the session's persistent compilation cache)
+from mjx_form import results
+
+
+def test_persistent_cache_hits_are_counted():
+  """A program compiled once and asked for again by a new jit object comes from the cache."""
+  previous = jax.config.jax_persistent_cache_min_compile_time_secs
+  jax.config.update("jax_persistent_cache_min_compile_time_secs", 0)
+  try:
+    program = lambda: jax.jit(lambda x: jax.numpy.cos(x) * 2.5 + 1)  # a new function each time
+    x = np.arange(7.0, dtype=np.float32)
+    with results.count_persistent_cache_hits() as first:
+      jax.block_until_ready(program()(x))  # compiled and written (or found)
+    with results.count_persistent_cache_hits() as second:
+      jax.block_until_ready(program()(x))
+    assert first[0] <= 1 and second == [1]
+  finally:
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", previous)
