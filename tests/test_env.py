@@ -157,11 +157,13 @@ def test_cli_lists_tasks_and_rejects_bad_input():
   assert "Traceback" not in odd.stderr
 
 
-def test_cli_random_rollout_reports_steps_per_second():
+def test_cli_random_rollout_reports_steps_per_second(tmp_path):
+  cache = tmp_path / "jax_cache"
   result = _run_cli("--task", "reacher_easy", "--num_envs", "4", "--steps", "20",
-                    "--log_every", "10")
+                    "--log_every", "10", "--compilation_cache", str(cache))
   assert result.returncode == 0, result.stderr
   assert "steps/s" in result.stdout and "done:" in result.stdout
+  assert any(cache.iterdir())  # the compiled rollout went to the persistent cache
 
 
 def _dot_precisions(jaxpr) -> list:
