@@ -67,6 +67,8 @@ class ResultWriter:
     # simulated with JAX's default precision, TF32 on NVIDIA GPUs (see mjx_form/physics.py).
     self._common = {"device": device_name(), "versions": versions(),
                     "physics_matmul_precision": PHYSICS_MATMUL_PRECISION}
+    if os.environ.get("XLA_FLAGS"):  # compiler settings that change speed, e.g. command buffers
+      self._common["xla_flags"] = os.environ["XLA_FLAGS"]
 
   def write(self, **record) -> dict:
     record = {**record, **self._common,

@@ -21,3 +21,12 @@ def test_persistent_cache_hits_are_counted():
     assert first[0] <= 1 and second == [1]
   finally:
     jax.config.update("jax_persistent_cache_min_compile_time_secs", previous)
+
+
+def test_records_carry_the_xla_flags(tmp_path, monkeypatch):
+  """A speed measured under other compiler flags says so in its record."""
+  monkeypatch.setenv("XLA_FLAGS", "--xla_gpu_enable_command_buffer=WHILE")
+  record = results.ResultWriter(str(tmp_path / "r.jsonl")).write(kind="test")
+  assert record["xla_flags"] == "--xla_gpu_enable_command_buffer=WHILE"
+  monkeypatch.delenv("XLA_FLAGS")
+  assert "xla_flags" not in results.ResultWriter(str(tmp_path / "s.jsonl")).write(kind="test")
