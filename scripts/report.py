@@ -22,6 +22,7 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
 
 from mjx_form import policy_io  # noqa: E402  (numpy only; no JAX)
+from mjx_form.cpu import CPU_XLA_FLAG  # noqa: E402  (os only)
 
 # = tasks.EXPERTS_DIR (not imported from there: importing tasks starts JAX)
 EXPERTS = os.path.join(ROOT, "tasks", "experts")
@@ -218,26 +219,37 @@ def learning_table(records: list[dict], threshold: float = 800.0) -> str:
   return "\n".join(lines)
 
 
+def _xla_flags(r: dict) -> str:
+  """The XLA flags a record ran under beyond the CPU one every run sets ('-' for none)."""
+  cpu_flag = CPU_XLA_FLAG.split("=")[0]
+  flags = [f for f in r.get("xla_flags", "").split() if f.split("=")[0] != cpu_flag]
+  return " ".join(f"`{f}`" for f in flags) or "-"
+
+
 def train_throughput_table(records: list[dict]) -> str:
   rows = [r for r in records if r.get("kind") == "train_throughput"]
   if not rows:
     return "No training-loop throughput results yet."
-  newest = _newest(rows, lambda r: (r["task"], r["num_envs"], r["device"],
-                                    r["settings"]["updates_per_iteration"], _episodes(r)))
+  newest = _newest(rows, lambda r: (r["task"], r["num_envs"], r["device"], _matmuls(r),
+                                    r["settings"]["updates_per_iteration"], _episodes(r),
+                                    _xla_flags(r)))
   lines = ["Environment steps per second of one whole training iteration (collect 100-step "
            "unrolls, normaliser, replay insert, MPO/Retrace updates) beside env-only "
            "`AutoReset(task).step` with random actions, in the same process; peak device memory "
            "of that process (replay of 10,000 unrolls included):", "",
            "| task | device | physics | physics matmuls | envs | updates / iteration | "
-           "first episodes | loop | env only | loop/env | ms / update | peak memory |",
-           "|---|---|---|---|---|---|---|---|---|---|---|---|"]
-  for r in sorted(newest.values(), key=lambda r: (_order(r["task"]), r["num_envs"])):
+           "first episodes | loop | env only | loop/env | ms / update | peak memory | "
+           "other XLA flags |",
+           "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+  for r in sorted(newest.values(),
+                  key=lambda r: (_order(r["task"]), r["num_envs"], _matmuls(r), _xla_flags(r))):
     memory = r.get("peak_memory_bytes")
     lines.append(f"| {r['task']} | `{r['device']}` | {r['physics']} | {_matmuls(r)} | "
                  f"{r['num_envs']} | {r['settings']['updates_per_iteration']} | "
                  f"{_episodes(r)} | {_k(r['sps'])} | "
                  f"{_k(r['env_sps'])} | {r['ratio_to_env']:.2f} | {r['update_ms']:.1f} | "
-                 f"{'-' if memory is None else f'{memory / 2**30:.1f} GiB'} |")
+                 f"{'-' if memory is None else f'{memory / 2**30:.1f} GiB'} | "
+                 f"{_xla_flags(r)} |")
   return "\n".join(lines)
 
 

@@ -55,3 +55,21 @@ def test_parity_tables_are_per_device_and_precision():
   assert table.count("| walker_walk | fast |") == 3
   assert "`gpu:X`, matmuls in TF32" in table and "`gpu:X`, matmuls in float32" in table
   assert "`cpu:cpu x1`, matmuls in float32" in table
+
+
+def test_train_throughput_rows_differ_by_precision_and_xla_flags():
+  """A measurement under other compiler flags or matmul precision is a row of its own."""
+  base = {"kind": "train_throughput", "task": "cheetah_run", "physics": "fast", "num_envs": 512,
+          "device": "gpu:X", "versions": {}, "time": "t", "sps": 1.1e5, "env_sps": 2.8e5,
+          "ratio_to_env": 0.41, "update_ms": 2.0, "peak_memory_bytes": None,
+          "physics_matmul_precision": "highest",
+          "xla_flags": "--xla_cpu_enable_concurrency_optimized_scheduler=false",
+          "settings": {"updates_per_iteration": 128, "stagger_episodes": False}}
+  graphs = dict(base, sps=1.0e5, time="u", xla_flags=base["xla_flags"]
+                + " --xla_gpu_enable_command_buffer=WHILE")
+  tf32 = dict(base, sps=1.2e5, time="v")
+  del tf32["physics_matmul_precision"]
+  table = report.train_throughput_table([base, graphs, tf32])
+  assert "| 110k | 280k | 0.41 | 2.0 | - | - |" in table
+  assert "| 100k | 280k | 0.41 | 2.0 | - | `--xla_gpu_enable_command_buffer=WHILE` |" in table
+  assert "| TF32 | 512 | 128 | lockstep | 120k |" in table
