@@ -153,17 +153,25 @@ def _show(value) -> str:
   return value if isinstance(value, str) else json.dumps(value)
 
 
-def config_differences(stored: dict, config: dict, ignore: Iterable[str] = ()) -> list[str]:
-  """The (dotted) keys whose values differ between two configs, except those under `ignore`."""
+def config_differences(stored: dict, config: dict, ignore: Iterable[str] = (),
+                       added: dict[str, Any] | None = None) -> list[str]:
+  """The (dotted) keys whose values differ between two configs, except those under `ignore`.
+
+  `added`: settings introduced after `stored` may have been written, with the value that
+  reproduces what ran before them; a stored config without such a key counts as having it.
+  """
   a, b = _flatten_config(_json(stored)), _flatten_config(_json(config))
+  for key, value in (added or {}).items():
+    a.setdefault(key, value)
   ignore = tuple(ignore)
   ignored = lambda key: any(key == p or key.startswith(p + ".") for p in ignore)
   return [key for key in sorted(a.keys() | b.keys())
           if not ignored(key) and a.get(key, _MISSING) != b.get(key, _MISSING)]
 
 
-def _check_config(where: str, stored: dict, config: dict, ignore: Iterable[str]) -> None:
-  keys = config_differences(stored, config, ignore)
+def _check_config(where: str, stored: dict, config: dict, ignore: Iterable[str],
+                  added: dict[str, Any] | None) -> None:
+  keys = config_differences(stored, config, ignore, added)
   if keys:
     a, b = _flatten_config(_json(stored)), _flatten_config(_json(config))
     was = ", ".join(f"{k}={_show(a.get(k, _MISSING))}" for k in keys)
@@ -250,12 +258,13 @@ def _check_tree(where: str, stored_tree, target) -> None:
 
 
 def restore(directory, target, config: dict, step: int | None = None, *,
-            ignore: Iterable[str] = ()):
+            ignore: Iterable[str] = (), added: dict[str, Any] | None = None):
   """Restores step `step` (default: the latest) of `directory` into the structure of `target`.
 
   `target` is a pytree of arrays or jax.ShapeDtypeStructs: the result has its structure, shapes,
   dtypes and shardings (abstract leaves without a sharding land on the default device). The
-  stored config must equal `config` except for the (dotted) keys under `ignore`. Raises
+  stored config must equal `config` except for the (dotted) keys under `ignore` (and keys in
+  `added` it lacks, where `config` has their value: see `config_differences`). Raises
   CheckpointError naming the differing config keys or the first differing leaf, or when there
   is no checkpoint.
   """
@@ -266,7 +275,7 @@ def restore(directory, target, config: dict, step: int | None = None, *,
     step = _resolve_step(mngr, directory, step)
     where = os.path.join(directory, f"step_{step}")
     stored = mngr.restore(step, args=ocp.args.Composite(config=ocp.args.JsonRestore()))["config"]
-    _check_config(directory, stored, config, ignore)
+    _check_config(directory, stored, config, ignore, added)
     metadata = mngr.item_metadata(step)["state"]
     _check_tree(where, getattr(metadata, "tree", metadata), target)
     abstract = {name: _abstract(x) for name, x in _flat(target).items()}

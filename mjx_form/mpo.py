@@ -13,6 +13,14 @@ One scalar loss trains all three parameter groups; stop-gradients route each ter
 with E-step weights w = sg(softmax_i(Q / eta)), KL_mean = mean_s KL(target || N(mu, sigma_target))
 and KL_scale = mean_s KL(target || N(mu_target, sigma)), both [A] with per-dimension constraints
 (else summed over A, scalars). `target`, `sampled_actions` and `q_values` are constants.
+
+Action penalty (optional, `MPOConfig.action_penalty`; on by default in Acme's MPO, which
+recommends it for the control suite; the paper does not say): a second objective, the cost
+c_i = -||a_i - clip(a_i, -1, 1)||, gets its own E-step with temperature eta_p and bound
+epsilon_penalty (multi-objective MPO, Abdolmaleki et al., 2020); its weights are added to w and
+its dual loss to the temperature's. Without it a Gaussian policy whose actions are clipped by
+the environment can drift its mean far outside [-1, 1], where every sample saturates: the
+policy is then bang-bang and explores little (seen in hopper_stand: |mean| 2-4).
 """
 
 from __future__ import annotations
@@ -48,6 +56,8 @@ class MPOConfig:
   init_log_temperature: float = 1.0
   init_log_alpha_mean: float = 1.0
   init_log_alpha_scale: float = 10.0
+  action_penalty: bool = False  # the MO-MPO penalty on sampled actions outside [-1, 1]
+  epsilon_penalty: float = 1e-3  # its KL bound (Acme's default); its dual starts as eta's
 
 
 class MPODuals(NamedTuple):
@@ -56,6 +66,7 @@ class MPODuals(NamedTuple):
   log_temperature: jax.Array  # []
   log_alpha_mean: jax.Array  # [A], or [] without per-dimension constraints
   log_alpha_scale: jax.Array  # [A], or [] without per-dimension constraints
+  log_penalty_temperature: jax.Array | None = None  # [] with the action penalty, else absent
 
 
 def init_duals(config: MPOConfig, action_size: int, dtype=jnp.float32) -> MPODuals:
@@ -64,7 +75,9 @@ def init_duals(config: MPOConfig, action_size: int, dtype=jnp.float32) -> MPODua
   return MPODuals(
       log_temperature=jnp.full((), config.init_log_temperature, dtype),
       log_alpha_mean=jnp.full(shape, config.init_log_alpha_mean, dtype),
-      log_alpha_scale=jnp.full(shape, config.init_log_alpha_scale, dtype))
+      log_alpha_scale=jnp.full(shape, config.init_log_alpha_scale, dtype),
+      log_penalty_temperature=(jnp.full((), config.init_log_temperature, dtype)
+                               if config.action_penalty else None))
 
 
 def dual_value(raw: jax.Array) -> jax.Array:
@@ -111,6 +124,23 @@ def mpo_loss(duals: MPODuals, online: DiagonalGaussian, target: DiagonalGaussian
   # E-step: weights of the non-parametric policy and the temperature's dual loss.
   weights = jax.lax.stop_gradient(e_step_weights(q_values, temperature))  # [N, S]
   loss_temperature = temperature_loss(q_values, temperature, config.epsilon)
+  # KL(E-step policy || uniform over the samples) estimates KL(E-step policy || target).
+  kl_nonparametric = _kl_from_uniform(weights)
+  ess = 1.0 / jnp.sum(jnp.square(weights), axis=0)  # [S], of the Q weights
+  out_of_bounds = sampled_actions - jnp.clip(sampled_actions, -1.0, 1.0)  # [N, S, A]
+  penalty_metrics = {}
+  if config.action_penalty:
+    if duals.log_penalty_temperature is None:
+      raise ValueError("MPOConfig.action_penalty needs duals from init_duals with it on")
+    penalty_temperature = dual_value(duals.log_penalty_temperature)
+    cost = -jnp.linalg.norm(out_of_bounds, axis=-1)  # [N, S], 0 inside the bounds
+    penalty_weights = jax.lax.stop_gradient(e_step_weights(cost, penalty_temperature))
+    loss_temperature += temperature_loss(cost, penalty_temperature, config.epsilon_penalty)
+    weights = weights + penalty_weights  # each sums to 1 over the samples; together to 2
+    penalty_metrics = {
+        "penalty_temperature": penalty_temperature,
+        "penalty_kl_nonparametric_rel": (_kl_from_uniform(penalty_weights)
+                                         / config.epsilon_penalty)}
 
   # M-step: weighted maximum likelihood of the two decoupled distributions.
   fixed_scale = DiagonalGaussian(online.mean, target.scale)  # learns the mean
@@ -130,9 +160,6 @@ def mpo_loss(duals: MPODuals, online: DiagonalGaussian, target: DiagonalGaussian
   loss_policy = loss_policy_mean + loss_policy_scale
   loss = loss_policy + loss_kl + loss_alpha + loss_temperature
 
-  # KL(E-step policy || uniform over the samples) estimates KL(E-step policy || target).
-  kl_nonparametric = jnp.mean(jnp.sum(weights * jnp.log(num_samples * weights + 1e-30), axis=0))
-  ess = 1.0 / jnp.sum(jnp.square(weights), axis=0)  # [S]
   metrics = {
       "loss_policy": loss_policy,
       "loss_kl": loss_kl,
@@ -151,5 +178,15 @@ def mpo_loss(duals: MPODuals, online: DiagonalGaussian, target: DiagonalGaussian
       "q_max": jnp.mean(jnp.max(q_values, axis=0)),
       "scale_mean": jnp.mean(online.scale),
       "entropy": jnp.mean(online.entropy()),
+      # Saturation: parts of sampled actions, and of the policy's mean, outside [-1, 1].
+      "sampled_out_of_bounds": jnp.mean(out_of_bounds != 0),
+      "mean_out_of_bounds": jnp.mean(jnp.abs(online.mean) > 1.0),
+      **penalty_metrics,
   }
   return loss, metrics
+
+
+def _kl_from_uniform(weights: jax.Array) -> jax.Array:
+  """mean_s KL(weights[:, s] || uniform over the N samples); weights [N, S] sum to 1 over N."""
+  num_samples = weights.shape[0]
+  return jnp.mean(jnp.sum(weights * jnp.log(num_samples * weights + 1e-30), axis=0))

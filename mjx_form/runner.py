@@ -33,6 +33,9 @@ from mjx_form.train import Trainer, TrainConfig, iterations_for
 
 # Settings that may change when a run is resumed (they do not change what is computed).
 RESUMABLE = ("total_env_steps", "log_every", "eval_every", "checkpoint_every")
+# Settings added since checkpoints were first written, with the value that does what runs did
+# before them: a checkpoint whose config lacks one resumes only with that value.
+ADDED_SETTINGS = {"learner.mpo.action_penalty": False, "learner.mpo.epsilon_penalty": 1e-3}
 
 
 # Columns that not every row has (evaluation rows; devices that report memory).
@@ -127,7 +130,7 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
   if resume and checkpoint.latest_step(ckpt_dir) is not None:  # refused before compiling
     restored = checkpoint.restore(ckpt_dir, _checkpointed(trainer.abstract_state,
                                                           checkpoint_replay),
-                                  full_config, ignore=RESUMABLE)
+                                  full_config, ignore=RESUMABLE, added=ADDED_SETTINGS)
   eval_key = jax.random.PRNGKey(config.seed + 1)
   print_fn("compiling the run's programs (init, iteration, evaluation) ...")
   compile_start = time.perf_counter()

@@ -167,6 +167,13 @@ def _episodes(record: dict) -> str:
   return "staggered" if record["settings"].get("stagger_episodes") else "lockstep"
 
 
+def _action_penalty(record: dict) -> str:
+  """MPO's action penalty of a training run: its KL bound, or '-' when off (records before the
+  setting existed ran without it)."""
+  mpo = record["settings"].get("learner", {}).get("mpo", {})
+  return f"{mpo['epsilon_penalty']:g}" if mpo.get("action_penalty") else "-"
+
+
 def _startup(record: dict) -> str:
   """The first process's start-up of a run (records before 2026-11-22 lack it)."""
   if "startup_s" not in record:
@@ -196,11 +203,12 @@ def learning_table(records: list[dict], threshold: float = 800.0) -> str:
            f"first iteration (building, tracing, compiling; `cached`: programs loaded from JAX's "
            f"persistent compilation cache), recorded since 2026-11-22. First episodes: `lockstep` "
            f"= all environments started together, `staggered` = at random phases (see "
-           f"above).", "",
+           f"above). Action penalty: MPO's penalty on actions outside [-1, 1] and its KL "
+           f"bound (`--action_penalty`), `-` = off.", "",
            "| task | device | physics matmuls | envs | updates / iteration (replay ratio) | "
-           "first episodes | env steps | wall clock | start-up | final eval | best eval | "
-           f"first eval >= {threshold:.0f}: wall clock (env steps) | result file |",
-           "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+           "first episodes | action penalty | env steps | wall clock | start-up | final eval | "
+           f"best eval | first eval >= {threshold:.0f}: wall clock (env steps) | result file |",
+           "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
   for (_, task, _), curve in sorted(runs.items(),
                                     key=lambda kv: (_order(kv[0][1]), kv[1][0]["num_envs"])):
     curve = sorted(curve, key=lambda r: r["env_steps"])
@@ -211,7 +219,7 @@ def learning_table(records: list[dict], threshold: float = 800.0) -> str:
     settings = last["settings"]
     lines.append(f"| {task} | `{last['device']}` | {_matmuls(last)} | {last['num_envs']} | "
                  f"{settings['updates_per_iteration']} ({settings['replay_ratio']:g}) | "
-                 f"{_episodes(last)} | "
+                 f"{_episodes(last)} | {_action_penalty(last)} | "
                  f"{last['env_steps'] / 1e6:.1f}M | {_duration(last['wall_s'])} | "
                  f"{_startup(curve[0])} | "
                  f"{last['eval_return']:.1f} | {best['eval_return']:.1f} | {first} | "

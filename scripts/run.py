@@ -90,6 +90,10 @@ def parse_args(argv=None) -> argparse.Namespace:
   train.add_argument("--target_update_period", type=int,
                      default=defaults.learner.target_update_period,
                      help="learner updates between copies of the online networks to the targets")
+  train.add_argument("--action_penalty", action="store_true",
+                     help="MPO's penalty on sampled actions outside [-1, 1] (multi-objective "
+                          "MPO, epsilon 1e-3; on by default in Acme, not stated in the paper): "
+                          "keeps the policy's mean from drifting out of the action bounds")
   train.add_argument("--eval_envs", type=int, default=defaults.eval_envs)
   train.add_argument("--lockstep_episodes", action="store_true",
                      help="start every environment's first episode together (as runs before "
@@ -123,8 +127,10 @@ def parse_args(argv=None) -> argparse.Namespace:
 
 
 def train_config(args: argparse.Namespace) -> TrainConfig:
-  learner = dataclasses.replace(LearnerConfig(), num_action_samples=args.num_action_samples,
-                                target_update_period=args.target_update_period)
+  learner = dataclasses.replace(
+      LearnerConfig(), num_action_samples=args.num_action_samples,
+      target_update_period=args.target_update_period,
+      mpo=dataclasses.replace(LearnerConfig().mpo, action_penalty=args.action_penalty))
   return TrainConfig(task=args.task, physics=args.physics, num_envs=args.num_envs,
                      unroll_length=args.unroll_length, batch_size=args.batch_size,
                      replay_capacity=args.replay_capacity,

@@ -180,6 +180,25 @@ def test_ignored_keys(tmp_path):
   checkpoint.restore(tmp_path, state, dict(CONFIG, hidden=[256, 256]))
 
 
+def test_settings_added_since_the_checkpoint(tmp_path):
+  """A stored config without a newer setting resumes only where the run has the value that
+  does what runs did before the setting existed."""
+  state = make_state()
+  checkpoint.save(tmp_path, 1, state, CONFIG)  # written before mpo.penalty existed
+  added = {"mpo.penalty": False}
+  run = dict(CONFIG, mpo={"eta": 0.1, "penalty": False})
+  assert_same(checkpoint.restore(tmp_path, state, run, added=added), state)
+  with pytest.raises(CheckpointError, match=r"mpo\.penalty=\(unset\); this run has mpo\.penalty=true"):
+    checkpoint.restore(tmp_path, state, dict(CONFIG, mpo={"eta": 0.1, "penalty": True}),
+                       added=added)
+  with pytest.raises(CheckpointError, match=r"mpo\.penalty"):  # not declared as added
+    checkpoint.restore(tmp_path, state, run)
+  # A stored value always counts, whatever `added` says.
+  checkpoint.save(tmp_path, 2, state, dict(CONFIG, mpo={"eta": 0.1, "penalty": True}))
+  with pytest.raises(CheckpointError, match=r"mpo\.penalty=true; this run has mpo\.penalty=false"):
+    checkpoint.restore(tmp_path, state, run, added=added)
+
+
 def test_structure_mismatch(tmp_path):
   state = make_state()
   checkpoint.save(tmp_path, 1, state, CONFIG)

@@ -217,3 +217,75 @@ def test_finite_for_extreme_q_and_jits(per_dim):
     g_eta = grads[0].log_temperature / jax.nn.sigmoid(log_temperature)
     kl_weights = metrics["kl_nonparametric_rel"] * config.epsilon
     np.testing.assert_allclose(g_eta, config.epsilon - kl_weights, rtol=1e-3, atol=1e-3)
+
+
+# --- action penalty (MO-MPO's cost on sampled actions outside [-1, 1]) -------------------------
+
+def _saturated_problem(seed=6):
+  """A target policy whose means lie outside [-1, 1] in some dimensions, and flat Q: the task
+  prefers no action, so only the penalty can say where the mean should go."""
+  rng = np.random.default_rng(seed)
+  mean = rng.normal(size=(S, A)) + np.array([3.0, -2.5, 0.0])  # dims 0, 1 saturate
+  target = DiagonalGaussian(jnp.asarray(mean, jnp.float32), jnp.full((S, A), 0.5))
+  actions = target.sample(jax.random.key(seed), (N,))
+  return target, actions, jnp.zeros((N, S))
+
+
+def test_action_penalty_duals_only_when_on():
+  off, on = mpo.init_duals(mpo.MPOConfig(), A), mpo.init_duals(
+      mpo.MPOConfig(action_penalty=True), A)
+  assert off.log_penalty_temperature is None and len(jax.tree.leaves(off)) == 3
+  assert on.log_penalty_temperature.shape == () and len(jax.tree.leaves(on)) == 4
+  # Without the penalty the loss and its metrics are those of plain MPO, whatever the duals.
+  target, actions, q_values, _ = _problem()
+  online = DiagonalGaussian(target.mean + 0.1, target.scale)
+  config = mpo.MPOConfig()
+  loss_off, m_off = mpo.mpo_loss(off, online, target, actions, q_values, config)
+  loss_on_duals, _ = mpo.mpo_loss(on, online, target, actions, q_values, config)
+  assert float(loss_off) == float(loss_on_duals) and "penalty_temperature" not in m_off
+  with pytest.raises(ValueError, match="action_penalty"):
+    mpo.mpo_loss(off, online, target, actions, q_values, mpo.MPOConfig(action_penalty=True))
+
+
+def test_action_penalty_pulls_saturated_means_inside_the_bounds():
+  target, actions, q_values = _saturated_problem()
+  g_mean = {}
+  for penalty in (False, True):
+    config = mpo.MPOConfig(action_penalty=penalty)
+    duals = mpo.init_duals(config, A)
+    if penalty:  # a sharper penalty E-step (eta_p 0.13) than at the start (1.31)
+      duals = duals._replace(log_penalty_temperature=jnp.array(-2.0))
+    g_mean[penalty] = np.asarray(_grads(duals, target, target, actions, q_values, config)[1].mean)
+  # Flat Q, no penalty: uniform weights, the M-step only refits the target's samples.
+  refit = (target.mean - actions.mean(0)) / jnp.square(target.scale) / S
+  np.testing.assert_allclose(g_mean[False], refit, rtol=1e-3, atol=1e-6)
+  # The penalty's part of the step (gradient descent: -g) points inwards, towards [-1, 1], in
+  # the saturated dimensions: on average and for nearly every state (its cost is the norm over
+  # all dimensions, so single states may differ).
+  step = -(g_mean[True] - g_mean[False])[:, :2]
+  inward = step * -np.sign(np.asarray(target.mean[:, :2]))  # > 0: moves inwards
+  assert np.all(inward.mean(0) > 0) and (inward > 0).mean() > 0.8, inward
+  _, metrics = mpo.mpo_loss(duals, target, target, actions, q_values, config)
+  assert 0.3 < float(metrics["sampled_out_of_bounds"]) < 0.9
+  assert 0.5 < float(metrics["mean_out_of_bounds"]) < 0.8  # 2 of 3 dimensions, mostly
+
+
+def test_action_penalty_temperature_dual_moves_the_right_way():
+  """Its dual, like eta's, grows when the penalty's E-step weights move further from the
+  target's samples than epsilon_penalty allows, and shrinks when they are within it."""
+  target, actions, q_values = _saturated_problem()
+  for log_penalty_temperature, grows in ((-8.0, True), (100.0, False)):
+    config = mpo.MPOConfig(action_penalty=True)
+    duals = mpo.init_duals(config, A)._replace(
+        log_penalty_temperature=jnp.array(log_penalty_temperature))
+    g_duals = _grads(duals, target, target, actions, q_values, config)[0]
+    _, metrics = mpo.mpo_loss(duals, target, target, actions, q_values, config)
+    # Gradient descent on the dual loss: a negative gradient raises the temperature.
+    assert (float(g_duals.log_penalty_temperature) < 0) == grows
+    assert (float(metrics["penalty_kl_nonparametric_rel"]) > 1.0) == grows
+  # All samples inside the bounds: no cost, uniform penalty weights, KL 0, the dual shrinks.
+  inside = jnp.clip(actions, -0.99, 0.99)
+  _, metrics = mpo.mpo_loss(duals, target, target, inside, q_values, config)
+  assert float(metrics["penalty_kl_nonparametric_rel"]) == 0.0
+  assert float(_grads(duals, target, target, inside, q_values, config)[0]
+               .log_penalty_temperature) > 0

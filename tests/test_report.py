@@ -73,3 +73,23 @@ def test_train_throughput_rows_differ_by_precision_and_xla_flags():
   assert "| 110k | 280k | 0.41 | 2.0 | - | - |" in table
   assert "| 100k | 280k | 0.41 | 2.0 | - | `--xla_gpu_enable_command_buffer=WHILE` |" in table
   assert "| TF32 | 512 | 128 | lockstep | 120k |" in table
+
+
+def test_learning_rows_show_the_action_penalty():
+  base = {"kind": "learning_curve", "task": "hopper_stand", "seed": 0, "num_envs": 256,
+          "device": "gpu:X", "env_steps": 1e6, "wall_s": 60.0, "eval_return": 300.0,
+          "physics_matmul_precision": "highest", "_file": "2026-11-23_learning_curve_x.jsonl",
+          "settings": {"updates_per_iteration": 128, "replay_ratio": 32, "eval_episodes": 32,
+                       "stagger_episodes": True,
+                       "learner": {"mpo": {"epsilon": 0.1}}}}  # before the setting existed
+  penalised = dict(base, _file="2026-11-23_learning_curve_y.jsonl", eval_return=900.0,
+                   settings=dict(base["settings"], learner={"mpo": {
+                       "action_penalty": True, "epsilon_penalty": 1e-3}}))
+  off = dict(base, _file="2026-11-23_learning_curve_z.jsonl", settings=dict(
+      base["settings"], learner={"mpo": {"action_penalty": False, "epsilon_penalty": 1e-3}}))
+  table = report.learning_table([base, penalised, off])
+  rows = [line for line in table.splitlines() if line.startswith("| hopper_stand")]
+  assert len(rows) == 3
+  assert sum("| staggered | 0.001 | 1.0M |" in row for row in rows) == 1
+  assert sum("| staggered | - | 1.0M |" in row for row in rows) == 2
+  assert "| staggered | 0.001 | 1.0M | 60 s | - | 900.0 | 900.0 | 60 s (1.0M) |" in table

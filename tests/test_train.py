@@ -197,6 +197,24 @@ def test_task_reward_is_not_stored_for_other_reward_sources():
   jax.eval_shape(trainer._iteration, abstract)
 
 
+def test_action_penalty_setting_reaches_the_learner(tmp_path):
+  """--action_penalty turns on MPO's action penalty: its dual is part of the learner state
+  (and so of checkpoints), and its metrics come out of the iteration."""
+  cli = load_script("run")
+  config = cli.train_config(cli.parse_args(_cli_args(tmp_path / "run", "--action_penalty")))
+  assert config.learner.mpo.action_penalty and not CONFIG.learner.mpo.action_penalty
+  assert config == dataclasses.replace(CONFIG, learner=dataclasses.replace(
+      CONFIG.learner, mpo=dataclasses.replace(CONFIG.learner.mpo, action_penalty=True)))
+  trainer = Trainer(config, mesh_lib.make_mesh())
+  abstract = jax.eval_shape(trainer._init, jax.random.PRNGKey(0))
+  assert abstract.learner.duals.log_penalty_temperature.shape == ()
+  assert abstract.learner.dual_opt[0].mu.log_penalty_temperature.shape == ()
+  _, metrics = jax.eval_shape(trainer._iteration, abstract)
+  assert {"penalty_temperature", "sampled_out_of_bounds", "mean_out_of_bounds"} <= set(metrics)
+  plain = jax.eval_shape(Trainer(CONFIG, mesh_lib.make_mesh())._init, jax.random.PRNGKey(0))
+  assert plain.learner.duals.log_penalty_temperature is None
+
+
 @pytest.mark.parametrize("change, message", [
     (dict(num_envs=3), "multiple of the number of devices"),
     (dict(task="reacher_medium"), "unknown task"),
