@@ -215,6 +215,15 @@ def test_action_penalty_setting_reaches_the_learner(tmp_path):
   assert plain.learner.duals.log_penalty_temperature is None
 
 
+def test_settings_added_since_older_checkpoints_default_to_what_ran_before():
+  """runner.ADDED_SETTINGS lets checkpoints written before a setting existed resume; each entry
+  must be a real config key whose default is the value it declares (else old runs would resume
+  under changed behaviour, or never)."""
+  flat = checkpoint._flatten_config(TrainConfig().to_dict())
+  for key, value in runner.ADDED_SETTINGS.items():
+    assert key in flat and flat[key] == value, (key, flat.get(key), value)
+
+
 @pytest.mark.parametrize("change, message", [
     (dict(num_envs=3), "multiple of the number of devices"),
     (dict(task="reacher_medium"), "unknown task"),
