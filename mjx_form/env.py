@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import abc
 import collections
-import functools
 import xml.etree.ElementTree as ET
 from typing import Any
 
@@ -46,6 +45,10 @@ class Task(abc.ABC):
   domain: str = ""
   task: str = ""
   n_substeps: int = 1
+  # The observation elements' names and sizes, in dm_control's flattening order. Declared, not
+  # traced (tracing a reset to learn them cost seconds per task object); every reset and step
+  # checks `get_observation` against it while tracing (`check_observation_layout`).
+  observation_elements: tuple[tuple[str, int], ...] = ()
   # Fast-mode solver settings for this domain; see mjx_form.physics and the README's tables.
   fast_settings: physics_lib.SolverSettings = physics_lib.PARITY
 
@@ -107,14 +110,17 @@ class Task(abc.ABC):
   def observation_size(self) -> int:
     return sum(self.observation_layout.values())
 
-  @functools.cached_property
+  @property
   def observation_layout(self) -> dict[str, int]:
     """Names and sizes of the observation elements, in flattening order."""
-    def observe(key):
-      data, task = self.initialize_episode(mjx.make_data(self.mjx_model), key)
-      return self.get_observation(data, task)
-    shapes = jax.eval_shape(observe, jax.random.PRNGKey(0))
-    return {k: int(np.prod(v.shape)) for k, v in shapes.items()}
+    return dict(self.observation_elements)
+
+  def check_observation_layout(self, parts: dict[str, Any]) -> None:
+    """Raises ValueError where `get_observation`'s elements differ from the declared layout."""
+    got = [(k, int(np.prod(np.shape(v)))) for k, v in parts.items()]
+    if got != list(self.observation_elements):
+      raise ValueError(f"{self.name}: get_observation gives {got}, but the task declares "
+                       f"observation_elements = {list(self.observation_elements)}")
 
   @property
   def control_timestep(self) -> float:
@@ -128,6 +134,7 @@ class Task(abc.ABC):
     data, task = self.initialize_episode(data, init_key)
     data = self.after_reset(data)
     obs_parts = self.get_observation(data, task)
+    self.check_observation_layout(obs_parts)
     zero = jnp.zeros(())
     info = {"step": jnp.zeros((), jnp.int32), "episode_return": zero, "key": key,
             "physics_error": zero}
@@ -148,6 +155,7 @@ class Task(abc.ABC):
     data = state.data.replace(ctrl=action)
     data = physics_lib.physics_step(self.mjx_model, data, self.n_substeps)
     obs_parts = self.get_observation(data, state.task)
+    self.check_observation_layout(obs_parts)
     obs = flatten_observation(obs_parts)
     reward = jnp.asarray(self.get_reward(data, state.task), jnp.float32)
 

@@ -19,6 +19,7 @@ class Cheetah(ControlSuiteTask):
   """Run forward as fast as possible."""
 
   domain = "cheetah"
+  observation_elements = (("position", 8), ("velocity", 9))
   task = "run"
   xml_file = "cheetah.xml"
   n_substeps = 1  # physics dt 0.01 = control dt

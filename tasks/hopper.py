@@ -19,6 +19,7 @@ class Hopper(ControlSuiteTask):
   """Stand upright (hopping=False) or hop forward (hopping=True)."""
 
   domain = "hopper"
+  observation_elements = (("position", 6), ("velocity", 7), ("touch", 2))
   xml_file = "hopper.xml"
   n_substeps = 4  # physics dt 0.005, control dt 0.02
   fast_settings = physics_lib.SolverSettings(iterations=10, ls_iterations=10, max_contact_points=8,

@@ -24,6 +24,8 @@ class Humanoid(ControlSuiteTask):
   """Stand (move_speed 0) or move at `move_speed` or faster."""
 
   domain = "humanoid"
+  observation_elements = (("joint_angles", 21), ("head_height", 1), ("extremities", 12),
+                          ("torso_vertical", 3), ("com_velocity", 3), ("velocity", 27))
   xml_file = "humanoid.xml"
   n_substeps = 5  # physics dt 0.005, control dt 0.025
   fast_settings = physics_lib.SolverSettings(iterations=10, ls_iterations=10)  # no culling: see the sweep

@@ -29,6 +29,8 @@ class Move(ControlSuiteTask):
   """Move forward at `desired_speed` or faster while staying upright."""
 
   domain = "quadruped"
+  observation_elements = (("egocentric_state", 44), ("torso_velocity", 3), ("torso_upright", 1),
+                          ("imu", 6), ("force_torque", 24))
   xml_file = "quadruped.xml"
   n_substeps = 4  # physics dt 0.005, control dt 0.02
   fast_settings = physics_lib.SolverSettings(iterations=10, ls_iterations=10, max_contact_points=8,

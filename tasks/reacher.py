@@ -20,6 +20,7 @@ class Reacher(ControlSuiteTask):
   """Reach a randomly placed target with the two-link arm's fingertip."""
 
   domain = "reacher"
+  observation_elements = (("position", 2), ("to_target", 2), ("velocity", 2))
   xml_file = "reacher.xml"
   n_substeps = 1  # physics dt 0.02 = control dt
   fast_settings = physics_lib.SolverSettings()  # contacts are disabled: nothing to solve

@@ -18,6 +18,7 @@ class PlanarWalker(ControlSuiteTask):
   """Stand (move_speed 0) or move forward at `move_speed` or faster."""
 
   domain = "walker"
+  observation_elements = (("orientations", 14), ("height", 1), ("velocity", 9))
   xml_file = "walker.xml"
   n_substeps = 10  # physics dt 0.0025, control dt 0.025
   fast_settings = physics_lib.SolverSettings(iterations=10, ls_iterations=10, max_contact_points=8,

@@ -1,5 +1,6 @@
 """Task registry, specs and models against dm_control's (no compilation of MJX steps here)."""
 
+import jax
 import numpy as np
 import pytest
 
@@ -42,7 +43,7 @@ def test_specs_and_model_match_dm_control(name):
   assert env.control_timestep == pytest.approx(dm_env.control_timestep()) == pytest.approx(control_dt)
   assert env.action_size == dm_env.action_spec().shape[0] == act_dims
   dm_layout = {k: int(np.prod(v.shape)) for k, v in dm_env.observation_spec().items()}
-  assert env.observation_layout == dm_layout  # same names, sizes and order
+  assert list(env.observation_layout.items()) == list(dm_layout.items())  # names, sizes, order
   assert env.observation_size == obs_dims
   # 1000 control steps per episode, as dm_control's time limit gives.
   assert round(dm_env._step_limit) == 1000
@@ -71,3 +72,15 @@ def test_fast_mode_changes_only_solver_settings(name):
   assert fast.mj_model.opt.timestep == parity_model.opt.timestep
   np.testing.assert_array_equal(fast.mj_model.body_mass, parity_model.body_mass)
   np.testing.assert_array_equal(fast.mj_model.geom_size, parity_model.geom_size)
+
+
+def test_a_wrong_observation_declaration_is_caught_while_tracing():
+  """The declared layout is checked against get_observation by every reset and step trace."""
+  env = tasks.make("reacher_easy")
+  env.observation_elements = (("position", 2), ("velocity", 2), ("to_target", 2))  # reordered
+  with pytest.raises(ValueError, match="reacher_easy: get_observation gives .*to_target"):
+    jax.eval_shape(env.reset, jax.random.PRNGKey(0))
+  state = jax.eval_shape(tasks.make("reacher_easy").reset, jax.random.PRNGKey(0))
+  env.observation_elements = (("position", 2), ("to_target", 3), ("velocity", 2))  # a size
+  with pytest.raises(ValueError, match="observation_elements"):
+    jax.eval_shape(env.step, state, jax.numpy.zeros(2))
