@@ -197,7 +197,8 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
       print_fn(f"iter {iteration}/{total_iterations}  steps {row['env_steps']:,}  "
                f"{row['wall_s']:.0f}s  {row['steps_per_s']:,.0f} steps/s  "
                f"train return {_show(row['train_return'])}{evaluated}  q {row['q_mean']:.2f}  "
-               f"critic {row['critic_loss']:.3f}")
+               f"critic {row['critic_loss']:.3f}  mean out of bounds "
+               f"{row['mean_out_of_bounds']:.2f}")
     if curve is not None and "eval_return" in row:
       _write_curve_point(curve, config, row, eval_episodes=returns.size,
                          total_env_steps=total_env_steps, devices=trainer.mesh.devices.size,
