@@ -20,7 +20,7 @@ c_i = -||a_i - clip(a_i, -1, 1)||, gets its own E-step with temperature eta_p an
 epsilon_penalty (multi-objective MPO, Abdolmaleki et al., 2020); its weights are added to w and
 its dual loss to the temperature's. Without it a Gaussian policy whose actions are clipped by
 the environment can drift its mean far outside [-1, 1], where every sample saturates: the
-policy is then bang-bang and explores little (seen in hopper_stand: |mean| 2-4).
+policy is then bang-bang and explores little (as hopper_stand's policy did: README).
 """
 
 from __future__ import annotations
