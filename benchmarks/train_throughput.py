@@ -1,7 +1,8 @@
 #!/usr/bin/env python3
 """End-to-end environment steps per second of the training loop, beside env-only throughput.
 
-For each task and size, in one process on one device, it times:
+For each task and size, in one process over all visible devices (the trainer's mesh: environments
+split over devices, parameters replicated; the env-only rollout is split the same way), it times:
   - env:     `AutoReset(task).step` with uniform random actions, `unroll_length` steps per
              jitted call (what env_throughput.py calls "ours");
   - collect: the loop's collection alone (policy network + env step, unrolls out);
@@ -32,6 +33,7 @@ import jax  # noqa: E402
 
 import tasks  # noqa: E402
 from env_throughput import ours_fn  # noqa: E402
+from mjx_form import mesh as mesh_lib  # noqa: E402
 from mjx_form import results  # noqa: E402
 from mjx_form.physics import DEFAULT_PHYSICS, PHYSICS_MODES  # noqa: E402
 from mjx_form.train import Trainer, TrainConfig  # noqa: E402
@@ -87,9 +89,14 @@ def main(argv=None) -> int:
       trainer = Trainer(config)
       steps = config.unroll_length
       env = trainer.env
-      start = jax.jit(lambda k: AutoReset(env).reset(k, num_envs))(key)
-      env_sps, env_compile_s = common.time_compiled(ours_fn(env, num_envs, steps), (start, key),
-                                                    steps, num_envs, args.repeats)
+      start = mesh_lib.shard_batch(jax.jit(lambda k: AutoReset(env).reset(k, num_envs))(key),
+                                   trainer.mesh)
+      env_only = jax.jit(ours_fn(env, num_envs, steps), donate_argnums=0,
+                         in_shardings=(mesh_lib.batch_sharding(trainer.mesh),
+                                       mesh_lib.replicated(trainer.mesh)),
+                         out_shardings=mesh_lib.batch_sharding(trainer.mesh))
+      env_sps, env_compile_s = common.time_compiled(env_only, (start, key), steps, num_envs,
+                                                    args.repeats)
       state = trainer.init(key)
       collect_s, collect_compile_s = time_collect(trainer, state, args.repeats)
       iteration_s, loop_compile_s, state = time_iterations(trainer, state, args.repeats)
