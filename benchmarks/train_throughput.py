@@ -97,8 +97,13 @@ def main(argv=None) -> int:
                          out_shardings=mesh_lib.batch_sharding(trainer.mesh))
       env_sps, env_compile_s = common.time_compiled(env_only, (start, key), steps, num_envs,
                                                     args.repeats)
+      # Each phase is printed as it ends, so a run stopped by a time limit shows how far it got.
+      print(f"{name} {num_envs} envs: env only {env_sps:,.0f} steps/s "
+            f"(compile {env_compile_s:.0f}s)", flush=True)
       state = trainer.init(key)
       collect_s, collect_compile_s = time_collect(trainer, state, args.repeats)
+      print(f"{name} {num_envs} envs: collect {config.env_steps_per_iteration / collect_s:,.0f} "
+            f"steps/s (compile {collect_compile_s:.0f}s)", flush=True)
       iteration_s, loop_compile_s, state = time_iterations(trainer, state, args.repeats)
       per_iteration = config.env_steps_per_iteration
       result = {
