@@ -234,7 +234,9 @@ def _write_curve_point(writer: results.ResultWriter, config: TrainConfig, row: d
               "replay_ratio": config.replay_ratio, "total_env_steps": total_env_steps,
               "eval_episodes": eval_episodes, "devices": devices}
   fields = ("iteration", "env_steps", "updates", "wall_s", "eval_s", "steps_per_s",
-            "eval_return", "eval_return_std", "train_return", "peak_memory_bytes")
+            "eval_return", "eval_return_std", "train_return", "peak_memory_bytes",
+            # the policy's saturation: shares of its mean and samples outside [-1, 1]
+            "mean_out_of_bounds", "sampled_out_of_bounds", "penalty_temperature")
   writer.write(kind="learning_curve", task=config.task, method="expert",
                physics=config.physics, num_envs=config.num_envs, seed=config.seed,
                settings=settings, **startup,

@@ -273,6 +273,10 @@ def test_command_line_trains_resumes_and_refuses_mismatches(tmp_path, capsys):
   assert [(r["kind"], r["task"], r["iteration"], r["env_steps"]) for r in records] == [
       ("learning_curve", "reacher_easy", 1, 40), ("learning_curve", "reacher_easy", 2, 80)]
   assert records[1]["wall_s"] == float(rows[1]["wall_s"])
+  # The records carry the policy's saturation beside its return (the penalty's temperature
+  # only where the penalty is on).
+  assert records[1]["mean_out_of_bounds"] == float(rows[1]["mean_out_of_bounds"])
+  assert 0 <= records[1]["sampled_out_of_bounds"] <= 1 and "penalty_temperature" not in records[1]
   assert records[0]["settings"]["replay_ratio"] == 2 * 4 / 4  # updates x batch / envs
   # Each process's start-up (before its first iteration) is recorded: the resumed process's
   # is its own, not the first's, and under the stopped run's wall clock.
