@@ -40,6 +40,17 @@ from mjx_form.train import Trainer, TrainConfig  # noqa: E402
 from mjx_form.wrappers import AutoReset  # noqa: E402
 
 
+def env_only_fn(trainer: Trainer, steps: int, key):
+  """(jitted `run(state, key)`, start state): `steps` calls of `AutoReset(task).step` with
+  random actions for the trainer's environments, split over its mesh as the loop's are."""
+  num_envs, mesh = trainer.config.num_envs, trainer.mesh
+  start = jax.jit(lambda k: AutoReset(trainer.env).reset(k, num_envs))(key)
+  run = jax.jit(ours_fn(trainer.env, num_envs, steps), donate_argnums=0,
+                in_shardings=(mesh_lib.batch_sharding(mesh), mesh_lib.replicated(mesh)),
+                out_shardings=mesh_lib.batch_sharding(mesh))
+  return run, mesh_lib.shard_batch(start, mesh)
+
+
 def time_iterations(trainer: Trainer, state, repeats: int):
   """(seconds per iteration, compile seconds, state); the state is donated call to call."""
   t0 = time.perf_counter()
@@ -88,13 +99,7 @@ def main(argv=None) -> int:
                            stagger_episodes=not args.lockstep_episodes)
       trainer = Trainer(config)
       steps = config.unroll_length
-      env = trainer.env
-      start = mesh_lib.shard_batch(jax.jit(lambda k: AutoReset(env).reset(k, num_envs))(key),
-                                   trainer.mesh)
-      env_only = jax.jit(ours_fn(env, num_envs, steps), donate_argnums=0,
-                         in_shardings=(mesh_lib.batch_sharding(trainer.mesh),
-                                       mesh_lib.replicated(trainer.mesh)),
-                         out_shardings=mesh_lib.batch_sharding(trainer.mesh))
+      env_only, start = env_only_fn(trainer, steps, key)
       env_sps, env_compile_s = common.time_compiled(env_only, (start, key), steps, num_envs,
                                                     args.repeats)
       # Each phase is printed as it ends, so a run stopped by a time limit shows how far it got.
