@@ -16,6 +16,8 @@ Run directory layout:
                       an empty replay and fresh episodes, so it does not repeat an uninterrupted
                       run exactly
   policy.npz          the final policy (+ observation normaliser), see mjx_form.policy_io
+  best_policy.npz     the policy of the run's best evaluation so far (same format), written at
+                      each evaluation that beats it: a run whose evaluations dip late keeps it
 """
 
 from __future__ import annotations
@@ -152,6 +154,8 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
   wall_offset = log.rewind(int(state.iteration)) if resume else 0.0
   curve = results.ResultWriter(results_path) if results_path else None
 
+  best_path = os.path.join(directory, "best_policy.npz")
+  best_return = _best_return(best_path) if resume else -np.inf
   total_iterations = iterations_for(config, total_env_steps)
   steps_per_iteration = config.env_steps_per_iteration
   print_fn(f"{config.task}: {config.num_envs} envs x {config.unroll_length}-step unrolls, "
@@ -183,6 +187,9 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
       returns = np.asarray(trainer.evaluate(state.learner.policy, state.normalizer, eval_key))
       eval_seconds += time.perf_counter() - t0
       row.update(eval_return=float(returns.mean()), eval_return_std=float(returns.std()))
+      if row["eval_return"] > best_return:
+        best_return = row["eval_return"]
+        export_policy(trainer, state, best_path, row)
     # Wall clock of the run so far (compilation and evaluation included); eval_s is the part
     # spent in evaluation in this process.
     row["wall_s"] = wall_offset + time.perf_counter() - process_start
@@ -212,6 +219,13 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
 
   export_policy(trainer, state, os.path.join(directory, "policy.npz"), row)
   return row
+
+
+def _best_return(path: str) -> float:
+  """The evaluation return of the best policy a run exported so far (-inf if none)."""
+  if not os.path.exists(path):
+    return -np.inf
+  return float(policy_io.load_policy(path)[1]["eval_return"])
 
 
 def _checkpointed(state, with_replay: bool):

@@ -4,7 +4,8 @@
   --method random (default): uniform random actions in N auto-resetting environments of one
       task, sharded over all devices; reports control steps per second (compile time apart).
   --method expert: trains MPO (Retrace) on the task reward in one compiled loop; writes
-      progress.csv, checkpoints and policy.npz to --run_dir; --resume continues a run.
+      progress.csv, checkpoints, policy.npz and best_policy.npz to --run_dir; --resume
+      continues a run.
 
   python scripts/run.py --task humanoid_run --num_envs 2048
   python scripts/run.py --task cheetah_run --method expert --num_envs 2048 --env_steps 20000000
@@ -213,7 +214,8 @@ def main(argv=None) -> int:
     finished = row["env_steps"] >= args.env_steps
     print(f"{'done' if finished else 'stopped'}: "
           f"eval return {row.get('eval_return', float('nan')):.1f} after "
-          f"{row['env_steps']:,} env steps; policy in {os.path.join(run_dir, 'policy.npz')}")
+          f"{row['env_steps']:,} env steps; policy in {os.path.join(run_dir, 'policy.npz')}, "
+          f"the best evaluation's in {os.path.join(run_dir, 'best_policy.npz')}")
     return 0
   try:
     mesh_lib.check_batch_size(args.num_envs, mesh)

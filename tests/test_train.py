@@ -285,6 +285,13 @@ def test_command_line_trains_resumes_and_refuses_mismatches(tmp_path, capsys):
   assert all(isinstance(r["persistent_cache_hits"], int) for r in records)
   params, meta = policy_io.load_policy(run_dir / "policy.npz", task="reacher_easy")
   assert meta["env_steps"] == 80 and "policy" in params and "normalizer" in params
+  # best_policy.npz: the policy of the best evaluation over both processes.
+  best_row = max(rows, key=lambda r: float(r["eval_return"]))
+  best_params, best = policy_io.load_policy(run_dir / "best_policy.npz", task="reacher_easy")
+  assert (best["eval_return"], best["env_steps"]) == (float(best_row["eval_return"]),
+                                                      int(best_row["env_steps"]))
+  if best["env_steps"] == 80:
+    assert best["sha256"] == meta["sha256"]  # the final policy, when it is the best
   assert json.load(open(run_dir / "config.json"))["num_envs"] == 4
 
   # An existing run is never overwritten without --resume.
@@ -293,9 +300,14 @@ def test_command_line_trains_resumes_and_refuses_mismatches(tmp_path, capsys):
   # A checkpoint of another configuration is refused, naming the difference.
   assert cli.main(_cli_args(run_dir, "--env_steps", "120", "--resume", "--seed", "1")) == 2
   assert "seed" in capsys.readouterr().err
-  # Resuming with more steps continues from the last checkpoint.
+  # Resuming with more steps continues from the last checkpoint; the best policy so far is
+  # replaced only by a better evaluation (here: one no evaluation can beat).
+  best_meta = {k: v for k, v in best.items() if k not in ("format", "version", "sha256")}
+  policy_io.save_policy(run_dir / "best_policy.npz", best_params,
+                        dict(best_meta, eval_return=1e9), overwrite=True)
   assert cli.main(_cli_args(run_dir, "--env_steps", "120", "--resume")) == 0
   assert "resumed from iteration 2" in capsys.readouterr().out
+  assert policy_io.load_policy(run_dir / "best_policy.npz")[1]["eval_return"] == 1e9
   assert checkpoint.latest_step(str(run_dir / "checkpoints")) == 3
 
 
