@@ -43,11 +43,12 @@ class _ReportRows:
     self._node.user_properties.append(("parity_row", json.dumps(row)))
 
 
-def load_script(name: str):
-  """scripts/<name>.py as a module, so its main() runs in this process (compiles are shared)."""
-  path = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "scripts",
+def load_script(name: str, folder: str = "scripts"):
+  """<folder>/<name>.py (scripts/ or benchmarks/) as a module, so its main() runs in this
+  process (compiles are shared)."""
+  path = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), folder,
                       f"{name}.py")
-  spec = importlib.util.spec_from_file_location(f"script_{name}", path)
+  spec = importlib.util.spec_from_file_location(f"{folder}_{name}", path)
   module = importlib.util.module_from_spec(spec)
   spec.loader.exec_module(module)
   return module

@@ -1,30 +1,17 @@
 """The benchmark scripts' own logic (their timings are taken on the GPU, never in tests)."""
 
-import importlib.util
-import os
-
 import jax
 import numpy as np
 
+from conftest import load_script
 from mjx_form.train import Trainer, TrainConfig
-
-BENCHMARKS = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))),
-                          "benchmarks")
-
-
-def load_benchmark(name: str):
-  spec = importlib.util.spec_from_file_location(f"benchmark_{name}",
-                                                os.path.join(BENCHMARKS, f"{name}.py"))
-  module = importlib.util.module_from_spec(spec)
-  spec.loader.exec_module(module)
-  return module
 
 
 def test_train_throughput_env_only_runs_over_the_loops_devices():
   """The env-only rollout it compares the loop with is split over the same mesh (2 forced host
   devices here): its environments end where they started, on both devices."""
   assert jax.device_count() == 2  # tests/conftest.py forces two host devices
-  bench = load_benchmark("train_throughput")
+  bench = load_script("train_throughput", folder="benchmarks")
   trainer = Trainer(TrainConfig(task="reacher_easy", num_envs=4, unroll_length=5))
   run, start = bench.env_only_fn(trainer, 3, jax.random.PRNGKey(0))
   assert start.obs.sharding.device_set == set(jax.devices())
