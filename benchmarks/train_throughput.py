@@ -98,7 +98,7 @@ def main(argv=None) -> int:
                            updates_per_iteration=args.updates_per_iteration,
                            stagger_episodes=not args.lockstep_episodes)
       trainer = Trainer(config)
-      steps = config.unroll_length
+      steps, per_iteration = config.unroll_length, config.env_steps_per_iteration
       env_only, start = env_only_fn(trainer, steps, key)
       env_sps, env_compile_s = common.time_compiled(env_only, (start, key), steps, num_envs,
                                                     args.repeats)
@@ -107,10 +107,9 @@ def main(argv=None) -> int:
             f"(compile {env_compile_s:.0f}s)", flush=True)
       state = trainer.init(key)
       collect_s, collect_compile_s = time_collect(trainer, state, args.repeats)
-      print(f"{name} {num_envs} envs: collect {config.env_steps_per_iteration / collect_s:,.0f} "
-            f"steps/s (compile {collect_compile_s:.0f}s)", flush=True)
+      print(f"{name} {num_envs} envs: collect {per_iteration / collect_s:,.0f} steps/s "
+            f"(compile {collect_compile_s:.0f}s)", flush=True)
       iteration_s, loop_compile_s, state = time_iterations(trainer, state, args.repeats)
-      per_iteration = config.env_steps_per_iteration
       result = {
           "sps": per_iteration / iteration_s, "env_sps": env_sps,
           "collect_sps": per_iteration / collect_s, "ratio_to_env": per_iteration / iteration_s
