@@ -12,7 +12,7 @@ RESULTS_DIR = os.path.join(ROOT, "benchmarks", "results")
 if ROOT not in sys.path:
   sys.path.insert(0, ROOT)
 
-from mjx_form.results import ResultWriter, device_name, versions  # noqa: E402,F401
+from mjx_form.files.results import ResultWriter, device_name, versions  # noqa: E402,F401
 
 
 def default_results_path(what: str) -> str:

@@ -45,8 +45,8 @@ import jax.numpy as jnp  # noqa: E402
 from mujoco import mjx  # noqa: E402
 
 import tasks  # noqa: E402
-from mjx_form.physics import PHYSICS_MODES, apply_solver_settings, full_precision  # noqa: E402
-from mjx_form.wrappers import AutoReset  # noqa: E402
+from mjx_form.sim.physics import PHYSICS_MODES, apply_solver_settings, full_precision  # noqa: E402
+from mjx_form.sim.wrappers import AutoReset  # noqa: E402
 
 PEERS = {  # our name -> MuJoCo Playground's name
     "reacher_easy": "ReacherEasy", "reacher_hard": "ReacherHard", "cheetah_run": "CheetahRun",

@@ -4,7 +4,7 @@
 Reads the reference transitions written by scripts/make_reference.py and records, per task and
 mode, the largest absolute error per transition in qpos, qvel, observation and reward (median,
 90th percentile, max over transitions) as `kind: parity` records. The physics runs at full
-float32 matmul precision on every device (`mjx_form.physics.full_precision`); the records of
+float32 matmul precision on every device (`mjx_form.sim.physics.full_precision`); the records of
 2026-11-21 with `matmul_precision: default` measured it with JAX's GPU default (TF32) before
 that was fixed.
 
@@ -27,8 +27,8 @@ configure_cpu_xla()
 import numpy as np  # noqa: E402
 
 import tasks  # noqa: E402
-from mjx_form import parity  # noqa: E402
-from mjx_form.physics import PHYSICS_MODES  # noqa: E402
+from mjx_form.sim import parity  # noqa: E402
+from mjx_form.sim.physics import PHYSICS_MODES  # noqa: E402
 
 
 def load_reference(folder: str, name: str) -> dict[str, np.ndarray]:

@@ -35,8 +35,8 @@ from mujoco import mjx  # noqa: E402
 import env_throughput  # noqa: E402
 import parity_error  # noqa: E402
 import tasks  # noqa: E402
-from mjx_form.physics import SolverSettings  # noqa: E402
-from mjx_form.wrappers import AutoReset  # noqa: E402
+from mjx_form.sim.physics import SolverSettings  # noqa: E402
+from mjx_form.sim.wrappers import AutoReset  # noqa: E402
 
 # Contact caps above the most simultaneous contacts seen in 3000 random-action steps of
 # dm_control (cheetah 2, hopper 5, walker 6, quadruped 4, humanoid 11 contacts).

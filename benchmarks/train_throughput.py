@@ -34,10 +34,10 @@ import jax  # noqa: E402
 import tasks  # noqa: E402
 from env_throughput import ours_fn  # noqa: E402
 from mjx_form import mesh as mesh_lib  # noqa: E402
-from mjx_form import results  # noqa: E402
-from mjx_form.physics import DEFAULT_PHYSICS, PHYSICS_MODES  # noqa: E402
-from mjx_form.train import Trainer, TrainConfig  # noqa: E402
-from mjx_form.wrappers import AutoReset  # noqa: E402
+from mjx_form.files import results  # noqa: E402
+from mjx_form.sim.physics import DEFAULT_PHYSICS, PHYSICS_MODES  # noqa: E402
+from mjx_form.rl.train import Trainer, TrainConfig  # noqa: E402
+from mjx_form.sim.wrappers import AutoReset  # noqa: E402
 
 
 def env_only_fn(trainer: Trainer, steps: int, key):

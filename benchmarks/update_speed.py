@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Milliseconds per MPO/Retrace learner update, and what its parts cost.
 
-The learner update (`mjx_form.learner.update`) on a random batch of the paper's size (64 unrolls
+The learner update (`mjx_form.rl.learner.update`) on a random batch of the paper's size (64 unrolls
 of 100 steps), `--updates` updates per jitted `lax.scan` as in the training loop, timed as the
 best of `--repeats` calls after a warm-up call. Variants, each compiled on its own:
   - base:        the default LearnerConfig;
@@ -34,8 +34,8 @@ import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 
 import tasks  # noqa: E402
-from mjx_form import learner, normalizer, retrace  # noqa: E402
-from mjx_form.networks import make_networks  # noqa: E402
+from mjx_form.rl import learner, normalizer, retrace  # noqa: E402
+from mjx_form.rl.networks import make_networks  # noqa: E402
 
 VARIANTS = ("base", "samples_1", "highest")
 

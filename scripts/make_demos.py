@@ -5,8 +5,9 @@
       --episodes 1000 --out demos/cheetah_run.npz [--actions]
   python scripts/make_demos.py --task cheetah_run --out demos/cheetah_run.npz  # shipped expert
 
-The file format is documented in mjx_form/demos.py (observations [K, 1001, D], actions only with
---actions, for BC; task, observation layout, physics, expert and checksum in the metadata).
+The file format is documented in mjx_form/files/demos.py (observations [K, 1001, D], actions
+only with --actions, for BC; task, observation layout, physics, expert and checksum in the
+metadata).
 Episodes are recorded in chunks of --chunk episodes (one compiled rollout, reused).
 """
 
@@ -15,7 +16,6 @@ from __future__ import annotations
 import argparse
 import os
 import sys
-import time
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
@@ -24,11 +24,10 @@ from mjx_form.cpu import configure_cpu_xla  # noqa: E402  (before JAX starts)
 configure_cpu_xla()
 
 import jax  # noqa: E402
-import numpy as np  # noqa: E402
 
 import tasks  # noqa: E402
-from mjx_form import demos, experts, policy_io  # noqa: E402
-from mjx_form.physics import DEFAULT_PHYSICS, PHYSICS_MODES  # noqa: E402
+from mjx_form.files import demos, experts, policy_io  # noqa: E402
+from mjx_form.sim.physics import DEFAULT_PHYSICS, PHYSICS_MODES  # noqa: E402
 
 
 def main(argv=None) -> int:
@@ -64,24 +63,10 @@ def main(argv=None) -> int:
     print(f"error: {e}", file=sys.stderr)
     return 2
 
-  key = jax.random.PRNGKey(args.seed)
-  chunk = min(args.chunk, args.episodes)
-  obs, actions, returns = [], [], []
-  t0 = time.perf_counter()
-  while sum(len(r) for r in returns) < args.episodes:
-    key, sub = jax.random.split(key)
-    o, a, r = experts.record(env, expert, sub, chunk, stochastic=args.stochastic)
-    obs.append(o), actions.append(a), returns.append(r)
-    done = sum(len(r) for r in returns)
-    print(f"{min(done, args.episodes)}/{args.episodes} episodes, mean return "
-          f"{np.concatenate(returns).mean():.1f}, {time.perf_counter() - t0:.0f}s", flush=True)
-  obs = np.concatenate(obs)[:args.episodes]
-  actions = np.concatenate(actions)[:args.episodes]
-  returns = np.concatenate(returns)[:args.episodes]
-  info = {"policy_file": os.path.basename(args.policy), "policy_sha256": metadata["sha256"],
-          "policy_env_steps": metadata.get("env_steps"), "seed": args.seed,
-          "stochastic": args.stochastic, "mean_return": float(returns.mean()),
-          "min_return": float(returns.min()), "max_return": float(returns.max())}
+  obs, actions, returns = experts.record_demonstrations(
+      env, expert, jax.random.PRNGKey(args.seed), args.episodes, args.chunk,
+      stochastic=args.stochastic, print_fn=lambda line: print(line, flush=True))
+  info = experts.recording_info(args.policy, metadata, returns, args.seed, args.stochastic)
   os.makedirs(os.path.dirname(os.path.abspath(args.out)), exist_ok=True)
   demos.save_demonstrations(
       args.out, obs, actions if args.actions else None, overwrite=args.overwrite,

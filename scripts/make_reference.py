@@ -20,7 +20,7 @@ import numpy as np
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 import tasks  # noqa: E402
-from mjx_form import parity  # noqa: E402
+from mjx_form.sim import parity  # noqa: E402
 
 
 def main(argv=None) -> int:

@@ -1,12 +1,15 @@
 #!/usr/bin/env python3
-"""Writes the README's tables (throughput, parity, solver sweep, learning, loop throughput)
-from benchmarks/results/*.jsonl, and the table of shipped experts from tasks/experts/*.npz.
+"""Writes the generated tables of README.md and benchmarks/NOTES.md from
+benchmarks/results/*.jsonl and the shipped experts in tasks/experts/*.npz.
 
-  python scripts/report.py           # rewrite the tables in README.md
-  python scripts/report.py --check   # exit 1 if README.md is not what the results give
+  python scripts/report.py           # rewrite the tables in both files
+  python scripts/report.py --check   # exit 1 if either file is not what the results give
 
-The tables are never typed by hand: each comes from the newest record per (task, mode, size,
-device) in the result files.
+Each table sits between `<!-- name:begin -->` and `<!-- name:end -->` markers. The README holds
+compact tables (FORM results, demonstrators, shipped experts, expert runs per task, parity per
+task, throughput per task); benchmarks/NOTES.md holds the full ones (every parity, throughput,
+solver-sweep, learning-run, training-loop and demonstrator record). The tables are never typed
+by hand: each comes from the newest record per (task, mode, size, device) in the result files.
 """
 
 from __future__ import annotations
@@ -21,19 +24,27 @@ import sys
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
 
-from mjx_form import policy_io  # noqa: E402  (numpy only; no JAX)
+from mjx_form.files import effect_models, policy_io  # noqa: E402  (numpy only; no JAX)
 from mjx_form.cpu import CPU_XLA_FLAG  # noqa: E402  (os only)
 
 # = tasks.EXPERTS_DIR (not imported from there: importing tasks starts JAX)
 EXPERTS = os.path.join(ROOT, "tasks", "experts")
+DEMONSTRATORS = os.path.join(ROOT, "tasks", "demonstrators")
 # Expert returns of the paper's Table 1 (mean over 3 seeds), for comparison only.
 PAPER_EXPERT = {"reacher_easy": 974.6, "reacher_hard": 981.3, "cheetah_run": 930.5,
                 "quadruped_walk": 972.4, "quadruped_run": 962.9, "hopper_stand": 965.8,
                 "hopper_hop": 711.5, "walker_stand": 993.6, "walker_walk": 983.2,
                 "walker_run": 952.1, "humanoid_stand": 905.9, "humanoid_walk": 809.5,
                 "humanoid_run": 736.6}
+# FORM's returns in the paper's Table 1, for comparison only.
+PAPER_FORM = {"reacher_easy": 950.2, "reacher_hard": 957.3, "cheetah_run": 827.9,
+              "quadruped_walk": 963.6, "quadruped_run": 948.5, "hopper_stand": 815.7,
+              "hopper_hop": 636.2, "walker_stand": 985.1, "walker_walk": 977.8,
+              "walker_run": 942.0, "humanoid_stand": 704.6, "humanoid_walk": 783.0,
+              "humanoid_run": 691.1}
 RESULTS = os.path.join(ROOT, "benchmarks", "results")
 README = os.path.join(ROOT, "README.md")
+NOTES = os.path.join(ROOT, "benchmarks", "NOTES.md")
 TASK_ORDER = ["reacher_easy", "reacher_hard", "cheetah_run", "quadruped_walk", "quadruped_run",
               "hopper_stand", "hopper_hop", "walker_stand", "walker_walk", "walker_run",
               "humanoid_stand", "humanoid_walk", "humanoid_run"]
@@ -113,6 +124,40 @@ def throughput_table(records: list[dict]) -> str:
   return "\n".join(lines).rstrip()
 
 
+def throughput_summary(records: list[dict], physics: str = "fast",
+                       sizes: tuple[int, ...] = (2048, 8192)) -> str:
+  """One row per task: `AutoReset(task).step` steps per second of `physics` mode on the GPU at
+  each of `sizes` envs, and its ratio to the plain `mjx.step` loop (the full table is
+  `throughput_table`)."""
+  rows = [r for r in records if r.get("kind") == "env_throughput" and r["physics"] == physics
+          and r["device"].startswith("gpu") and r["num_envs"] in sizes]
+  if not rows:
+    return "No throughput results yet."
+  newest = _newest(rows, lambda r: (r["device"], r["task"], r["num_envs"]))
+  lines = []
+  for device in sorted({r["device"] for r in newest.values()}):
+    sel = {(task, n): r for (d, task, n), r in newest.items() if d == device}
+    versions = next(iter(sel.values())).get("versions", {})
+    lines += [f"Control steps per second of `AutoReset(task).step` with random actions "
+              f"(observations, rewards, NaN checks and auto-reset included), `{physics}` physics, "
+              f"on `{device}` (jax {versions.get('jax')}, mujoco {versions.get('mujoco')}); "
+              f"/raw: its ratio to a plain `mjx.step` loop on the same model and settings; rows "
+              f"marked TF32 ran the physics' matmuls in TF32, the others in float32. Parity "
+              f"mode and MuJoCo Playground's speed: `benchmarks/NOTES.md`.", "",
+              "| task | solver | " + " | ".join(f"{n} envs | /raw" for n in sizes) + " |",
+              "|---|---|" + "---|---|" * len(sizes)]
+    for task in sorted({task for task, _ in sel}, key=_order):
+      cells = []
+      for n in sizes:
+        r = sel.get((task, n))
+        cells += ([f"{_k(r['sps'])}{' TF32' if _matmuls(r) == 'TF32' else ''}",
+                   f"{r['ratio_to_raw']:.2f}"] if r else ["-", "-"])
+      solver = _solver(next(r for (t, _), r in sel.items() if t == task)["settings"]["solver"])
+      lines.append(f"| {task} | {solver} | " + " | ".join(cells) + " |")
+    lines.append("")
+  return "\n".join(lines).rstrip()
+
+
 def parity_table(records: list[dict]) -> str:
   rows = [r for r in records if r.get("kind") == "parity"]
   if not rows:
@@ -125,13 +170,43 @@ def parity_table(records: list[dict]) -> str:
     lines += [f"One control step from {n} dm_control states under random actions, float32 on "
               f"`{device}`, matmuls in {matmuls}: largest absolute error per transition against "
               "dm_control's next state, median / max over transitions:", "",
-              "| task | physics | qpos | qvel | observation | reward |", "|---|---|---|---|---|---|"]
+              "| task | physics | qpos | qvel | observation | reward |",
+              "|---|---|---|---|---|---|"]
     for r in sorted(sel, key=lambda r: (_order(r["task"]), r["physics"] != "parity")):
       cells = [f"{r[f]['median']:.0e} / {r[f]['max']:.0e}"
                for f in ("qpos_error", "qvel_error", "obs_error", "reward_error")]
       lines.append(f"| {r['task']} | {r['physics']} | " + " | ".join(cells) + " |")
     lines.append("")
   return "\n".join(lines).rstrip()
+
+
+def parity_summary(records: list[dict], physics: str = "parity") -> str:
+  """One row per task: the one-step error of `physics` mode on the CPU, and qvel / observation
+  on the GPU with full-float32 matmuls (the full tables are `parity_table`)."""
+  rows = [r for r in records if r.get("kind") == "parity" and r["physics"] == physics]
+  cpu = _newest([r for r in rows if r["device"].startswith("cpu")], lambda r: r["task"])
+  gpu = _newest([r for r in rows if r["device"].startswith("gpu") and _matmuls(r) == "float32"],
+                lambda r: r["task"])
+  if not cpu and not gpu:
+    return "No parity results yet."
+  cpu_devices = ", ".join(f"`{d}`" for d in sorted({r["device"] for r in cpu.values()})) or "-"
+  gpu_devices = ", ".join(f"`{d}`" for d in sorted({r["device"] for r in gpu.values()})) or "-"
+  sizes = sorted({r["settings"].get("num_transitions") for r in [*cpu.values(), *gpu.values()]},
+                 key=str)
+  lines = [f"One control step of `{physics}` physics in float32 from "
+           f"{'/'.join(str(n) for n in sizes)} dm_control states under random actions: largest "
+           f"absolute error per transition against dm_control's next state, median / max over "
+           f"transitions, on the CPU ({cpu_devices}) and on the GPU ({gpu_devices}, matmuls in "
+           f"full float32). Both physics modes and TF32 matmuls: `benchmarks/NOTES.md`.", "",
+           "| task | qpos | qvel | observation | reward | GPU qvel | GPU observation |",
+           "|---|---|---|---|---|---|---|"]
+  cell = lambda r, f: f"{r[f]['median']:.0e} / {r[f]['max']:.0e}" if r else "-"
+  for task in sorted(set(cpu) | set(gpu), key=_order):
+    c, g = cpu.get(task), gpu.get(task)
+    lines.append(f"| {task} | " + " | ".join(
+        [cell(c, f) for f in ("qpos_error", "qvel_error", "obs_error", "reward_error")]
+        + [cell(g, "qvel_error"), cell(g, "obs_error")]) + " |")
+  return "\n".join(lines)
 
 
 def sweep_table(records: list[dict]) -> str:
@@ -188,14 +263,51 @@ def _run_label(path: str, task: str) -> str:
   return f"{name[:10]}{' ' + suffix if suffix else ''}"
 
 
+def _expert_runs(records: list[dict]) -> dict[tuple, list[dict]]:
+  """{(result file, task, seed): its learning-curve records} of the expert runs (task reward;
+  records before FORM existed carry method "expert" or none)."""
+  runs: dict[tuple, list[dict]] = {}
+  for r in records:
+    if r.get("kind") == "learning_curve" and r.get("method", "expert") == "expert":
+      runs.setdefault((r["_file"], r["task"], r["seed"]), []).append(r)
+  return runs
+
+
+def learning_summary(records: list[dict], threshold: float = 800.0) -> str:
+  """One row per task: how many expert runs, the highest evaluation of any of them, and the
+  fastest run to the first evaluation at or above `threshold`."""
+  runs = _expert_runs(records)
+  if not runs:
+    return "No learning results yet."
+  tasks = sorted({task for _, task, _ in runs}, key=_order)
+  lines = [f"Expert runs (`--method expert`) per task; the full table, one row per run with its "
+           f"settings, is in `benchmarks/NOTES.md`. Evaluation: mean task return of "
+           f"{next(iter(runs.values()))[0]['settings']['eval_episodes']} episodes with the "
+           f"policy's mean action; wall clock includes start-up (compiling, or loading from "
+           f"JAX's persistent compilation cache):", "",
+           f"| task | runs | highest evaluation (env steps, run) | first evaluation >= "
+           f"{threshold:.0f}, fastest run: wall clock (env steps, run) |", "|---|---|---|---|"]
+  for task in tasks:
+    curves = [sorted(c, key=lambda r: r["env_steps"]) for (_, t, _), c in runs.items()
+              if t == task]
+    best = max((r for c in curves for r in c), key=lambda r: r["eval_return"])
+    reached = [next((r for r in c if r["eval_return"] >= threshold), None) for c in curves]
+    reached = [r for r in reached if r is not None]
+    fastest = min(reached, key=lambda r: r["wall_s"]) if reached else None
+    first = (f"{_duration(fastest['wall_s'])} ({fastest['env_steps'] / 1e6:.1f}M, "
+             f"{_run_label(fastest['_file'], task)})" if fastest else "not reached")
+    lines.append(f"| {task} | {len(curves)} | {best['eval_return']:.1f} "
+                 f"({best['env_steps'] / 1e6:.1f}M, {_run_label(best['_file'], task)}) | "
+                 f"{first} |")
+  return "\n".join(lines)
+
+
 def learning_table(records: list[dict], threshold: float = 800.0) -> str:
   """One row per learning run (a result file's records of one task and seed)."""
-  rows = [r for r in records if r.get("kind") == "learning_curve"]
-  if not rows:
+  runs = _expert_runs(records)
+  if not runs:
     return "No learning results yet."
-  runs: dict[tuple, list[dict]] = {}
-  for r in rows:
-    runs.setdefault((r["_file"], r["task"], r["seed"]), []).append(r)
+  rows = [r for curve in runs.values() for r in curve]
   lines = [f"Expert runs (MPO + Retrace on the task reward, one seed each). Evaluation: mean "
            f"task return of {rows[0]['settings']['eval_episodes']} full episodes with the "
            f"policy's mean action. Wall clock includes compilation (and each restart's "
@@ -261,39 +373,187 @@ def train_throughput_table(records: list[dict]) -> str:
   return "\n".join(lines)
 
 
-def experts_table(folder: str = EXPERTS) -> str:
-  """One row per shipped expert file, from its metadata (the file's checksum is verified)."""
+def _shipped_experts(folder: str = EXPERTS) -> list[tuple[dict, str]]:
+  """(metadata, file name) of each shipped expert file (its checksum is verified)."""
   rows = []
   for path in sorted(glob.glob(os.path.join(folder, "*.npz"))):
     _, meta = policy_io.load_policy(path)
     rows.append((meta, os.path.basename(path)))
+  return sorted(rows, key=lambda r: _order(r[0]["task"]))
+
+
+def experts_table(records: list[dict] = (), folder: str = EXPERTS) -> str:
+  """One row per shipped expert file, from its metadata, with its newest evaluation on the CPU
+  (`kind: expert_eval` records of the same policy checksum) where there is one."""
+  rows = _shipped_experts(folder)
   if not rows:
     return "No shipped experts yet."
+  cpu = _newest([r for r in records if r.get("kind") == "expert_eval"
+                 and r["device"].startswith("cpu") and not r.get("stochastic")],
+                lambda r: r["policy_sha256"])
   lines = ["Expert policies shipped in `tasks/experts/` (`scripts/make_demos.py --task <name>` "
            "records demonstrations from them). Return: mean of the evaluation episodes at export "
-           "(policy mean action), on the device it was trained on:", "",
-           "| task | file | return | paper's expert | env steps | envs | updates / iteration | "
-           "physics | sha256 |", "|---|---|---|---|---|---|---|---|---|"]
-  for meta, name in sorted(rows, key=lambda r: _order(r[0]["task"])):
+           "(policy mean action), on the device it was trained on; CPU: the same policy on the "
+           "CPU (float32 physics, `kind: expert_eval` records), mean over its episodes:", "",
+           "| task | file | return | CPU (episodes) | paper's expert | env steps | envs | "
+           "updates / iteration | physics | sha256 |", "|---|---|---|---|---|---|---|---|---|---|"]
+  for meta, name in rows:
     config = meta.get("train_config", {})
     paper = PAPER_EXPERT.get(meta["task"])
-    lines.append(f"| {meta['task']} | `{name}` | {meta['eval_return']:.1f} | "
+    on_cpu = cpu.get(meta["sha256"])
+    cpu_text = f"{on_cpu['mean_return']:.1f} ({on_cpu['episodes']})" if on_cpu else "-"
+    lines.append(f"| {meta['task']} | `{name}` | {meta['eval_return']:.1f} | {cpu_text} | "
                  f"{'-' if paper is None else f'{paper:.1f}'} | {meta['env_steps'] / 1e6:.1f}M | "
                  f"{config.get('num_envs', '-')} | {config.get('updates_per_iteration', '-')} | "
                  f"{meta.get('physics', '-')} | `{meta['sha256'][:12]}` |")
   return "\n".join(lines)
 
 
-def render(readme: str, records: list[dict]) -> str:
-  for name, table in (("experts", experts_table()), ("throughput", throughput_table(records)),
-                      ("parity", parity_table(records)), ("sweep", sweep_table(records)),
-                      ("learning", learning_table(records)),
-                      ("train_throughput", train_throughput_table(records))):
-    pattern = re.compile(rf"(<!-- {name}:begin -->\n).*?(\n<!-- {name}:end -->)", re.S)
-    if not pattern.search(readme):
-      raise ValueError(f"README.md has no <!-- {name}:begin/end --> markers")
-    readme = pattern.sub(lambda m: m.group(1) + table + m.group(2), readme)
-  return readme
+def _mean_std(values: list[float]) -> tuple[float, float]:
+  """Mean and population standard deviation (0 for one value)."""
+  mean = sum(values) / len(values)
+  return mean, (sum((v - mean) ** 2 for v in values) / len(values)) ** 0.5
+
+
+def _demonstration_returns(folder: str = DEMONSTRATORS) -> dict[str, float]:
+  """{demonstrator sha256: mean return of the demonstrations it was trained on} of the shipped
+  demonstrators (their checksums verified)."""
+  out = {}
+  for path in sorted(glob.glob(os.path.join(folder, "*.npz"))):
+    meta = effect_models.load_effect_model(path).metadata
+    expert = meta["demonstrations"].get("expert", {})
+    if "mean_return" in expert:
+      out[meta["sha256"]] = expert["mean_return"]
+  return out
+
+
+def form_table(records: list[dict], expert_returns: dict[str, float] | None = None,
+               demonstration_returns: dict[str, float] | None = None) -> str:
+  """FORM's results: one row per task and configuration, over its seeds. Each seed's return is
+  its newest `kind: final_return` record of the final policy (a fresh evaluation after
+  training). The expert's return it is compared with: the mean return of the demonstrations
+  its demonstrator was trained on (`demonstration_returns`, by the demonstrator's sha256;
+  default: the shipped demonstrators'), else `expert_returns` (default: the shipped experts'
+  returns at export)."""
+  rows = [r for r in records if r.get("kind") == "final_return" and r.get("method") == "form"]
+  if not rows:
+    return ("No FORM results yet: a run with `--final_eval_envs` > 0 writes `kind: "
+            "final_return` records; copied to `benchmarks/results/`, they appear here.")
+  if expert_returns is None:
+    expert_returns = {meta["task"]: meta["eval_return"] for meta, _ in _shipped_experts()}
+  if demonstration_returns is None:
+    demonstration_returns = _demonstration_returns()
+  newest = _newest(rows, lambda r: (r["task"], r["physics"], r["num_envs"], r["env_steps"],
+                                    r.get("learner_preset"), r["device"], r["seed"],
+                                    r["policy"]))
+  groups: dict[tuple, dict[str, list[dict]]] = {}
+  for key, r in newest.items():
+    groups.setdefault(key[:6], {}).setdefault(r["policy"], []).append(r)
+  lines = ["FORM (`--method form`): return of the final policy in a fresh evaluation after "
+           "training (`--final_eval_envs` episodes per seed, policy mean action), mean +- "
+           "standard deviation over seeds (each seed: its mean over the episodes); best: the "
+           "same for the policy of each run's best periodic evaluation. Expert: the mean return "
+           "of the demonstrations the run's demonstrator was trained on (1000 episodes of the "
+           "shipped expert), else the shipped expert's return at export; fraction = FORM / "
+           "expert; the paper's fraction is its FORM return over its expert's:", "",
+           "| task | device | physics | envs | seeds | episodes / seed | env steps | wall clock "
+           "(mean) | FORM return | best policy | expert | fraction | paper's fraction |",
+           "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+  for key in sorted(groups, key=lambda k: (_order(k[0]), k[2], k[3], str(k))):
+    task, physics, num_envs, env_steps, _, device = key
+    final, best = groups[key].get("final", []), groups[key].get("best", [])
+    if not final:
+      continue
+    mean, std = _mean_std([r["final_return"] for r in final])
+    best_text = (f"{_mean_std([r['final_return'] for r in best])[0]:.1f}" if best else "-")
+    wall = _mean_std([r["wall_s"] for r in final])[0]
+    episodes = sorted({r["episodes"] for r in final})
+    shas = {r.get("settings", {}).get("reward", {}).get("demonstrator_sha256") for r in final}
+    targets = {demonstration_returns.get(sha) for sha in shas}
+    expert = targets.pop() if len(targets) == 1 and None not in targets else (
+        expert_returns.get(task))
+    spread = f" +- {std:.1f}" if len(final) > 1 else ""
+    fraction = f"{mean / expert:.2f}" if expert else "-"
+    paper = (f"{PAPER_FORM[task] / PAPER_EXPERT[task]:.2f}"
+             if task in PAPER_FORM and task in PAPER_EXPERT else "-")
+    lines.append(f"| {task} | `{device}` | {physics} | {num_envs} | {len(final)} | "
+                 f"{'/'.join(str(e) for e in episodes)} | {env_steps / 1e6:.1f}M | "
+                 f"{_duration(wall)} | {mean:.1f}{spread} | {best_text} | "
+                 f"{'-' if expert is None else f'{expert:.1f}'} | {fraction} | {paper} |")
+  return "\n".join(lines)
+
+
+def _g(value) -> str:
+  return "-" if value is None else f"{value:g}"
+
+
+def _heldout_mean(record: dict) -> float:
+  values = record["heldout_log_likelihood"]
+  return sum(values) / len(values)
+
+
+def effect_model_table(records: list[dict], best_per_task: bool = True) -> str:
+  """Demonstrator trainings (`kind: effect_model` records): with `best_per_task`, one row per
+  task, the training with the highest mean held-out log-likelihood over offsets; else every
+  record."""
+  rows = [r for r in records if r.get("kind") == "effect_model"]
+  if not rows:
+    return "No demonstrator results yet."
+  count = {task: sum(r["task"] == task for r in rows) for task in {r["task"] for r in rows}}
+  if best_per_task:
+    chosen = [max((r for r in rows if r["task"] == task), key=_heldout_mean) for task in count]
+    caption = ("Demonstrator effect models (`kind: effect_model` records of "
+               "`scripts/train_demonstrator.py` and of `--method form` runs that trained one), "
+               "per task the training with the highest mean held-out log-likelihood (all of them "
+               "in `benchmarks/NOTES.md`). Held-out log-likelihood: of the held-out demonstration "
+               "episodes, raw observation space, nats per transition, one value per offset "
+               "1, 2, ..., at the step kept (best step):")
+  else:
+    chosen = rows
+    caption = ("Every demonstrator training (`kind: effect_model` records). Held-out "
+               "log-likelihood: of the held-out demonstration episodes, raw observation space, "
+               "nats per transition, one value per offset, at the step kept (best step):")
+  lines = [caption, "",
+           "| task | trainings | device | demo episodes | beta_ar | L2 | width | steps (best) | "
+           "time | held-out log-likelihood by offset | result file |",
+           "|---|---|---|---|---|---|---|---|---|---|---|"]
+  for r in sorted(chosen, key=lambda r: (_order(r["task"]), r.get("time", ""))):
+    s = r.get("settings", {})
+    heldout = " / ".join(f"{v:.2f}" for v in r["heldout_log_likelihood"])
+    lines.append(f"| {r['task']} | {count[r['task']]} | `{r['device']}` | "
+                 f"{s.get('demo_episodes', '-')} | {_g(s.get('beta_ar'))} | "
+                 f"{_g(s.get('l2'))} | {s.get('width', '-')} | "
+                 f"{r['steps']:,} ({r['best_step']:,}) | {_duration(r['seconds'])} | {heldout} | "
+                 f"{r['_file'].removesuffix('.jsonl')} |")
+  return "\n".join(lines)
+
+
+# The generated tables of each file: {marker name: table}.
+def readme_tables(records: list[dict]) -> dict[str, str]:
+  return {"form": form_table(records), "demonstrators": effect_model_table(records),
+          "experts": experts_table(records), "learning_summary": learning_summary(records),
+          "parity_summary": parity_summary(records),
+          "throughput_summary": throughput_summary(records)}
+
+
+def notes_tables(records: list[dict]) -> dict[str, str]:
+  return {"parity": parity_table(records), "sweep": sweep_table(records),
+          "throughput": throughput_table(records), "learning": learning_table(records),
+          "train_throughput": train_throughput_table(records),
+          "effect_models": effect_model_table(records, best_per_task=False)}
+
+
+TABLES = {README: readme_tables, NOTES: notes_tables}
+
+
+def render(text: str, records: list[dict], path: str = README) -> str:
+  """`text` (the content of README.md or NOTES.md, as `path` says) with its tables generated."""
+  for name, table in TABLES[path](records).items():
+    pattern = re.compile(rf"(<!-- {name}:begin -->\n).*?(<!-- {name}:end -->)", re.S)
+    if not pattern.search(text):
+      raise ValueError(f"{os.path.relpath(path, ROOT)} has no <!-- {name}:begin/end --> markers")
+    text = pattern.sub(lambda m: m.group(1) + table + "\n" + m.group(2), text)
+  return text
 
 
 def main(argv=None) -> int:
@@ -301,18 +561,24 @@ def main(argv=None) -> int:
                                    formatter_class=argparse.RawDescriptionHelpFormatter)
   parser.add_argument("--check", action="store_true")
   args = parser.parse_args(argv)
-  with open(README) as f:
-    current = f.read()
-  updated = render(current, read_records())
-  if args.check:
-    if updated != current:
-      print("README.md tables differ from benchmarks/results/: run scripts/report.py",
-            file=sys.stderr)
-      return 1
-    return 0
-  with open(README, "w") as f:
-    f.write(updated)
-  print("README.md tables written")
+  records = read_records()
+  stale = []
+  for path in TABLES:
+    with open(path) as f:
+      current = f.read()
+    updated = render(current, records, path)
+    if updated == current:
+      continue
+    if args.check:
+      stale.append(os.path.relpath(path, ROOT))
+    else:
+      with open(path, "w") as f:
+        f.write(updated)
+      print(f"{os.path.relpath(path, ROOT)}: tables written")
+  if stale:
+    print(f"{', '.join(stale)}: tables differ from benchmarks/results/: run scripts/report.py",
+          file=sys.stderr)
+    return 1
   return 0
 
 

@@ -1,14 +1,18 @@
 #!/usr/bin/env python3
 """mjx-form's command line.
 
-  --method random (default): uniform random actions in N auto-resetting environments of one
-      task, sharded over all devices; reports control steps per second (compile time apart).
-  --method expert: trains MPO (Retrace) on the task reward in one compiled loop; writes
-      progress.csv, checkpoints, policy.npz and best_policy.npz to --run_dir; --resume
-      continues a run.
+  --method form (default): imitation from observations with FORM. The expert (shipped, or
+      --expert) is recorded on the device, the demonstrator effect model comes from
+      tasks/demonstrators/ (or --demonstrator, or is trained on the demonstrations), and MPO
+      (Retrace) learns from the FORM reward only, in one compiled loop. Writes progress.csv,
+      checkpoints, demonstrator.npz, policy.npz and best_policy.npz to --run_dir.
+  --method expert: the same learner on the task reward (to train experts).
+  --method random: uniform random actions in N auto-resetting environments of one task,
+      sharded over all devices; reports control steps per second (compile time apart).
 
   python scripts/run.py --task humanoid_run --num_envs 2048
-  python scripts/run.py --task cheetah_run --method expert --num_envs 2048 --env_steps 20000000
+  python scripts/run.py --task walker_walk --method form --num_envs 2048 --env_steps 20000000
+  python scripts/run.py --task cheetah_run --method expert --num_envs 512 --env_steps 40000000
   python scripts/run.py --list
 """
 
@@ -31,12 +35,19 @@ import jax.numpy as jnp  # noqa: E402
 
 import tasks  # noqa: E402
 from mjx_form import mesh as mesh_lib  # noqa: E402
-from mjx_form import runner  # noqa: E402
-from mjx_form.learner import LearnerConfig  # noqa: E402
-from mjx_form.train import TrainConfig  # noqa: E402
-from mjx_form.physics import DEFAULT_PHYSICS, PHYSICS_MODES  # noqa: E402
-from mjx_form.wrappers import AutoReset  # noqa: E402
+from mjx_form.imitation import demonstrator as demonstrator_lib  # noqa: E402
+from mjx_form.imitation import pipeline, settings  # noqa: E402
+from mjx_form.rl import runner  # noqa: E402
+from mjx_form.rl.learner import LearnerConfig  # noqa: E402
+from mjx_form.rl.train import TrainConfig  # noqa: E402
+from mjx_form.sim.physics import DEFAULT_PHYSICS, PHYSICS_MODES  # noqa: E402
+from mjx_form.sim.wrappers import AutoReset  # noqa: E402
 
+
+METHODS = ("form", "expert", "random")
+# Options that only --method form reads (a user who gives one to another method is told so).
+FORM_ONLY = ("expert", "demos", "demo_episodes", "save_demos", "demonstrator",
+             "train_demonstrator", "beta_ar", "effect_l2")
 
 DEFAULT_COMPILATION_CACHE = os.path.join(
     os.environ.get("XDG_CACHE_HOME", os.path.expanduser("~/.cache")), "mjx_form", "jax")
@@ -65,13 +76,16 @@ def parse_args(argv=None) -> argparse.Namespace:
                       help="parity: dm_control's solver settings; fast: fewer iterations")
   parser.add_argument("--seed", type=int, default=0)
   parser.add_argument("--list", action="store_true", help="print the task names and exit")
-  parser.add_argument("--method", default="random", choices=("random", "expert"))
+  parser.add_argument("--method", default="form", choices=METHODS,
+                      help="form: imitation from observations (default); expert: MPO on the "
+                           "task reward; random: a random-action throughput demo")
   parser.add_argument("--compilation_cache", default=DEFAULT_COMPILATION_CACHE,
                       help="directory of JAX's persistent compilation cache: a later run of "
                            "the same settings loads its programs instead of compiling them "
                            "(cheetah_run expert on an H200: start-up 28 s instead of 74 s); "
                            "'' turns it off; JAX_COMPILATION_CACHE_DIR, where set, wins")
-  train = parser.add_argument_group("training (--method expert; defaults are the paper's)")
+  train = parser.add_argument_group("training (--method form and expert; defaults are the "
+                                    "paper's)")
   defaults = TrainConfig()
   train.add_argument("--run_dir", help="where logs, checkpoints and policy.npz go "
                      "(default runs/<task>_<method>_seed<seed>)")
@@ -85,7 +99,8 @@ def parse_args(argv=None) -> argparse.Namespace:
   train.add_argument("--updates_per_iteration", type=int,
                      default=defaults.updates_per_iteration,
                      help="learner updates per iteration (num_envs x unroll_length env steps)")
-  train.add_argument("--network_width", type=int, default=defaults.network_width)
+  train.add_argument("--network_width", type=int, default=defaults.network_width,
+                     help="width of every network: policy, critic and effect models")
   train.add_argument("--num_action_samples", type=int,
                      default=defaults.learner.num_action_samples)
   train.add_argument("--target_update_period", type=int,
@@ -112,18 +127,60 @@ def parse_args(argv=None) -> argparse.Namespace:
   train.add_argument("--results", default=None,
                      help="append kind=learning_curve records (one per evaluation) to this "
                           ".jsonl file (default <run_dir>/learning_curve.jsonl)")
+  form = parser.add_argument_group(
+      "FORM (--method form): where the demonstrator comes from, and its settings")
+  form.add_argument("--expert", help="the expert's policy.npz to record demonstrations from "
+                    "(default: the one shipped in tasks/experts/)")
+  form.add_argument("--demos", help="demonstrations saved by scripts/make_demos.py, instead "
+                    "of recording them")
+  form.add_argument("--demo_episodes", type=int, default=None,
+                    help="episodes to record (default: 1000 where a demonstrator is trained, "
+                         f"as the paper; {pipeline.DEFAULT_CHECK_EPISODES} to check a ready "
+                         "one and measure the expert's return)")
+  form.add_argument("--save_demos", help="also write the recorded demonstrations here")
+  form.add_argument("--demonstrator", help="a demonstrator effect model (.npz) to use "
+                    "(default: tasks/demonstrators/<task>.npz where its settings are this "
+                    "run's, else one is trained)")
+  form.add_argument("--train_demonstrator", action="store_true",
+                    help="train a demonstrator even where one is shipped")
+  form.add_argument("--beta_ar", type=float, default=None,
+                    help="effect models' autoregressive weight (default: per task, "
+                         "mjx_form/imitation/settings.py)")
+  form.add_argument("--effect_l2", type=float, default=None,
+                    help="effect models' L2 weight (default: per task)")
+  steps = demonstrator_lib.DemonstratorTraining()
+  form.add_argument("--demonstrator_steps", type=int, default=steps.max_steps,
+                    help="most gradient steps of demonstrator training (it stops earlier when "
+                         "the held-out likelihood stops improving)")
+  form.add_argument("--demonstrator_eval_every", type=int, default=steps.eval_every,
+                    help="steps between held-out evaluations of the demonstrator")
+  form.add_argument("--demonstrator_patience", type=int, default=steps.patience,
+                    help="held-out evaluations without improvement before it stops")
+  train.add_argument("--final_eval_envs", type=int, default=256,
+                     help="episodes of the fresh evaluation of the final and the best policy "
+                          "once training is finished (0: none)")
   args = parser.parse_args(argv)
   if args.list:
     return args
   if args.log_every is None:
     args.log_every = 50 if args.method == "random" else 1
+  if args.method != "form":
+    given = [f"--{name}" for name in FORM_ONLY if getattr(args, name) not in (None, False)]
+    if given:
+      parser.error(f"{', '.join(given)} apply to --method form only")
   if args.task not in tasks.TASKS:
     parser.error(f"unknown task {args.task!r}; valid tasks: {', '.join(tasks.TASKS)}")
-  for name in ("num_envs", "steps", "log_every", "env_steps", "eval_every", "checkpoint_every"):
+  for name in ("num_envs", "steps", "log_every", "env_steps", "eval_every", "checkpoint_every",
+               "demonstrator_steps", "demonstrator_eval_every", "demonstrator_patience"):
     if getattr(args, name) <= 0:
       parser.error(f"--{name} must be a positive integer, got {getattr(args, name)}")
   if args.max_seconds is not None and args.max_seconds <= 0:
     parser.error(f"--max_seconds must be positive, got {args.max_seconds}")
+  for name in ("demo_episodes",):
+    if getattr(args, name) is not None and getattr(args, name) <= 0:
+      parser.error(f"--{name} must be a positive integer, got {getattr(args, name)}")
+  if args.final_eval_envs < 0:
+    parser.error(f"--final_eval_envs must be >= 0, got {args.final_eval_envs}")
   return args
 
 
@@ -132,13 +189,34 @@ def train_config(args: argparse.Namespace) -> TrainConfig:
       LearnerConfig(), num_action_samples=args.num_action_samples,
       target_update_period=args.target_update_period,
       mpo=dataclasses.replace(LearnerConfig().mpo, action_penalty=args.action_penalty))
-  return TrainConfig(task=args.task, physics=args.physics, num_envs=args.num_envs,
+  return TrainConfig(task=args.task, physics=args.physics,
+                     reward_source="form" if args.method == "form" else "task",
+                     num_envs=args.num_envs,
                      unroll_length=args.unroll_length, batch_size=args.batch_size,
                      replay_capacity=args.replay_capacity,
                      updates_per_iteration=args.updates_per_iteration,
                      network_width=args.network_width, eval_envs=args.eval_envs,
                      seed=args.seed, stagger_episodes=not args.lockstep_episodes,
                      learner=learner)
+
+
+def form_source(args: argparse.Namespace, run_dir: str, results_path: str, print_fn):
+  """Stages 1-2 of --method form: the FORM reward source, its demonstrator in `run_dir`."""
+  explicit = {"beta_ar": args.beta_ar, "l2": args.effect_l2}
+  # Effect models share the width of the other networks, and a demonstrator trains on batches
+  # shaped like the learner's (batch_size windows of unroll_length transitions).
+  config = settings.effect_model_config(args.task, width=args.network_width, **explicit)
+  training = demonstrator_lib.DemonstratorTraining(
+      max_steps=args.demonstrator_steps, batch_size=args.batch_size, window=args.unroll_length,
+      eval_every=args.demonstrator_eval_every, patience=args.demonstrator_patience,
+      seed=args.seed)
+  artefacts = pipeline.Artefacts(
+      expert=args.expert, demos=args.demos, demonstrator=args.demonstrator,
+      demo_episodes=args.demo_episodes, train_demonstrator=args.train_demonstrator,
+      save_demos=args.save_demos, training=training)
+  return pipeline.prepare(tasks.make(args.task, physics=args.physics), config, explicit,
+                          artefacts, run_dir, resume=args.resume, physics=args.physics,
+                          seed=args.seed, results_path=results_path, print_fn=print_fn)
 
 
 def random_rollout(args: argparse.Namespace, mesh) -> dict:
@@ -195,20 +273,21 @@ def main(argv=None) -> int:
     return 0
   use_compilation_cache(args.compilation_cache)
   mesh = mesh_lib.make_mesh()
-  if args.method == "expert":
-    run_dir = args.run_dir or os.path.join("runs", f"{args.task}_expert_seed{args.seed}")
+  if args.method in ("expert", "form"):
+    run_dir = args.run_dir or os.path.join("runs", f"{args.task}_{args.method}_seed{args.seed}")
+    results_path = args.results or os.path.join(run_dir, "learning_curve.jsonl")
+    say = lambda line: print(line, flush=True)
     try:
       config = train_config(args)
       config.check(mesh.devices.size)
+      source = form_source(args, run_dir, results_path, say) if args.method == "form" else None
       row = runner.run(config, run_dir, args.env_steps, resume=args.resume,
                        log_every=args.log_every, eval_every=args.eval_every,
                        checkpoint_every=args.checkpoint_every, max_seconds=args.max_seconds,
-                       checkpoint_replay=not args.lean_checkpoints,
-                       results_path=args.results or os.path.join(run_dir,
-                                                                 "learning_curve.jsonl"),
-                       mesh=mesh,
-                       print_fn=lambda line: print(line, flush=True))
-    except ValueError as e:  # bad settings, an existing run, a checkpoint of another config
+                       checkpoint_replay=not args.lean_checkpoints, results_path=results_path,
+                       final_eval_envs=args.final_eval_envs, mesh=mesh, reward_source=source,
+                       print_fn=say)
+    except ValueError as e:  # bad settings or artefacts, an existing run, another config
       print(f"error: {e}", file=sys.stderr)
       return 2
     finished = row["env_steps"] >= args.env_steps

@@ -5,8 +5,8 @@ from __future__ import annotations
 import os
 from typing import Callable
 
-from mjx_form.env import Task
-from mjx_form.physics import DEFAULT_PHYSICS, PHYSICS_MODES, check_physics_mode
+from mjx_form.sim.env import Task
+from mjx_form.sim.physics import DEFAULT_PHYSICS, PHYSICS_MODES, check_physics_mode
 from tasks import cheetah, hopper, humanoid, quadruped, reacher, walker
 
 _REGISTRY: dict[str, Callable[[str], Task]] = {
@@ -26,7 +26,8 @@ _REGISTRY: dict[str, Callable[[str], Task]] = {
 }
 TASKS: tuple[str, ...] = tuple(_REGISTRY)
 
-# Trained expert policies shipped with the suite: experts/<task>.npz (mjx_form.policy_io format).
+# Trained expert policies shipped with the suite: experts/<task>.npz (format:
+# mjx_form.files.policy_io).
 EXPERTS_DIR = os.path.join(os.path.dirname(os.path.abspath(__file__)), "experts")
 
 
@@ -41,6 +42,18 @@ def make(name: str, physics: str = DEFAULT_PHYSICS) -> Task:
   return _REGISTRY[name](check_physics_mode(physics))
 
 
+# FORM demonstrator effect models trained on the shipped experts' demonstrations:
+# demonstrators/<task>.npz (format: mjx_form.files.effect_models).
+DEMONSTRATORS_DIR = os.path.join(os.path.dirname(os.path.abspath(__file__)), "demonstrators")
+
+
+def bundled_demonstrator(name: str) -> str | None:
+  """The path of the shipped demonstrator model for task `name`, or None if none is shipped."""
+  _check_name(name)
+  path = os.path.join(DEMONSTRATORS_DIR, f"{name}.npz")
+  return path if os.path.isfile(path) else None
+
+
 def bundled_experts() -> dict[str, str]:
   """{task name: path} of the expert policies shipped in tasks/experts/, in task order."""
   paths = {name: os.path.join(EXPERTS_DIR, f"{name}.npz") for name in TASKS}
@@ -53,8 +66,11 @@ def bundled_expert(name: str) -> str:
   available = bundled_experts()
   if name not in available:
     raise ValueError(f"no shipped expert for {name!r} (shipped: {', '.join(available) or 'none'});"
-                     f" train one with: scripts/run.py --task {name} --method expert")
+                     f" train one with: python scripts/run.py --task {name} --method expert "
+                     "--num_envs 512 --updates_per_iteration 128 --env_steps 40000000 (README: "
+                     "Training an expert)")
   return available[name]
 
 
-__all__ = ["TASKS", "PHYSICS_MODES", "EXPERTS_DIR", "bundled_expert", "bundled_experts", "make"]
+__all__ = ["TASKS", "PHYSICS_MODES", "EXPERTS_DIR", "DEMONSTRATORS_DIR", "bundled_demonstrator",
+           "bundled_expert", "bundled_experts", "make"]

@@ -7,8 +7,8 @@ import collections
 import jax
 import jax.numpy as jnp
 
-from mjx_form import physics as physics_lib
-from mjx_form.rewards import tolerance
+from mjx_form.sim import physics as physics_lib
+from mjx_form.sim.rewards import tolerance
 from tasks.common import ControlSuiteTask
 
 _RUN_SPEED = 10

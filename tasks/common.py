@@ -5,7 +5,7 @@ from __future__ import annotations
 import pathlib
 import xml.etree.ElementTree as ET
 
-from mjx_form import env
+from mjx_form.sim import env
 
 ASSET_DIR = pathlib.Path(__file__).parent / "assets"
 # The XMLs in assets/ are dm_control 1.0.50's suite models, unchanged (Apache-2.0, see

@@ -13,8 +13,8 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-from mjx_form import physics as physics_lib
-from mjx_form.rewards import tolerance
+from mjx_form.sim import physics as physics_lib
+from mjx_form.sim.rewards import tolerance
 from tasks.common import ControlSuiteTask, read_model
 
 _DEFAULT_TIME_LIMIT = 20

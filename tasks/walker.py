@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import collections
 
-from mjx_form import physics as physics_lib
-from mjx_form import randomizers
-from mjx_form.rewards import tolerance
+from mjx_form.sim import physics as physics_lib
+from mjx_form.sim import randomizers
+from mjx_form.sim.rewards import tolerance
 from tasks.common import ControlSuiteTask
 
 _STAND_HEIGHT = 1.2

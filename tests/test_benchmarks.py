@@ -2,9 +2,9 @@
 
 import jax
 import numpy as np
-
 from conftest import load_script
-from mjx_form.train import Trainer, TrainConfig
+
+from mjx_form.rl.train import TrainConfig, Trainer
 
 
 def test_train_throughput_env_only_runs_over_the_loops_devices():

@@ -11,8 +11,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from mjx_form import checkpoint
-from mjx_form.checkpoint import CheckpointError
+from mjx_form.files import checkpoint
+from mjx_form.files.checkpoint import CheckpointError
 from mjx_form.mesh import batch_sharding, make_mesh, replicated
 
 CONFIG = {"task": "walker_walk", "num_envs": 64, "total_steps": 1000, "mpo": {"eta": 0.1}}

@@ -10,8 +10,8 @@ import zipfile
 import numpy as np
 import pytest
 
-from mjx_form import demos
-from mjx_form.demos import DemonstrationError
+from mjx_form.files import demos
+from mjx_form.files.demos import DemonstrationError
 
 K, T, A = 3, 5, 2
 LAYOUT = {"orientations": 4, "height": 1, "velocity": 3}

@@ -1,4 +1,4 @@
-"""The diagonal Gaussian against scipy / numpy closed forms."""
+"""The diagonal Gaussian and the Gaussian mixture against scipy / numpy closed forms."""
 
 import jax
 import jax.numpy as jnp
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from mjx_form.distributions import DiagonalGaussian, scale_from_raw
+from mjx_form.rl.distributions import DiagonalGaussian, GaussianMixture, scale_from_raw
 
 
 def _random_gaussian(rng, shape):
@@ -92,3 +92,43 @@ def test_scale_from_raw(min_scale):
   expected = np.log1p(np.exp(np.asarray(raw, np.float64))) + min_scale
   np.testing.assert_allclose(scale_from_raw(raw, min_scale), expected, rtol=1e-6)
   assert float(scale_from_raw(jnp.array(-1e4), min_scale)) == pytest.approx(min_scale)
+
+
+def _random_mixture(rng, batch, k, d):
+  return GaussianMixture(rng.normal(size=batch + (k,)).astype(np.float32),
+                         rng.normal(size=batch + (k, d)).astype(np.float32),
+                         rng.uniform(0.3, 2.0, size=batch + (k, d)).astype(np.float32))
+
+
+def test_mixture_log_prob_matches_scipy():
+  rng = np.random.default_rng(3)
+  mix = _random_mixture(rng, (5,), 4, 3)
+  x = rng.normal(size=(5, 3)).astype(np.float32) * 2
+  weights = np.exp(mix.logits - np.logaddexp.reduce(mix.logits.astype(np.float64), -1,
+                                                    keepdims=True))
+  expected = np.log([sum(weights[b, k] * stats.multivariate_normal(
+      mix.mean[b, k], np.diag(np.square(mix.scale[b, k].astype(np.float64)))).pdf(x[b])
+      for k in range(4)) for b in range(5)])
+  np.testing.assert_allclose(mix.log_prob(x), expected, rtol=1e-5, atol=1e-5)
+  # Broadcasting: the same mixture scored at several points per batch element.
+  many = rng.normal(size=(2, 5, 3)).astype(np.float32)
+  assert mix.log_prob(many).shape == (2, 5)
+
+
+def test_mixture_samples_follow_its_weights_and_components():
+  """Component frequencies, mean and variance of many draws against the mixture's moments."""
+  mix = GaussianMixture(jnp.log(jnp.array([0.2, 0.5, 0.3])),
+                        jnp.array([[-3.0, 0.0], [0.0, 1.0], [4.0, -1.0]]),
+                        jnp.array([[0.4, 1.0], [0.4, 0.2], [0.3, 0.3]]))
+  n = 200_000
+  batch = jax.tree.map(lambda a: jnp.broadcast_to(a, (n,) + a.shape), mix)
+  x = np.asarray(batch.sample(jax.random.PRNGKey(0)))
+  w = np.array([0.2, 0.5, 0.3])
+  mean = w @ np.asarray(mix.mean)
+  var = w @ (np.asarray(mix.scale) ** 2 + np.asarray(mix.mean) ** 2) - mean ** 2
+  np.testing.assert_allclose(x.mean(0), mean, atol=0.02)
+  np.testing.assert_allclose(x.var(0), var, rtol=0.02)
+  # The first coordinate separates the components: their shares are the weights.
+  shares = np.array([np.mean(x[:, 0] < -1.5), np.mean(np.abs(x[:, 0]) < 1.5),
+                     np.mean(x[:, 0] > 2.5)])
+  np.testing.assert_allclose(shares, w, atol=0.01)

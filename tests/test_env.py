@@ -13,13 +13,13 @@ import sys
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jax.extend import core as jax_core
 import pytest
+from jax.extend import core as jax_core
 
 import tasks
-from mjx_form import env as env_lib
 from mjx_form import mesh as mesh_lib
-from mjx_form.wrappers import AutoReset
+from mjx_form.sim import env as env_lib
+from mjx_form.sim.wrappers import AutoReset
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 NUM_ENVS = 4
@@ -159,8 +159,8 @@ def test_cli_lists_tasks_and_rejects_bad_input():
 
 def test_cli_random_rollout_reports_steps_per_second(tmp_path):
   cache = tmp_path / "jax_cache"
-  result = _run_cli("--task", "reacher_easy", "--num_envs", "4", "--steps", "20",
-                    "--log_every", "10", "--compilation_cache", str(cache))
+  result = _run_cli("--task", "reacher_easy", "--method", "random", "--num_envs", "4",
+                    "--steps", "20", "--log_every", "10", "--compilation_cache", str(cache))
   assert result.returncode == 0, result.stderr
   assert "steps/s" in result.stdout and "done:" in result.stdout
   assert any(cache.iterdir())  # the compiled rollout went to the persistent cache

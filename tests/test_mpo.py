@@ -7,8 +7,8 @@ import optax
 import pytest
 from scipy import special
 
-from mjx_form import mpo
-from mjx_form.distributions import DiagonalGaussian
+from mjx_form.rl import mpo
+from mjx_form.rl.distributions import DiagonalGaussian
 
 N, S, A = 20, 16, 3
 

@@ -4,7 +4,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from mjx_form.networks import make_networks
+from mjx_form.rl.networks import make_networks
 
 
 def test_critic_broadcasts_one_state_over_sampled_actions():

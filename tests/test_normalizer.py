@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from mjx_form import mesh as mesh_lib
-from mjx_form import normalizer
+from mjx_form.rl import normalizer
 
 
 def reference(batches, decay):

@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 import tasks
-from mjx_form import parity
+from mjx_form.sim import parity
 
 NUM_STATES = 24  # transitions sampled per task from dm_control rollouts (actions up to 1.2x range)
 DIVERGENCE_STEPS = 25

@@ -11,8 +11,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from mjx_form import policy_io
-from mjx_form.policy_io import PolicyFileError
+from mjx_form.files import policy_io
+from mjx_form.files.policy_io import PolicyFileError
 
 D, A = 6, 2
 LAYOUT = {"orientations": 4, "height": 1, "velocity": 1}
@@ -144,7 +144,7 @@ def test_bad_arguments(tmp_path):
     policy_io.save_policy(path, tree(), {"task": "walker_walk", "observation_size": D})
   with pytest.raises(ValueError, match="observation_layout sums to 6"):
     policy_io.save_policy(path, tree(), metadata(observation_size=7))
-  with pytest.raises(ValueError, match="written by save_policy"):
+  with pytest.raises(ValueError, match="written by the file writer"):
     policy_io.save_policy(path, tree(), metadata(sha256="x"))
   with pytest.raises(ValueError, match="not JSON-serialisable"):
     policy_io.save_policy(path, tree(), metadata(**{"return": float("nan")}))

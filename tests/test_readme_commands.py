@@ -1,5 +1,6 @@
 """The README's `scripts/run.py` command lines parse, and their training settings pass the
-config checks (a renamed or removed flag breaks this test, not a reader's first run)."""
+config checks (a renamed or removed flag breaks this test, not a reader's first run); its main
+command runs."""
 
 import os
 import shlex
@@ -20,6 +21,8 @@ def run_commands() -> list[list[str]]:
       code.append(line)
   commands = []
   for line in "\n".join(code).replace("\\\n", " ").splitlines():
+    if "scripts/run.py" not in line:  # (other lines may hold unbalanced quotes: don't split them)
+      continue
     words = shlex.split(line.split("#", 1)[0])
     if "scripts/run.py" in words:
       commands.append(words[words.index("scripts/run.py") + 1:])
@@ -29,8 +32,28 @@ def run_commands() -> list[list[str]]:
 def test_readme_run_commands_parse_and_pass_the_checks():
   run = load_script("run")
   commands = run_commands()
-  assert len(commands) >= 7 and any("--method" in c for c in commands), commands
-  for argv in commands:
-    args = run.parse_args(argv)
-    if args.method == "expert":
+  assert len(commands) >= 7, commands
+  for method in run.METHODS:  # every method is shown with its name written out
+    assert any(c[c.index("--method") + 1] == method for c in commands if "--method" in c), method
+  parsed = [run.parse_args(argv) for argv in commands]
+  # The first command (the README's main job) is the FORM pipeline, ending with evaluations.
+  assert parsed[0].method == "form" and parsed[0].final_eval_envs > 0, commands[0]
+  for args in parsed:
+    if args.method in ("expert", "form"):
       run.train_config(args).check(1)
+
+
+def test_readme_main_command_runs_every_stage(tmp_path, capsys):
+  """The README's main job, shortened to one iteration: the shipped expert's demonstrations
+  check the shipped demonstrator, one iteration of imitation, the fresh evaluations."""
+  run = load_script("run")
+  argv = run_commands()[0]
+  steps = argv.index("--env_steps") + 1
+  args = run.parse_args(argv)
+  one_iteration = str(args.num_envs * args.unroll_length)
+  argv = argv[:steps] + [one_iteration] + argv[steps + 1:] + ["--run_dir", str(tmp_path / "r")]
+  assert run.main(argv) == 0
+  out = capsys.readouterr().out
+  assert "recording" in out and "tasks/demonstrators/reacher_easy.npz" in out, out
+  assert "its log-likelihood on this run's" in out and "form reward" in out
+  assert "fresh evaluation of the final policy" in out and "done:" in out

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 import tasks
-from mjx_form import parity
+from mjx_form.sim import parity
 
 # From ../shared/DESIGN.md: the paper's 13 tasks with dm_control's timing and sizes.
 EXPECTED = {  # name: (control dt, substeps, obs dims, action dims)

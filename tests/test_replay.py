@@ -9,7 +9,7 @@ import pytest
 from jax.sharding import PartitionSpec
 
 from mjx_form import mesh as mesh_lib
-from mjx_form import replay
+from mjx_form.rl import replay
 
 OBS, T = 3, 4  # an unroll: T+1 observations of size OBS, T rewards, an integer id
 

@@ -1,4 +1,5 @@
-"""The README's tables are generated from benchmarks/results/, never typed by hand."""
+"""The tables of README.md and benchmarks/NOTES.md are generated from benchmarks/results/ and
+tasks/experts/, never typed by hand."""
 
 import os
 import subprocess
@@ -17,12 +18,98 @@ def test_readme_tables_are_generated_from_results():
 
 
 def test_report_detects_a_hand_edited_table():
-  with open(report.README) as f:
-    readme = f.read()
   records = report.read_records()
-  edited = readme.replace("<!-- throughput:begin -->\n", "<!-- throughput:begin -->\n| typed |\n")
-  assert report.render(edited, records) != edited
-  assert report.render(readme, records) == readme
+  for path, marker in ((report.README, "throughput_summary"), (report.NOTES, "throughput")):
+    with open(path) as f:
+      text = f.read()
+    begin = f"<!-- {marker}:begin -->\n"
+    assert begin in text, (path, marker)
+    edited = text.replace(begin, begin + "| typed |\n")
+    assert report.render(edited, records, path) != edited
+    assert report.render(text, records, path) == text
+
+
+def test_report_refuses_a_file_without_its_markers():
+  with open(report.NOTES) as f:
+    notes = f.read()
+  removed = notes.replace("<!-- learning:begin -->", "")
+  try:
+    report.render(removed, report.read_records(), report.NOTES)
+  except ValueError as e:
+    assert "learning" in str(e)
+  else:
+    raise AssertionError("a missing table went unnoticed")
+
+
+def _final_return(seed, value, policy="final", **fields):
+  return {"kind": "final_return", "task": "cheetah_run", "method": "form", "physics": "fast",
+          "num_envs": 512, "seed": seed, "learner_preset": "paper", "policy": policy,
+          "final_return": value, "final_return_std": 40.0, "episodes": 256,
+          "env_steps": 20_000_000, "wall_s": 600.0, "settings": {}, "device": "gpu:X",
+          "time": "2026-12-01T00:00:00+00:00", **fields}
+
+
+def test_form_table_averages_the_final_policy_over_seeds():
+  assert report.form_table([]).startswith("No FORM results yet")
+  records = [
+      _final_return(0, 800.0), _final_return(1, 700.0, wall_s=700.0),
+      _final_return(2, 600.0, wall_s=800.0),
+      # best policies are their own column; an older record of a seed gives way to the newer
+      _final_return(0, 850.0, policy="best"), _final_return(1, 750.0, policy="best"),
+      _final_return(2, 100.0, time="2026-11-30T00:00:00+00:00"),
+      # another configuration is another row; expert runs are not FORM results
+      _final_return(0, 300.0, num_envs=64),
+      dict(_final_return(0, 999.0), method="expert")]
+  table = report.form_table(records, expert_returns={"cheetah_run": 875.0},
+                            demonstration_returns={})
+  rows = [line for line in table.splitlines() if line.startswith("| cheetah_run")]
+  assert len(rows) == 2, table
+  # 512 envs: seeds 800, 700, 600 -> 700 +- 81.6 (population std), 700 / 875 = 0.80; best:
+  # (850 + 750) / 2; paper: 827.9 / 930.5 = 0.89; wall clock: the seeds' mean, 700 s.
+  assert ("| cheetah_run | `gpu:X` | fast | 512 | 3 | 256 | 20.0M | 11.7 min | 700.0 +- 81.6 | "
+          "800.0 | 875.0 | 0.80 | 0.89 |") in rows, rows
+  assert ("| cheetah_run | `gpu:X` | fast | 64 | 1 | 256 | 20.0M | 10.0 min | 300.0 | - | "
+          "875.0 | 0.34 | 0.89 |") in rows, rows  # one seed: no spread
+  unknown = report.form_table([_final_return(0, 500.0)], expert_returns={},
+                              demonstration_returns={})
+  assert "| 500.0 | - | - | - | 0.89 |" in unknown
+  # The imitation target: the return of the demonstrations behind the run's demonstrator.
+  behind = [_final_return(s, v, settings={"reward": {"demonstrator_sha256": "d1"}})
+            for s, v in ((0, 900.0), (1, 850.0))]
+  table = report.form_table(behind, expert_returns={"cheetah_run": 875.0},
+                            demonstration_returns={"d1": 1000.0})
+  assert "| 875.0 +- 25.0 | - | 1000.0 | 0.88 | 0.89 |" in table, table
+
+
+def test_demonstrator_tables_show_the_held_out_likelihood():
+  assert report.effect_model_table([]) == "No demonstrator results yet."
+  base = {"kind": "effect_model", "task": "walker_walk", "method": "form", "device": "gpu:X",
+          "settings": {"beta_ar": 1.0, "l2": 0.1, "width": 256, "demo_episodes": 1000},
+          "steps": 90000, "best_step": 80000, "seconds": 150.2,
+          "heldout_log_likelihood": [5.0, 4.0, 3.0, 2.0, 1.0], "curve": [],
+          "_file": "2026-12-01_effect_models.jsonl", "time": "t"}
+  better = dict(base, settings=dict(base["settings"], beta_ar=0.01),
+                heldout_log_likelihood=[6.0, 5.0, 4.0, 3.0, 2.0])
+  best = report.effect_model_table([base, better])
+  assert ("| walker_walk | 2 | `gpu:X` | 1000 | 0.01 | 0.1 | 256 | 90,000 (80,000) | 150 s | "
+          "6.00 / 5.00 / 4.00 / 3.00 / 2.00 | 2026-12-01_effect_models |") in best
+  assert best.count("| walker_walk |") == 1
+  every = report.effect_model_table([base, better], best_per_task=False)
+  assert every.count("| walker_walk |") == 2 and "| 1 | 0.1 | 256 |" in every
+
+
+def test_learning_tables_show_expert_runs_only():
+  base = {"kind": "learning_curve", "task": "walker_walk", "seed": 0, "num_envs": 512,
+          "device": "gpu:X", "physics_matmul_precision": "highest",
+          "settings": {"updates_per_iteration": 128, "replay_ratio": 16, "eval_episodes": 32}}
+  curve = [dict(base, method="expert", _file="a.jsonl", env_steps=s, wall_s=w, eval_return=v)
+           for s, w, v in ((1e6, 100.0, 500.0), (2e6, 200.0, 850.0), (3e6, 300.0, 820.0))]
+  fast = dict(base, _file="b.jsonl", env_steps=1e6, wall_s=90.0, eval_return=810.0)  # no method
+  form = dict(base, method="form", _file="c.jsonl", env_steps=1e6, wall_s=10.0,
+              eval_return=990.0)
+  summary = report.learning_summary([*curve, fast, form])
+  assert "| walker_walk | 2 | 850.0 (2.0M, a) | 90 s (1.0M, b) |" in summary, summary
+  assert "990.0" not in report.learning_table([*curve, fast, form])
 
 
 def test_throughput_table_lists_each_measurement():

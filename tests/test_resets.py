@@ -7,13 +7,13 @@ import functools
 import jax
 import jax.numpy as jnp
 import mujoco
-from mujoco import mjx
 import numpy as np
 import pytest
+from mujoco import mjx
 from scipy import stats
 
 import tasks
-from mjx_form import parity
+from mjx_form.sim import parity
 
 NUM_RESETS = 200
 # One task per domain: the tasks of a domain share their reset (initialize_episode).

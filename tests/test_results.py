@@ -1,10 +1,10 @@
 """Result records' helpers."""
 
+import conftest  # noqa: F401  (the session's persistent compilation cache)
 import jax
 import numpy as np
 
-import conftest  # noqa: F401  (the session's persistent compilation cache)
-from mjx_form import results
+from mjx_form.files import results
 
 
 def test_persistent_cache_hits_are_counted():

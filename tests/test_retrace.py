@@ -5,7 +5,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from mjx_form import retrace
+from mjx_form.rl import retrace
 
 
 def _reference(q_t, v_tp1, r, discounts, log_rhos, lambda_):

@@ -1,10 +1,10 @@
-"""`mjx_form.rewards.tolerance` against dm_control's own `rewards.tolerance`."""
+"""`mjx_form.sim.rewards.tolerance` against dm_control's own `rewards.tolerance`."""
 
 import numpy as np
 import pytest
 from dm_control.utils import rewards as dm_rewards
 
-from mjx_form import rewards
+from mjx_form.sim import rewards
 
 SIGMOIDS = ["gaussian", "hyperbolic", "long_tail", "reciprocal", "cosine", "linear", "quadratic",
             "tanh_squared"]

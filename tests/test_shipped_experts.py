@@ -3,10 +3,10 @@ reacher_easy one, recorded through scripts/make_demos.py --task, does reach its 
 
 import numpy as np
 import pytest
+from conftest import load_script
 
 import tasks
-from conftest import load_script
-from mjx_form import demos, experts, policy_io
+from mjx_form.files import demos, experts, policy_io
 
 SHIPPED = tasks.bundled_experts()
 

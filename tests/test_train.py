@@ -9,12 +9,14 @@ import json
 import jax
 import numpy as np
 import pytest
-
 from conftest import load_script
-from mjx_form import checkpoint, mesh as mesh_lib, policy_io, runner
-from mjx_form.learner import LearnerConfig
-from mjx_form.train import Trainer, TrainConfig
+
 import tasks
+from mjx_form import mesh as mesh_lib
+from mjx_form.files import checkpoint, policy_io
+from mjx_form.rl import runner
+from mjx_form.rl.learner import LearnerConfig
+from mjx_form.rl.train import TrainConfig, Trainer
 
 pytestmark = pytest.mark.xdist_group("train")  # one worker compiles the loop once
 
@@ -175,6 +177,7 @@ def test_resume_ends_where_an_uninterrupted_run_ends(trainers, tmp_path):
 class _ConstantReward:
   """A reward source that does not use the task reward."""
 
+  name = "constant"
   needs_task_reward = False
 
   def init(self, key, observation_size, action_size):
@@ -185,11 +188,12 @@ class _ConstantReward:
     return state, {}
 
   def relabel(self, state, batch):
-    return jax.numpy.ones(batch["discount"].shape)
+    return jax.numpy.ones(batch["discount"].shape), {}
 
 
 def test_task_reward_is_not_stored_for_other_reward_sources():
-  trainer = Trainer(CONFIG, mesh_lib.make_mesh(), reward_source=_ConstantReward())
+  trainer = Trainer(dataclasses.replace(CONFIG, reward_source="constant"), mesh_lib.make_mesh(),
+                    reward_source=_ConstantReward())
   abstract = jax.eval_shape(trainer._init, jax.random.PRNGKey(0))
   assert set(abstract.replay.data) == {"observation", "action", "behaviour_log_prob",
                                         "discount"}
@@ -244,7 +248,8 @@ def _cli_args(run_dir, *extra):
           "--unroll_length", "10", "--batch_size", "4", "--replay_capacity", "12",
           "--updates_per_iteration", "2", "--network_width", "32", "--num_action_samples", "4",
           "--target_update_period", "3", "--eval_envs", "2", "--eval_every", "2",
-          "--checkpoint_every", "1", "--run_dir", str(run_dir), *extra]
+          "--checkpoint_every", "1", "--final_eval_envs", "2", "--run_dir", str(run_dir),
+          *extra]
 
 
 def test_command_line_trains_resumes_and_refuses_mismatches(tmp_path, capsys):
@@ -270,8 +275,15 @@ def test_command_line_trains_resumes_and_refuses_mismatches(tmp_path, capsys):
   assert all(r["eval_return"] != "" for r in rows)  # both evaluated (the stop, then the end)
   assert float(rows[1]["wall_s"]) > float(rows[0]["wall_s"]) > 0
   records = [json.loads(line) for line in open(curve)]
+  # The finished run evaluated its final and its best policy afresh (--final_eval_envs 2).
+  finals = [r for r in records if r["kind"] == "final_return"]
+  assert [(r["policy"], r["method"], r["episodes"], r["env_steps"]) for r in finals] == [
+      ("final", "expert", 2, 80), ("best", "expert", 2, 80)]
+  assert all(np.isfinite(r["final_return"]) for r in finals)
+  records = [r for r in records if r["kind"] != "final_return"]
   assert [(r["kind"], r["task"], r["iteration"], r["env_steps"]) for r in records] == [
       ("learning_curve", "reacher_easy", 1, 40), ("learning_curve", "reacher_easy", 2, 80)]
+  assert all(r["method"] == "expert" and r["learner_preset"] == "custom" for r in records)
   assert records[1]["wall_s"] == float(rows[1]["wall_s"])
   # The records carry the policy's saturation beside its return (the penalty's temperature
   # only where the penalty is on).
@@ -360,7 +372,8 @@ def test_expert_learns_reacher_easy():
 def test_demonstrations_from_an_exported_expert(tmp_path, capsys):
   """scripts/make_demos.py records K full episodes from a policy.npz and writes a file that
   loads for its task and is refused for another."""
-  from mjx_form import demos, runner
+  from mjx_form.files import demos
+  from mjx_form.rl import runner
   trainer = Trainer(CONFIG)
   state = trainer.init(jax.random.PRNGKey(0))
   runner.export_policy(trainer, state, str(tmp_path / "policy.npz"), {"env_steps": 0})

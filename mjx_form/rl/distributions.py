@@ -1,5 +1,6 @@
-"""A diagonal Gaussian for the policy: a NamedTuple of arrays, so it is a pytree (jit, vmap,
-stop_gradient and tree_map apply to it). Arrays are [..., A]; the last axis is the action."""
+"""Distributions as NamedTuples of arrays, so they are pytrees (jit, vmap, stop_gradient and
+tree_map apply to them): the policy's diagonal Gaussian ([..., A]; the last axis is the action)
+and the effect models' mixture of diagonal Gaussians ([..., K, D])."""
 
 from __future__ import annotations
 
@@ -54,3 +55,32 @@ class DiagonalGaussian(NamedTuple):
   def mode(self) -> jax.Array:
     """The most likely action (the mean), [..., A]."""
     return self.mean
+
+
+class GaussianMixture(NamedTuple):
+  """A mixture of K diagonal Gaussians over the last axis (FORM's effect-model head).
+
+  logits [..., K] (unnormalised mixture weights), mean and scale [..., K, D].
+  """
+
+  logits: jax.Array
+  mean: jax.Array
+  scale: jax.Array
+
+  def component_log_probs(self, x: jax.Array) -> jax.Array:
+    """log w_k + log N(x; mean_k, diag(scale_k^2)) for x [..., D]: [..., K]."""
+    z = (x[..., None, :] - self.mean) / self.scale
+    log_normal = jnp.sum(-0.5 * jnp.square(z) - jnp.log(self.scale) - _HALF_LOG_2PI, axis=-1)
+    return jax.nn.log_softmax(self.logits, axis=-1) + log_normal
+
+  def log_prob(self, x: jax.Array) -> jax.Array:
+    """Log density of x [..., D]: [...]."""
+    return jax.nn.logsumexp(self.component_log_probs(x), axis=-1)
+
+  def sample(self, key: jax.Array) -> jax.Array:
+    """One draw per batch element, [..., D]: a component by its weight, then its Gaussian."""
+    component_key, normal_key = jax.random.split(key)
+    k = jax.random.categorical(component_key, self.logits, axis=-1)  # [...]
+    pick = lambda a: jnp.take_along_axis(a, k[..., None, None], axis=-2)[..., 0, :]
+    mean, scale = pick(self.mean), pick(self.scale)
+    return mean + scale * jax.random.normal(normal_key, mean.shape, mean.dtype)

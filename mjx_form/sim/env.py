@@ -3,7 +3,7 @@
 A `Task` owns the compiled MuJoCo/MJX model of its domain and defines, like dm_control's
 `base.Task`, how an episode starts (`initialize_episode`), what is observed (`get_observation`)
 and what is rewarded (`get_reward`). Everything here is pure JAX on one environment; batch it
-with `jax.vmap` and auto-reset it with `mjx_form.wrappers.AutoReset`.
+with `jax.vmap` and auto-reset it with `mjx_form.sim.wrappers.AutoReset`.
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ import numpy as np
 from flax import struct
 from mujoco import mjx
 
-from mjx_form import physics as physics_lib
+from mjx_form.sim import physics as physics_lib
 
 EPISODE_LENGTH = 1000  # control steps; no Control Suite task terminates early
 
@@ -49,7 +49,7 @@ class Task(abc.ABC):
   # traced (tracing a reset to learn them cost seconds per task object); every reset and step
   # checks `get_observation` against it while tracing (`check_observation_layout`).
   observation_elements: tuple[tuple[str, int], ...] = ()
-  # Fast-mode solver settings for this domain; see mjx_form.physics and the README's tables.
+  # Fast-mode solver settings for this domain; see mjx_form.sim.physics and the README's tables.
   fast_settings: physics_lib.SolverSettings = physics_lib.PARITY
 
   def __init__(self, physics: str | physics_lib.SolverSettings = physics_lib.DEFAULT_PHYSICS):

@@ -12,13 +12,13 @@ from __future__ import annotations
 
 import functools
 
-import numpy as np
 import jax
 import jax.numpy as jnp
+import numpy as np
 from mujoco import mjx
 
-from mjx_form import physics as physics_lib
-from mjx_form.env import Task, flatten_observation
+from mjx_form.sim import physics as physics_lib
+from mjx_form.sim.env import Task, flatten_observation
 
 STATE_FIELDS = ("qpos", "qvel", "act", "qacc_warmstart", "ctrl")
 

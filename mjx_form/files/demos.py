@@ -45,7 +45,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from mjx_form import npz_files
+from mjx_form.files import npz_files
 
 FORMAT = "mjx-form-demonstrations"
 VERSION = 1

@@ -1,6 +1,6 @@
 """Corrections to MJX 3.17 where its JAX collision code departs from MuJoCo's C code.
 
-Installed on import of `mjx_form.physics`. Each correction is checked by the float64 parity
+Installed on import of `mjx_form.sim.physics`. Each correction is checked by the float64 parity
 tests (tests/test_parity.py), which compare our step with dm_control's to rounding error.
 
 - plane : capsule contact frames. MuJoCo C (`mjc_PlaneCapsule` + `mju_makeFrame`) always

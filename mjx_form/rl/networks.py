@@ -16,7 +16,7 @@ import flax.linen as nn
 import jax
 import jax.numpy as jnp
 
-from mjx_form.distributions import DiagonalGaussian, scale_from_raw
+from mjx_form.rl.distributions import DiagonalGaussian, scale_from_raw
 
 
 class Encoder(nn.Module):

@@ -5,7 +5,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from mjx_form.env import State, Task
+from mjx_form.sim.env import State, Task
 
 
 def _select(mask: jax.Array, on_true, on_false):

@@ -32,7 +32,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from mjx_form.distributions import DiagonalGaussian
+from mjx_form.rl.distributions import DiagonalGaussian
 
 DUAL_EPSILON = 1e-8  # dual value = softplus(raw) + DUAL_EPSILON, as in Acme
 MIN_RAW_DUAL = -18.0  # `clip_duals` floor for the raw duals, as in Acme

@@ -20,7 +20,7 @@ import jax.numpy as jnp
 import mujoco
 from mujoco import mjx
 
-from mjx_form import mjx_patches  # noqa: F401  (MJX corrections for parity with MuJoCo C)
+from mjx_form.sim import mjx_patches  # noqa: F401  (MJX corrections for parity with MuJoCo C)
 
 PHYSICS_MODES = ("parity", "fast")
 DEFAULT_PHYSICS = "fast"  # as exact as parity in one-step error, 2.5-7x faster (README)

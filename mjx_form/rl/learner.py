@@ -18,8 +18,8 @@ import jax
 import jax.numpy as jnp
 import optax
 
-from mjx_form import mpo, normalizer, retrace
-from mjx_form.networks import Networks
+from mjx_form.rl import mpo, normalizer, retrace
+from mjx_form.rl.networks import Networks
 
 
 @dataclasses.dataclass(frozen=True)

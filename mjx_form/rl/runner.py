@@ -15,7 +15,7 @@ Run directory layout:
                       carry between machines); a run resumed from a lean checkpoint starts with
                       an empty replay and fresh episodes, so it does not repeat an uninterrupted
                       run exactly
-  policy.npz          the final policy (+ observation normaliser), see mjx_form.policy_io
+  policy.npz          the final policy (+ observation normaliser), see mjx_form.files.policy_io
   best_policy.npz     the policy of the run's best evaluation so far (same format), written at
                       each evaluation that beats it: a run whose evaluations dip late keeps it
 """
@@ -30,8 +30,9 @@ import time
 import jax
 import numpy as np
 
-from mjx_form import checkpoint, policy_io, results
-from mjx_form.train import Trainer, TrainConfig, iterations_for
+from mjx_form.files import checkpoint, experts, policy_io, results
+from mjx_form.rl.learner import LearnerConfig
+from mjx_form.rl.train import TrainConfig, Trainer, iterations_for
 
 # Settings that may change when a run is resumed (they do not change what is computed).
 RESUMABLE = ("total_env_steps", "log_every", "eval_every", "checkpoint_every")
@@ -94,18 +95,38 @@ class CsvLog:
         csv.writer(f).writerow(self._columns)
     with open(self.path, "a", newline="") as f:
       csv.writer(f).writerow([row.get(c, "") for c in self._columns])
-    if self._tb is not None:
+    if self._tb is not None:  # (not NaN: no return before the first episode ends)
       for k, v in row.items():
-        if isinstance(v, (int, float)) and k != "env_steps":
+        if isinstance(v, (int, float)) and k != "env_steps" and np.isfinite(v):
           self._tb.add_scalar(k, v, row["env_steps"])
       self._tb.flush()
+
+
+def check_run_dir(directory: str, resume: bool, also: tuple[str, ...] = ()) -> None:
+  """Refuses to start a new run in a directory that holds one (its config.json or any file
+  named in `also`), and to resume one that holds none; raises RunError."""
+  config_path = os.path.join(directory, "config.json")
+  if not resume:
+    taken = [name for name in ("config.json", *also) if os.path.exists(os.path.join(directory,
+                                                                                    name))]
+    if taken:
+      raise RunError(f"{directory} already holds a run ({', '.join(taken)}); pass --resume to "
+                     "continue it or choose another --run_dir (nothing was overwritten)")
+  elif not os.path.exists(config_path):
+    raise RunError(f"--resume: {directory} holds no run to continue")
 
 
 def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bool = False,
         log_every: int = 1, eval_every: int = 10, checkpoint_every: int = 50,
         max_seconds: float | None = None, results_path: str | None = None,
-        checkpoint_replay: bool = True, mesh=None, print_fn=print) -> dict:
+        checkpoint_replay: bool = True, final_eval_envs: int = 0, mesh=None, reward_source=None,
+        print_fn=print) -> dict:
   """Trains until `total_env_steps`; returns the last logged row (with the final evaluation).
+
+  `reward_source`: where the learner's rewards come from (default: the task reward, by
+  `config.reward_source`); its `settings()` are part of the run's checked configuration.
+  `final_eval_envs`: once training is finished, the final and the best policy are evaluated
+  afresh on this many episodes and written as `kind: final_return` records (0: not).
 
   `max_seconds`: stop once this process has run that long (checked after each iteration);
   the state is checkpointed and the policy exported, so `resume=True` continues the run.
@@ -115,19 +136,15 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
   run_settings = {"total_env_steps": total_env_steps, "log_every": log_every,
                   "eval_every": eval_every, "checkpoint_every": checkpoint_every,
                   "checkpoint_replay": checkpoint_replay}
-  full_config = {**config.to_dict(), **run_settings}
   ckpt_dir = os.path.join(os.path.abspath(directory), "checkpoints")
   config_path = os.path.join(directory, "config.json")
-  if os.path.exists(config_path) and not resume:
-    raise RunError(f"{directory} already holds a run; pass --resume to continue it or choose "
-                   "another --run_dir (nothing was overwritten)")
-  if resume and not os.path.exists(config_path):
-    raise RunError(f"--resume: {directory} holds no run to continue")
+  check_run_dir(directory, resume)
   if max_seconds is not None and max_seconds <= 0:
     raise RunError(f"max_seconds must be positive, got {max_seconds}")
 
   process_start = time.perf_counter()
-  trainer = Trainer(config, mesh)
+  trainer = Trainer(config, mesh, reward_source)
+  full_config = {**config.to_dict(), "reward": trainer.source.settings(), **run_settings}
   restored = None
   if resume and checkpoint.latest_step(ckpt_dir) is not None:  # refused before compiling
     restored = checkpoint.restore(ckpt_dir, _checkpointed(trainer.abstract_state,
@@ -200,16 +217,10 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
     checkpointed = iteration % checkpoint_every == 0 or last
     if iteration % log_every == 0 or last or "eval_return" in row or checkpointed:
       log.write(row)
-      evaluated = f"  eval {row['eval_return']:.1f}" if "eval_return" in row else ""
-      print_fn(f"iter {iteration}/{total_iterations}  steps {row['env_steps']:,}  "
-               f"{row['wall_s']:.0f}s  {row['steps_per_s']:,.0f} steps/s  "
-               f"train return {_show(row['train_return'])}{evaluated}  q {row['q_mean']:.2f}  "
-               f"critic {row['critic_loss']:.3f}  mean out of bounds "
-               f"{row['mean_out_of_bounds']:.2f}")
+      print_fn(_progress_line(row, total_iterations, steps_per_iteration))
     if curve is not None and "eval_return" in row:
-      _write_curve_point(curve, config, row, eval_episodes=returns.size,
-                         total_env_steps=total_env_steps, devices=trainer.mesh.devices.size,
-                         startup=startup)
+      _write_curve_point(curve, trainer, row, eval_episodes=returns.size,
+                         total_env_steps=total_env_steps, startup=startup)
     if checkpointed:
       checkpoint.save(ckpt_dir, iteration, _checkpointed(state, checkpoint_replay), full_config)
     if out_of_time and not finished:
@@ -218,7 +229,36 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
       break
 
   export_policy(trainer, state, os.path.join(directory, "policy.npz"), row)
+  if final_eval_envs and int(state.iteration) == total_iterations:
+    best = experts.load_expert(best_path, trainer.env)
+    for name, policy, norm in (("final", state.learner.policy, state.normalizer),
+                               ("best", best.params, best.normalizer)):
+      returns = np.asarray(trainer.evaluate(policy, norm, jax.random.PRNGKey(config.seed + 2),
+                                            num_envs=final_eval_envs))
+      row[f"{name}_policy_return"] = float(returns.mean())
+      print_fn(f"fresh evaluation of the {name} policy over {returns.size} episodes: "
+               f"{returns.mean():.1f} +- {returns.std():.1f}")
+      if curve is not None:
+        curve.write(**_record_base(trainer), kind="final_return", policy=name,
+                    final_return=float(returns.mean()), final_return_std=float(returns.std()),
+                    episodes=int(returns.size), env_steps=row["env_steps"],
+                    wall_s=row["wall_s"], settings=_record_settings(trainer, total_env_steps))
   return row
+
+
+def _progress_line(row: dict, total_iterations: int, steps_per_iteration: int) -> str:
+  """One line per logged iteration: steps, speed, time left, returns and learner state."""
+  left = (total_iterations - row["iteration"]) * steps_per_iteration / row["steps_per_s"]
+  line = (f"iter {row['iteration']}/{total_iterations}  steps {row['env_steps']:,}  "
+          f"{row['wall_s']:.0f}s  {row['steps_per_s']:,.0f} steps/s"
+          + (f"  ~{left:.0f}s left" if np.isfinite(left) else "")
+          + f"  train return {_show(row['train_return'])}"
+          + (f"  eval {row['eval_return']:.1f}" if "eval_return" in row else ""))
+  if "form_reward" in row:
+    line += (f"  form reward {row['form_reward']:.2f} (log pD {row['demonstrator_log_prob']:.1f}"
+             f", log pI {row['imitator_batch_log_prob']:.1f})")
+  return line + (f"  q {row['q_mean']:.2f}  critic {row['critic_loss']:.3f}  mean out of bounds "
+                 f"{row['mean_out_of_bounds']:.2f}")
 
 
 def _best_return(path: str) -> float:
@@ -236,25 +276,51 @@ def _checkpointed(state, with_replay: bool):
           "key": state.key, "iteration": state.iteration}
 
 
-def _write_curve_point(writer: results.ResultWriter, config: TrainConfig, row: dict, *,
-                       eval_episodes: int, total_env_steps: int, devices: int,
-                       startup: dict) -> None:
+def method_name(config: TrainConfig) -> str:
+  """The `method` of a run's records: 'expert' on the task reward, else the reward source."""
+  return "expert" if config.reward_source == "task" else config.reward_source
+
+
+def learner_preset(config: TrainConfig) -> str:
+  """'paper' where the learner runs the paper's settings (LearnerConfig's defaults)."""
+  return "paper" if config.learner == LearnerConfig() else "custom"
+
+
+def _record_base(trainer: Trainer) -> dict:
+  config = trainer.config
+  return {"task": config.task, "method": method_name(config), "physics": config.physics,
+          "num_envs": config.num_envs, "seed": config.seed,
+          "learner_preset": learner_preset(config)}
+
+
+def _record_settings(trainer: Trainer, total_env_steps: int) -> dict:
+  config = trainer.config
+  return {**config.to_dict(), "reward": trainer.source.settings(),
+          "updates_per_env_step": config.updates_per_env_step,
+          "replay_ratio": config.replay_ratio, "total_env_steps": total_env_steps,
+          "devices": trainer.mesh.devices.size}
+
+
+# Fields of a learning-curve record, where the row has them.
+_CURVE_FIELDS = (
+    "iteration", "env_steps", "updates", "wall_s", "eval_s", "steps_per_s", "eval_return",
+    "eval_return_std", "train_return", "peak_memory_bytes",
+    # the policy's saturation: shares of its mean and samples outside [-1, 1]
+    "mean_out_of_bounds", "sampled_out_of_bounds", "penalty_temperature",
+    # FORM: the reward and both models' log-likelihoods on the learner's batches
+    "form_reward", "demonstrator_log_prob", "imitator_batch_log_prob", "imitator_log_prob")
+
+
+def _write_curve_point(writer: results.ResultWriter, trainer: Trainer, row: dict, *,
+                       eval_episodes: int, total_env_steps: int, startup: dict) -> None:
   """One `kind: learning_curve` record: evaluation return at this point of the run.
 
   `startup`: `startup_s`, this process's seconds before its first iteration, and
   `persistent_cache_hits`, the programs it loaded from JAX's persistent compilation cache.
   """
-  settings = {**config.to_dict(), "updates_per_env_step": config.updates_per_env_step,
-              "replay_ratio": config.replay_ratio, "total_env_steps": total_env_steps,
-              "eval_episodes": eval_episodes, "devices": devices}
-  fields = ("iteration", "env_steps", "updates", "wall_s", "eval_s", "steps_per_s",
-            "eval_return", "eval_return_std", "train_return", "peak_memory_bytes",
-            # the policy's saturation: shares of its mean and samples outside [-1, 1]
-            "mean_out_of_bounds", "sampled_out_of_bounds", "penalty_temperature")
-  writer.write(kind="learning_curve", task=config.task, method="expert",
-               physics=config.physics, num_envs=config.num_envs, seed=config.seed,
-               settings=settings, **startup,
-               **{k: row[k] for k in fields if k in row and np.isfinite(row[k])})
+  settings = {**_record_settings(trainer, total_env_steps), "eval_episodes": eval_episodes}
+  writer.write(kind="learning_curve", **_record_base(trainer), settings=settings, **startup,
+               **{k: row[k] for k in _CURVE_FIELDS if k in row and np.isfinite(row[k])})
 
 
 def export_policy(trainer: Trainer, state, path: str, row: dict) -> None:

@@ -39,14 +39,14 @@ import jax
 import jax.numpy as jnp
 
 import tasks
-from mjx_form import env as env_lib
-from mjx_form import learner as learner_lib
 from mjx_form import mesh as mesh_lib
-from mjx_form import normalizer, replay
-from mjx_form import physics as physics_lib
-from mjx_form.networks import make_networks
-from mjx_form.reward_sources import make_reward_source
-from mjx_form.wrappers import AutoReset
+from mjx_form.rl import learner as learner_lib
+from mjx_form.rl import normalizer, replay
+from mjx_form.rl.networks import make_networks
+from mjx_form.rl.reward_sources import make_reward_source
+from mjx_form.sim import env as env_lib
+from mjx_form.sim import physics as physics_lib
+from mjx_form.sim.wrappers import AutoReset
 
 
 @dataclasses.dataclass(frozen=True)
@@ -88,6 +88,10 @@ class TrainConfig:
       value = getattr(self.learner, name)
       if not isinstance(value, int) or value <= 0:
         raise ValueError(f"{name} must be a positive integer, got {value!r}")
+    if self.reward_source != "task" and env_lib.EPISODE_LENGTH % self.unroll_length:
+      raise ValueError(f"unroll_length={self.unroll_length} must divide the episode length "
+                       f"({env_lib.EPISODE_LENGTH}) for imitation: an episode's final "
+                       "observation is kept only where an unroll ends")
     if not 0.0 <= self.normalizer_decay < 1.0:
       raise ValueError(f"normalizer_decay must be in [0, 1), got {self.normalizer_decay}")
 
@@ -126,7 +130,7 @@ class Trainer:
 
   def __init__(self, config: TrainConfig, mesh=None, reward_source=None):
     """`reward_source` overrides the source named by `config.reward_source` (see
-    mjx_form.reward_sources for the interface)."""
+    mjx_form.rl.reward_sources for the interface)."""
     self.mesh = mesh if mesh is not None else mesh_lib.make_mesh()
     config.check(self.mesh.devices.size)
     self.config = config
@@ -135,6 +139,9 @@ class Trainer:
     self.auto_reset = AutoReset(self.env, self._batch)
     self.networks = make_networks(self.env.action_size, config.network_width)
     self.source = reward_source or make_reward_source(config.reward_source)
+    if self.source.name != config.reward_source:
+      raise ValueError(f"the config names reward source {config.reward_source!r}, the trainer "
+                       f"was given {self.source.name!r}")
     self._replicated = mesh_lib.replicated(self.mesh)
     abstract = jax.eval_shape(self._init, jax.random.PRNGKey(0))
     self.state_sharding = self._shardings(abstract)
@@ -144,7 +151,8 @@ class Trainer:
     self.init = jax.jit(self._init, out_shardings=self.state_sharding)
     self.iteration = jax.jit(self._iteration, donate_argnums=0,
                              out_shardings=(self.state_sharding, self._replicated))
-    self.evaluate = jax.jit(self._evaluate, out_shardings=self._replicated)
+    self.evaluate = jax.jit(self._evaluate, static_argnames="num_envs",
+                            out_shardings=self._replicated)
 
   def compile_ahead(self, key: jax.Array) -> None:
     """Compiles `init`, `iteration` and `evaluate` at once, in threads, before their first call.
@@ -265,7 +273,8 @@ class Trainer:
       batch = replay.sample(buffer, sample_key, cfg.batch_size)
       batch = jax.lax.with_sharding_constraint(batch, self._batch)
       source, source_metrics = self.source.update(source, batch, source_key)
-      rewards = self.source.relabel(source, batch)
+      rewards, reward_metrics = self.source.relabel(source, batch)
+      source_metrics = {**source_metrics, **reward_metrics}
       learner, metrics = learner_lib.update(self.networks, cfg.learner, learner, norm, batch,
                                             rewards, update_key)
       return (learner, source), {**metrics, **source_metrics}
@@ -281,10 +290,11 @@ class Trainer:
 
   # --- evaluation -------------------------------------------------------------------------
 
-  def _evaluate(self, policy_params, norm: normalizer.NormalizerState,
-                key: jax.Array) -> jax.Array:
-    """Task returns [eval_envs] of full episodes with the policy's mean action."""
-    n = self.config.eval_envs
+  def _evaluate(self, policy_params, norm: normalizer.NormalizerState, key: jax.Array,
+                num_envs: int | None = None) -> jax.Array:
+    """Task returns [num_envs] (default eval_envs) of full episodes with the policy's mean
+    action."""
+    n = num_envs or self.config.eval_envs
     states = self.auto_reset.reset(key, n)  # (its info keys too: the same env.step trace)
     states = jax.lax.with_sharding_constraint(states, self._batch)
 

@@ -10,7 +10,9 @@ A source is an object with:
   needs_task_reward: bool
   init(key, observation_size, action_size) -> source state (a pytree, replicated)
   update(state, batch, key) -> (state, metrics): called once per learner update, before relabel
-  relabel(state, batch) -> rewards [B, T]
+  relabel(state, batch) -> (rewards [B, T], metrics)
+  settings() -> dict: what the source's results depend on beyond the TrainConfig (its model
+      settings, the checksum of a demonstrator), JSON; stored with checkpoints and records
 where `batch` is a dict of unrolls: observation [B, T+1, D] (raw, not standardised), action
 [B, T, A], discount [B, T], and reward [B, T] only when needs_task_reward is set.
 """
@@ -34,14 +36,20 @@ class TaskReward:
     del batch, key
     return state, {}
 
-  def relabel(self, state: dict, batch: dict) -> jax.Array:
+  def relabel(self, state: dict, batch: dict) -> tuple[jax.Array, dict]:
     del state
-    return batch["reward"]
+    return batch["reward"], {}
+
+  def settings(self) -> dict:
+    return {}
 
 
 def make_reward_source(name: str):
-  """The reward source called `name` ('task' for now; imitation methods add theirs)."""
+  """The reward source called `name` that needs no more than its name ('task'). Imitation
+  sources are built from their artefacts (e.g. mjx_form.imitation.form.FormReward) and passed
+  to the Trainer."""
   sources = {"task": TaskReward}
   if name not in sources:
-    raise ValueError(f"unknown reward source {name!r}; valid: {', '.join(sources)}")
+    raise ValueError(f"reward source {name!r} is not built by name (valid: "
+                     f"{', '.join(sources)}); pass it to the Trainer")
   return sources[name]()

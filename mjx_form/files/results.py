@@ -62,9 +62,9 @@ class ResultWriter:
   def __init__(self, path: str):
     os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
     self.path = path
-    from mjx_form.physics import PHYSICS_MATMUL_PRECISION
+    from mjx_form.sim.physics import PHYSICS_MATMUL_PRECISION
     # Records without this field (written before the physics asked for full precision)
-    # simulated with JAX's default precision, TF32 on NVIDIA GPUs (see mjx_form/physics.py).
+    # simulated with JAX's default precision, TF32 on NVIDIA GPUs (see mjx_form/sim/physics.py).
     self._common = {"device": device_name(), "versions": versions(),
                     "physics_matmul_precision": PHYSICS_MATMUL_PRECISION}
     if os.environ.get("XLA_FLAGS"):  # compiler settings that change speed, e.g. command buffers

@@ -1,23 +1,26 @@
 """Expert policies as files, and demonstrations recorded from them on the device.
 
-An expert file is the `policy.npz` a training run writes (mjx_form.runner.export_policy): the
+An expert file is the `policy.npz` a training run writes (mjx_form.rl.runner.export_policy): the
 policy parameters and the observation normaliser, with the task, observation layout and network
 width in its metadata. `record` runs K full episodes in parallel (one jitted scan of 1000 steps
-over a vmapped batch) and returns what `mjx_form.demos.save_demonstrations` stores.
+over a vmapped batch) and returns what `mjx_form.files.demos.save_demonstrations` stores.
 """
 
 from __future__ import annotations
 
 import functools
+import os
+import time
 from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from mjx_form import env as env_lib
-from mjx_form import normalizer, policy_io
-from mjx_form.networks import make_networks
+from mjx_form.files import policy_io
+from mjx_form.rl import normalizer
+from mjx_form.rl.networks import make_networks
+from mjx_form.sim import env as env_lib
 
 
 class Expert(NamedTuple):
@@ -71,3 +74,32 @@ def _rollout_fn(env: env_lib.Task, network_width: int, episodes: int, stochastic
     return jnp.swapaxes(obs, 0, 1), jnp.swapaxes(actions, 0, 1), rewards.sum(axis=0)
 
   return rollout
+
+
+def record_demonstrations(env: env_lib.Task, expert: Expert, key: jax.Array, episodes: int,
+                          chunk: int = 1000, stochastic: bool = False,
+                          print_fn=print) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+  """`record` in chunks of `chunk` episodes (one compiled rollout, reused), with a progress
+  line per chunk: observations [K, T+1, D], actions [K, T, A], returns [K]."""
+  if episodes < 1 or chunk < 1:
+    raise ValueError(f"episodes and chunk must be positive, got {episodes} and {chunk}")
+  chunk = min(chunk, episodes)
+  parts, done, start = [], 0, time.perf_counter()
+  while done < episodes:
+    key, sub = jax.random.split(key)
+    parts.append(record(env, expert, sub, chunk, stochastic=stochastic))
+    done += chunk
+    returns = np.concatenate([p[2] for p in parts])
+    print_fn(f"{min(done, episodes)}/{episodes} expert episodes, mean return "
+             f"{returns.mean():.1f}, {time.perf_counter() - start:.0f}s")
+  return tuple(np.concatenate([p[i] for p in parts])[:episodes] for i in range(3))
+
+
+def recording_info(policy_path: str, policy_metadata: dict, returns: np.ndarray, seed: int,
+                   stochastic: bool) -> dict:
+  """The `expert` metadata of demonstrations recorded from a policy file (mjx_form.files.demos)."""
+  return {"policy_file": os.path.basename(policy_path),
+          "policy_sha256": policy_metadata["sha256"],
+          "policy_env_steps": policy_metadata.get("env_steps"), "seed": seed,
+          "stochastic": stochastic, "mean_return": float(np.mean(returns)),
+          "min_return": float(np.min(returns)), "max_return": float(np.max(returns))}

@@ -1,0 +1,1 @@
+"""Files: demonstrations, policies, effect models, checkpoints and result records (no pickle)."""

@@ -1,0 +1,1 @@
+"""Imitation from observations: effect models, the FORM reward, the FORM pipeline."""

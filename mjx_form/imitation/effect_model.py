@@ -1,0 +1,214 @@
+"""FORM's effect model p(x_{t+delta} | x_t) and its training objective (paper, appendix
+"FORM effect model training"; ../shared/DESIGN.md).
+
+Network: observations enter standardised, sigma(x) = (x - mean) / sqrt(var + eps), with the
+model's own EMA statistics. The shared encoder (linear 256, LayerNorm, tanh, one hidden layer
+of 256 with ELU) encodes sigma(x_t); a one-hot of the offset delta in [1, max_offset] is
+concatenated; one hidden layer of 256 (ELU); a linear head gives a mixture of K diagonal
+Gaussians over sigma(x_{t+delta}) (scale softplus + 1e-4).
+
+Objective, maximised on batches of sequences x_0..x_T with episode-continuation flags:
+  (1/max_offset) sum_delta mean_t log p(sigma(x_{t+delta}) | sigma(x_t), delta)
+  + beta_ar mean_t log p(sigma(x_{t+1}) | x~_t, 1),   x~_t ~ p(. | sigma(x_{t-1}), 1)
+  - (l2 / 2) sum of squared kernel weights,
+where the means run over the pairs that lie inside one episode (`offset_masks`) and x~_t is a
+sample of the model's own prediction (gradients do not flow through the sample). Adam.
+
+Densities for rewards are in raw observation space: log p(x' | x) = log p(sigma(x') | sigma(x))
+- 0.5 sum_d log(var_d + eps) (change of variables), so two models with different
+standardisations give comparable numbers.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any, NamedTuple
+
+import flax.linen as nn
+import jax
+import jax.numpy as jnp
+import optax
+
+from mjx_form.rl import normalizer
+from mjx_form.rl.distributions import GaussianMixture, scale_from_raw
+from mjx_form.rl.networks import Encoder
+
+NORMALIZER_EPS = 1e-6  # = normalizer.normalize's default; the change of variables uses it too
+
+
+@dataclasses.dataclass(frozen=True)
+class EffectModelConfig:
+  """The paper's settings; beta_ar and l2 are tuned per task (mjx_form/imitation/settings.py)."""
+
+  width: int = 256
+  num_components: int = 4
+  max_offset: int = 5  # overshooting: offsets 1..max_offset are predicted during training
+  beta_ar: float = 0.1  # weight of the autoregressive (model-sample input) term
+  l2: float = 0.1  # L2 weight decay on the kernels
+  learning_rate: float = 1e-4
+  normalizer_decay: float = 0.99  # EMA decay of the standardisation, per batch
+  min_scale: float = 1e-4
+
+  def check(self) -> None:
+    for name in ("width", "num_components", "max_offset"):
+      value = getattr(self, name)
+      if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+        raise ValueError(f"effect model {name} must be a positive integer, got {value!r}")
+    for name in ("beta_ar", "l2"):
+      if getattr(self, name) < 0:
+        raise ValueError(f"effect model {name} must be >= 0, got {getattr(self, name)}")
+    if self.learning_rate <= 0:
+      raise ValueError(f"effect model learning_rate must be positive, got {self.learning_rate}")
+    if not 0.0 <= self.normalizer_decay < 1.0:
+      raise ValueError(f"effect model normalizer_decay must be in [0, 1), "
+                       f"got {self.normalizer_decay}")
+
+
+class EffectModel(nn.Module):
+  """(standardised x_t [..., D], offset) -> GaussianMixture over standardised x_{t+offset}."""
+
+  observation_size: int
+  width: int = 256
+  num_components: int = 4
+  max_offset: int = 5
+  min_scale: float = 1e-4
+
+  def setup(self):
+    self.encoder = Encoder(self.width)
+    self.hidden = nn.Dense(self.width)
+    self.head = nn.Dense(self.num_components * (1 + 2 * self.observation_size))
+
+  def encode(self, x: jax.Array) -> jax.Array:  # [..., D] -> [..., width]
+    return self.encoder(x)
+
+  def predict(self, h: jax.Array, offset: int) -> GaussianMixture:  # h [..., width]
+    onehot = jax.nn.one_hot(offset - 1, self.max_offset, dtype=h.dtype)
+    onehot = jnp.broadcast_to(onehot, h.shape[:-1] + (self.max_offset,))
+    out = self.head(nn.elu(self.hidden(jnp.concatenate([h, onehot], axis=-1))))
+    k, d = self.num_components, self.observation_size
+    logits = out[..., :k]
+    mean, raw_scale = jnp.split(out[..., k:].reshape(out.shape[:-1] + (k, 2 * d)), 2, axis=-1)
+    return GaussianMixture(logits, mean, scale_from_raw(raw_scale, self.min_scale))
+
+  def __call__(self, x: jax.Array, offset: int = 1) -> GaussianMixture:
+    return self.predict(self.encode(x), offset)
+
+
+def make_model(config: EffectModelConfig, observation_size: int) -> EffectModel:
+  return EffectModel(observation_size, config.width, config.num_components, config.max_offset,
+                     config.min_scale)
+
+
+class EffectModelState(NamedTuple):
+  params: Any
+  opt_state: Any
+  normalizer: normalizer.NormalizerState
+  steps: jax.Array  # int32 [], gradient steps taken
+
+
+def _optimizer(config: EffectModelConfig) -> optax.GradientTransformation:
+  return optax.adam(config.learning_rate)
+
+
+def init(model: EffectModel, config: EffectModelConfig, key: jax.Array) -> EffectModelState:
+  params = model.init(key, jnp.zeros((1, model.observation_size)))
+  return EffectModelState(params, _optimizer(config).init(params),
+                          normalizer.init(model.observation_size), jnp.zeros((), jnp.int32))
+
+
+# --- data alignment -----------------------------------------------------------------------
+
+def offset_masks(discount: jax.Array, max_offset: int) -> jax.Array:
+  """Which (x_t, x_{t+delta}) pairs of a batch of sequences lie inside one episode.
+
+  discount [B, T]: > 0 where x_{t+1} continues x_t's episode (0 at a transition into a new
+  episode or a physics error, as the training loop stores it). Returns [max_offset, B, T]
+  floats: mask[delta - 1, b, t] = 1 iff t + delta <= T and transitions t .. t+delta-1 all
+  continue the episode.
+  """
+  cont = (discount > 0).astype(jnp.float32)
+  masks, mask = [], cont
+  for delta in range(1, max_offset + 1):
+    if delta > 1:  # extend by transition t+delta-1; pairs running past x_T are invalid
+      shifted = jnp.pad(cont[:, delta - 1:], ((0, 0), (0, delta - 1)))
+      mask = mask * shifted
+    masks.append(mask)
+  return jnp.stack(masks)
+
+
+def log_jacobian(norm: normalizer.NormalizerState) -> jax.Array:
+  """log |d sigma(x) / dx| = -0.5 sum_d log(var_d + eps): raw log p = standardised log p + it."""
+  return -0.5 * jnp.sum(jnp.log(norm.var + NORMALIZER_EPS))
+
+
+def standardise(norm: normalizer.NormalizerState, x: jax.Array) -> jax.Array:
+  return normalizer.normalize(norm, x, eps=NORMALIZER_EPS)
+
+
+# --- densities ----------------------------------------------------------------------------
+
+def offset_log_probs(model: EffectModel, params, x: jax.Array) -> jax.Array:
+  """Standardised-space log p(x_{t+delta} | x_t) for every offset: x [B, T+1, D] (standardised)
+  -> [max_offset, B, T] (pairs past x_T give values to be masked out)."""
+  h = model.apply(params, x[:, :-1], method=model.encode)  # [B, T, W]
+  out = []
+  for delta in range(1, model.max_offset + 1):
+    mixture = model.apply(params, h, delta, method=model.predict)  # [B, T, K, D]
+    target = jnp.pad(x[:, delta:], ((0, 0), (0, delta - 1), (0, 0)))  # [B, T, D]
+    out.append(mixture.log_prob(target))
+  return jnp.stack(out)
+
+
+def transition_log_prob(model: EffectModel, params, norm: normalizer.NormalizerState,
+                        x: jax.Array, x_next: jax.Array) -> jax.Array:
+  """Raw-space log p(x_next | x) at offset 1 (FORM's reward term): x, x_next [..., D] -> [...]."""
+  mixture = model.apply(params, standardise(norm, x), 1)
+  return mixture.log_prob(standardise(norm, x_next)) + log_jacobian(norm)
+
+
+def _masked_mean(values: jax.Array, mask: jax.Array) -> jax.Array:
+  return jnp.sum(values * mask) / jnp.maximum(jnp.sum(mask), 1.0)
+
+
+def kernel_l2(params) -> jax.Array:
+  """Sum of squared kernel (weight matrix) entries; biases and LayerNorm are not decayed."""
+  leaves = jax.tree_util.tree_leaves_with_path(params)
+  return sum(jnp.sum(jnp.square(leaf)) for path, leaf in leaves
+             if getattr(path[-1], "key", None) == "kernel")
+
+
+def loss(model: EffectModel, config: EffectModelConfig, params, x: jax.Array,
+         discount: jax.Array, key: jax.Array) -> tuple[jax.Array, dict]:
+  """The negated objective (module docstring) on standardised sequences x [B, T+1, D]."""
+  masks = offset_masks(discount, config.max_offset)  # [max_offset, B, T]
+  log_probs = offset_log_probs(model, params, x)  # [max_offset, B, T]
+  per_offset = jax.vmap(_masked_mean)(log_probs, masks)  # [max_offset]
+  # Autoregressive term: x~_{t+1} ~ p(. | x_t) for t = 0..T-2, then log p(x_{t+2} | x~_{t+1}).
+  sampled = jax.lax.stop_gradient(model.apply(params, x[:, :-2], 1).sample(key))  # [B, T-1, D]
+  ar_log_prob = model.apply(params, sampled, 1).log_prob(x[:, 2:])  # [B, T-1]
+  ar_mask = masks[1, :, :-1]  # x_t, x_{t+1}, x_{t+2} in one episode
+  ar = _masked_mean(ar_log_prob, ar_mask)
+  l2 = kernel_l2(params)
+  objective = jnp.mean(per_offset) + config.beta_ar * ar - 0.5 * config.l2 * l2
+  metrics = {f"log_prob_offset{d + 1}": per_offset[d] for d in range(config.max_offset)}
+  metrics.update(log_prob_autoregressive=ar, kernel_l2=l2)
+  return -objective, metrics
+
+
+def update(model: EffectModel, config: EffectModelConfig, state: EffectModelState,
+           observations: jax.Array, discount: jax.Array,
+           key: jax.Array) -> tuple[EffectModelState, dict]:
+  """One step: fold the batch into the standardisation, then one Adam step on `loss`.
+
+  observations [B, T+1, D] raw; discount [B, T] (see `offset_masks`). Metrics are
+  standardised-space log-likelihoods (nats per transition), and `log_prob` the raw-space
+  offset-1 log-likelihood of the batch.
+  """
+  norm = normalizer.update(state.normalizer, observations, config.normalizer_decay)
+  x = standardise(norm, observations)
+  grads, metrics = jax.grad(lambda p: loss(model, config, p, x, discount, key),
+                            has_aux=True)(state.params)
+  updates, opt_state = _optimizer(config).update(grads, state.opt_state, state.params)
+  params = optax.apply_updates(state.params, updates)
+  metrics["log_prob"] = metrics["log_prob_offset1"] + log_jacobian(norm)
+  return EffectModelState(params, opt_state, norm, state.steps + 1), metrics

@@ -1,0 +1,95 @@
+"""FORM's reward source: r_t = log pD(x_{t+1} | x_t) - log pI(x_{t+1} | x_t).
+
+pD is the demonstrator effect model, trained offline on demonstration observations
+(mjx_form.imitation.demonstrator) and frozen here; pI is the imitator effect model, trained
+online by one gradient step on every learner batch (the same unrolls the learner consumes,
+`EffectModelConfig` shared with the demonstrator). Rewards are relabelled on every batch with
+the current imitator model, after its step; only offset 1 enters the reward (the other offsets
+and the autoregressive term only regularise training).
+
+Both densities are in raw observation space (each model's own standardisation undone by its
+change of variables, mjx_form.imitation.effect_model), so their difference does not depend on
+the two sets of statistics. A transition whose successor is not in the unroll (discount 0: an
+episode cut short by a physics error, or one that ended mid-unroll) gets reward 0, like the
+task reward's 0 at a physics error; the imitation runs keep time-limit ends on unroll ends
+(`unroll_length` divides the episode), where the final observation is stored.
+
+The source never sees the task reward (`needs_task_reward = False`: it is not even stored).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+from mjx_form.imitation import effect_model as em
+from mjx_form.rl import normalizer
+
+
+class Demonstrator(NamedTuple):
+  """A frozen effect model: parameters and the standardisation it was trained with."""
+
+  params: Any
+  normalizer: normalizer.NormalizerState
+
+
+class FormState(NamedTuple):
+  demonstrator: Demonstrator  # constant through the run
+  imitator: em.EffectModelState
+
+
+class FormReward:
+  """The reward source of `--method form` (interface: mjx_form.rl.reward_sources)."""
+
+  name = "form"
+  needs_task_reward = False
+
+  def __init__(self, config: em.EffectModelConfig, demonstrator: Demonstrator,
+               demonstrator_sha256: str = ""):
+    """`demonstrator_sha256` identifies the demonstrator file (kept with checkpoints, so a run
+    resumes only with the same one)."""
+    config.check()
+    self.config = config
+    self.demonstrator = demonstrator
+    self.demonstrator_sha256 = demonstrator_sha256
+    self.observation_size = int(demonstrator.normalizer.mean.shape[-1])
+    self.model = em.make_model(config, self.observation_size)
+
+  def init(self, key: jax.Array, observation_size: int, action_size: int) -> FormState:
+    del action_size
+    if observation_size != self.observation_size:
+      raise ValueError(f"the demonstrator models {self.observation_size}-dimensional "
+                       f"observations, the task has {observation_size}")
+    demonstrator = jax.tree.map(jnp.asarray, self.demonstrator)
+    return FormState(demonstrator, em.init(self.model, self.config, key))
+
+  def update(self, state: FormState, batch: dict, key: jax.Array) -> tuple[FormState, dict]:
+    imitator, metrics = em.update(self.model, self.config, state.imitator,
+                                  batch["observation"], batch["discount"], key)
+    metrics = {f"imitator_{k}": v for k, v in metrics.items()}
+    return state._replace(imitator=imitator), metrics
+
+  def settings(self) -> dict:
+    return {"effect_model": dataclasses.asdict(self.config),
+            "demonstrator_sha256": self.demonstrator_sha256}
+
+  def log_probs(self, state: FormState, observation: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """Raw-space log pD and log pI of each transition of observation [B, T+1, D]: [B, T] each."""
+    x, x_next = observation[:, :-1], observation[:, 1:]
+    demo, imitator = state.demonstrator, state.imitator
+    log_d = em.transition_log_prob(self.model, demo.params, demo.normalizer, x, x_next)
+    log_i = em.transition_log_prob(self.model, imitator.params, imitator.normalizer, x, x_next)
+    return log_d, log_i
+
+  def relabel(self, state: FormState, batch: dict) -> tuple[jax.Array, dict]:
+    log_d, log_i = self.log_probs(state, batch["observation"])
+    valid = batch["discount"] > 0
+    rewards = jnp.where(valid, log_d - log_i, 0.0)
+    count = jnp.maximum(jnp.sum(valid), 1)
+    mean = lambda v: jnp.sum(jnp.where(valid, v, 0.0)) / count
+    metrics = {"form_reward": mean(log_d - log_i), "demonstrator_log_prob": mean(log_d),
+               "imitator_batch_log_prob": mean(log_i)}
+    return rewards, metrics

@@ -1,0 +1,213 @@
+"""The FORM pipeline behind `scripts/run.py --method form`: expert -> demonstrations ->
+demonstrator effect model -> imitation -> evaluation.
+
+Stages, each of which can also start from a saved artefact:
+  1. demonstrator: `--demonstrator FILE`, else the one shipped in tasks/demonstrators/ (when it
+     was trained with this run's effect-model settings), else trained here on demonstrations;
+  2. demonstrations: `--demos FILE`, else recorded from the expert (`--expert FILE`, else the
+     shipped one) on the device. They train the demonstrator where one is trained (1000
+     episodes by default, as the paper); with a ready demonstrator a few (16 by default)
+     check it: its log-likelihood on them beside its own held-out figure, and the expert's
+     return, the imitation's target;
+  3. imitation: MPO + Retrace on the FORM reward (mjx_form.imitation.form), never the task
+     reward, in the compiled loop of mjx_form.rl.train, run by mjx_form.rl.runner.
+The demonstrator a run imitates is kept in its run directory (demonstrator.npz), so `--resume`
+needs nothing else. A missing or mismatched artefact raises PipelineError naming the file and
+the problem, before anything is written.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import shutil
+from typing import Callable
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+import tasks
+from mjx_form.files import demos as demos_lib
+from mjx_form.files import effect_models, experts, results
+from mjx_form.imitation import demonstrator as demonstrator_lib
+from mjx_form.imitation import effect_model as em
+from mjx_form.imitation.form import Demonstrator, FormReward
+from mjx_form.rl import normalizer, runner
+
+DEMONSTRATOR_FILE = "demonstrator.npz"
+DEFAULT_TRAINING_EPISODES = 1000  # the paper's demonstrations per task
+DEFAULT_CHECK_EPISODES = 16
+
+
+class PipelineError(ValueError):
+  """An artefact is missing or does not fit this run."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Artefacts:
+  """Where the pipeline's inputs come from (None: the default source)."""
+
+  expert: str | None = None  # policy file
+  demos: str | None = None  # demonstration file
+  demonstrator: str | None = None  # effect-model file
+  demo_episodes: int | None = None  # None: 1000 to train a demonstrator, 16 to check one
+  train_demonstrator: bool = False  # train even where one is shipped
+  save_demos: str | None = None  # also write the recorded demonstrations here
+  training: demonstrator_lib.DemonstratorTraining = demonstrator_lib.DemonstratorTraining()
+
+
+def _expert_path(task: str, path: str | None) -> str:
+  if path is not None:
+    return path
+  try:
+    return tasks.bundled_expert(task)
+  except ValueError as e:
+    raise PipelineError(f"{e}; then pass --expert <run_dir>/policy.npz (or give --demos or "
+                        "--demonstrator)") from None
+
+
+def demonstrations(env, artefacts: Artefacts, episodes: int, physics: str, seed: int,
+                    print_fn) -> tuple[np.ndarray, dict]:
+  """Observations [K, T+1, D] and what they are (the demonstrator file's `demonstrations`)."""
+  if artefacts.demos is not None:
+    loaded = demos_lib.load_demonstrations(artefacts.demos, task=env.name,
+                                           observation_layout=env.observation_layout)
+    meta = loaded.metadata
+    print_fn(f"demonstrations: {meta['episodes']} episodes from {artefacts.demos}")
+    return loaded.observations, {"file": os.path.basename(artefacts.demos),
+                                 "sha256": meta["sha256"], "episodes": meta["episodes"],
+                                 "physics": meta["physics"], "expert": meta["expert"]}
+  path = _expert_path(env.name, artefacts.expert)
+  expert = experts.load_expert(path, env)
+  print_fn(f"demonstrations: recording {episodes} episodes of the expert {path} on the device")
+  obs, actions, returns = experts.record_demonstrations(
+      env, expert, jax.random.PRNGKey(seed), episodes, print_fn=print_fn)
+  info = experts.recording_info(path, expert.metadata, returns, seed, stochastic=False)
+  if artefacts.save_demos:
+    demos_lib.save_demonstrations(artefacts.save_demos, obs, actions, metadata={
+        "task": env.name, "observation_layout": env.observation_layout, "physics": physics,
+        "expert": info})
+    print_fn(f"demonstrations written to {artefacts.save_demos}")
+  return obs, {"sha256": demos_lib.checksum({"observations": obs}), "episodes": len(obs),
+               "physics": physics, "expert": info}
+
+
+def _load(path: str, env) -> effect_models.EffectModelFile:
+  return effect_models.load_effect_model(path, task=env.name,
+                                         observation_layout=env.observation_layout,
+                                         distractors=None)
+
+
+def prepare(env, config: em.EffectModelConfig, explicit: dict, artefacts: Artefacts,
+            run_dir: str, *, resume: bool, physics: str, seed: int, results_path: str | None,
+            print_fn: Callable[[str], None] = print) -> FormReward:
+  """Stages 1-2: the FORM reward source of this run, its demonstrator kept in `run_dir`.
+
+  `config`: the effect-model settings asked for; `explicit`: those of them the user set (a
+  ready demonstrator must agree with them).
+  """
+  runner.check_run_dir(run_dir, resume, also=(DEMONSTRATOR_FILE,))
+  kept = os.path.join(run_dir, DEMONSTRATOR_FILE)
+  if resume:
+    if not os.path.exists(kept):
+      raise PipelineError(f"--resume: {run_dir} holds no {DEMONSTRATOR_FILE}")
+    file = _load(kept, env)
+    return FormReward(*_demonstrator(file, kept, explicit), file.metadata["sha256"])
+
+  path = artefacts.demonstrator
+  shipped = tasks.bundled_demonstrator(env.name)
+  if path is None and shipped is not None and not artefacts.train_demonstrator:
+    settings = _load(shipped, env).metadata["config"]
+    if settings == dataclasses.asdict(config):
+      path = shipped
+    else:
+      print_fn(f"the shipped demonstrator {shipped} was trained with other settings "
+               f"({settings}); training one with this run's")
+  episodes = artefacts.demo_episodes or (DEFAULT_CHECK_EPISODES if path
+                                         else DEFAULT_TRAINING_EPISODES)
+  can_record = artefacts.demos is not None or artefacts.expert is not None or (
+      env.name in tasks.bundled_experts())
+  demos_obs = None
+  if path is None or can_record:
+    demos_obs, demos_info = demonstrations(env, artefacts, episodes, physics, seed, print_fn)
+  else:
+    print_fn(f"no expert for {env.name}: the demonstrator is not checked on demonstrations")
+
+  if path is None:  # train one; it is written to the run directory
+    os.makedirs(run_dir, exist_ok=True)
+    file = train_demonstrator(env, config, demos_obs, demos_info, artefacts.training, physics, seed,
+                  results_path, print_fn, kept)
+    return FormReward(*_demonstrator(file, kept, explicit), file.metadata["sha256"])
+
+  file = _load(path, env)
+  config, demonstrator = _demonstrator(file, path, explicit)
+  print_fn(f"demonstrator {path}: best of {file.metadata['training'].get('steps')} training "
+           f"steps at step {file.metadata['training'].get('best_step')}, held-out "
+           f"log-likelihood by offset {file.metadata['training'].get('heldout_log_likelihood')}")
+  if demos_obs is not None:
+    fit = demonstrator_lib.heldout_log_likelihood(em.make_model(config, env.observation_size),
+                                                  demonstrator.params, demonstrator.normalizer,
+                                                  jnp.asarray(demos_obs))
+    print_fn(f"its log-likelihood on this run's {len(demos_obs)} demonstrations by offset: "
+             + " ".join(f"{v:.2f}" for v in np.asarray(fit)))
+  os.makedirs(run_dir, exist_ok=True)
+  shutil.copyfile(path, kept)
+  return FormReward(config, demonstrator, file.metadata["sha256"])
+
+
+def _demonstrator(file: effect_models.EffectModelFile, path: str,
+                  explicit: dict) -> tuple[em.EffectModelConfig, Demonstrator]:
+  """The file's settings (which the imitator model shares) and its model as a Demonstrator;
+  refused where `explicit` settings differ from the file's or its parameters do not fit."""
+  try:
+    config = em.EffectModelConfig(**file.metadata["config"])
+    config.check()
+  except (TypeError, ValueError) as e:
+    raise PipelineError(f"{path}: unusable effect-model settings: {e}") from None
+  for key, value in explicit.items():
+    if value is not None and getattr(config, key) != value:
+      raise PipelineError(f"{path}: the demonstrator was trained with {key}="
+                          f"{getattr(config, key)}, this run asks for {value} (the imitator "
+                          "model shares the demonstrator's settings: leave it out, or train a "
+                          "demonstrator with --train_demonstrator)")
+  d = file.metadata["observation_size"]
+  expected = jax.eval_shape(em.make_model(config, d).init, jax.random.PRNGKey(0),
+                            jnp.zeros((1, d)))
+  shapes = lambda tree: jax.tree.map(lambda x: tuple(x.shape), tree)
+  try:
+    fits = shapes(file.params) == shapes(expected)
+  except (TypeError, ValueError):
+    fits = False
+  if not fits:
+    raise PipelineError(f"{path}: its parameters do not fit an effect model with its settings "
+                        f"{dataclasses.asdict(config)}")
+  norm = normalizer.NormalizerState(jnp.asarray(file.mean), jnp.asarray(file.var),
+                                    jnp.asarray(1, jnp.int32))
+  return config, Demonstrator(jax.tree.map(jnp.asarray, file.params), norm)
+
+
+def train_demonstrator(env, config: em.EffectModelConfig, demos_obs: np.ndarray,
+                       demos_info: dict, training: demonstrator_lib.DemonstratorTraining,
+                       physics: str, seed: int, results_path: str | None, print_fn,
+                       path: str) -> effect_models.EffectModelFile:
+  """Trains a demonstrator on demonstrations (`demonstrations`' output), writes it to `path`
+  (never over an existing file) and a `kind: effect_model` record to `results_path`; returns
+  the file as read back."""
+  state, report = demonstrator_lib.train(demos_obs, config, training, print_fn)
+  metadata = {"task": env.name, "observation_size": env.observation_size,
+              "observation_layout": env.observation_layout, "distractors": None,
+              "config": dataclasses.asdict(config), "training": report,
+              "demonstrations": demos_info}
+  params = jax.device_get(state.params)
+  mean, var = np.asarray(state.normalizer.mean), np.asarray(state.normalizer.var)
+  if results_path:
+    results.ResultWriter(results_path).write(
+        kind="effect_model", task=env.name, method="form", physics=physics, seed=seed,
+        settings={**dataclasses.asdict(config), **dataclasses.asdict(training),
+                  "demo_episodes": demos_info["episodes"]},
+        **{k: report[k] for k in ("steps", "best_step", "seconds", "heldout_log_likelihood",
+                                  "curve")})
+  effect_models.save_effect_model(path, params, mean, var, metadata)
+  print_fn(f"demonstrator written to {path}")
+  return effect_models.load_effect_model(path)

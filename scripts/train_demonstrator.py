@@ -1,0 +1,101 @@
+#!/usr/bin/env python3
+"""Trains FORM demonstrator effect models (the first stage of `run.py --method form`, alone).
+
+  python scripts/train_demonstrator.py --task cheetah_run --out tasks/demonstrators/cheetah_run.npz
+  python scripts/train_demonstrator.py --task walker_walk --demos demos/walker_walk.npz \\
+      --beta_ar 0.01,0.1,1 --effect_l2 0.01,0.1,1 --out runs/walker_grid/   # a grid
+
+Demonstrations are recorded from the expert (shipped, or --expert) on the device, or read from
+--demos. With several values of --beta_ar / --effect_l2, every combination is trained on the
+same demonstrations and written to the folder --out as <task>_ar<beta_ar>_l2<l2>.npz. Each
+training appends a `kind: effect_model` record (held-out log-likelihood per offset, steps,
+the held-out curve) to --results.
+"""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+import os
+import sys
+
+sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+
+from mjx_form.cpu import configure_cpu_xla  # noqa: E402  (before JAX starts)
+
+configure_cpu_xla()
+
+import tasks  # noqa: E402
+from mjx_form.imitation import demonstrator, pipeline, settings  # noqa: E402
+from mjx_form.sim.physics import DEFAULT_PHYSICS, PHYSICS_MODES  # noqa: E402
+
+
+def _floats(text: str) -> list[float]:
+  try:
+    return [float(v) for v in text.split(",")]
+  except ValueError:
+    raise argparse.ArgumentTypeError(f"expected comma-separated numbers, got {text!r}") from None
+
+
+def main(argv=None) -> int:
+  parser = argparse.ArgumentParser(description=__doc__,
+                                   formatter_class=argparse.RawDescriptionHelpFormatter)
+  parser.add_argument("--task", required=True)
+  parser.add_argument("--out", required=True, help="the file to write (a folder for a grid)")
+  parser.add_argument("--expert", help="policy.npz to record (default: the shipped expert)")
+  parser.add_argument("--demos", help="demonstrations to train on instead of recording them")
+  parser.add_argument("--episodes", type=int, default=pipeline.DEFAULT_TRAINING_EPISODES,
+                      help="episodes to record")
+  parser.add_argument("--physics", default=DEFAULT_PHYSICS, choices=PHYSICS_MODES)
+  parser.add_argument("--beta_ar", type=_floats, default=None,
+                      help="autoregressive weight(s) (default: the task's, settings.py)")
+  parser.add_argument("--effect_l2", type=_floats, default=None, help="L2 weight(s)")
+  parser.add_argument("--width", type=int, default=256)
+  defaults = demonstrator.DemonstratorTraining()
+  for name in ("max_steps", "batch_size", "window", "eval_every", "patience"):
+    parser.add_argument(f"--{name}", type=int, default=getattr(defaults, name))
+  parser.add_argument("--max_seconds", type=float, default=None,
+                      help="time budget of each training")
+  parser.add_argument("--seed", type=int, default=0)
+  parser.add_argument("--results", default=None, help="append kind=effect_model records here")
+  args = parser.parse_args(argv)
+  if args.task not in tasks.TASKS:
+    parser.error(f"unknown task {args.task!r}; valid tasks: {', '.join(tasks.TASKS)}")
+  grid = list(itertools.product(args.beta_ar or [None], args.effect_l2 or [None]))
+  try:
+    configs = [settings.effect_model_config(args.task, width=args.width, beta_ar=b, l2=l)
+               for b, l in grid]
+  except ValueError as e:
+    parser.error(str(e))
+  outs = [args.out] if len(grid) == 1 else [
+      os.path.join(args.out, f"{args.task}_ar{c.beta_ar:g}_l2{c.l2:g}.npz") for c in configs]
+  existing = [o for o in outs if os.path.exists(o)]
+  if existing:
+    print(f"error: {', '.join(existing)} exist (nothing was overwritten)", file=sys.stderr)
+    return 2
+  say = lambda line: print(line, flush=True)
+  try:
+    training = demonstrator.DemonstratorTraining(
+        max_steps=args.max_steps, batch_size=args.batch_size, window=args.window,
+        eval_every=args.eval_every, patience=args.patience, seed=args.seed,
+        max_seconds=args.max_seconds)
+    env = tasks.make(args.task, physics=args.physics)
+    artefacts = pipeline.Artefacts(expert=args.expert, demos=args.demos)
+    obs, info = pipeline.demonstrations(env, artefacts, args.episodes, args.physics, args.seed,
+                                        say)
+    training.check(len(obs), obs.shape[1] - 1)
+    for config, out in zip(configs, outs):
+      say(f"training with beta_ar={config.beta_ar}, l2={config.l2} -> {out}")
+      os.makedirs(os.path.dirname(os.path.abspath(out)), exist_ok=True)
+      file = pipeline.train_demonstrator(env, config, obs, info, training, args.physics,
+                                         args.seed, args.results, say, out)
+      heldout = file.metadata["training"]["heldout_log_likelihood"]
+      say(f"held-out log-likelihood by offset: {heldout}")
+  except ValueError as e:
+    print(f"error: {e}", file=sys.stderr)
+    return 2
+  return 0
+
+
+if __name__ == "__main__":
+  sys.exit(main())

@@ -1,0 +1,237 @@
+"""FORM in the compiled loop: the reward, episode boundaries in the replay's unrolls, training
+that never sees the task reward, and `scripts/run.py --method form` through every stage
+(reacher_easy, small sizes; the loop runs over the 2 forced host devices)."""
+
+import json
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from conftest import load_script
+
+import tasks
+from mjx_form import mesh as mesh_lib
+from mjx_form.files import checkpoint, demos, effect_models, policy_io
+from mjx_form.imitation import effect_model as em
+from mjx_form.imitation.form import Demonstrator, FormReward
+from mjx_form.rl import normalizer
+from mjx_form.rl.learner import LearnerConfig
+from mjx_form.rl.train import TrainConfig, Trainer
+from tasks import reacher
+
+pytestmark = pytest.mark.xdist_group("form")
+
+CONFIG = TrainConfig(task="reacher_easy", reward_source="form", num_envs=4, unroll_length=10,
+                     batch_size=4, replay_capacity=12, updates_per_iteration=2,
+                     network_width=32, eval_envs=2,
+                     learner=LearnerConfig(num_action_samples=4, target_update_period=3))
+EFFECT = em.EffectModelConfig(width=32)
+D = 6  # reacher's observation size
+
+
+def _demonstrator(seed=0) -> Demonstrator:
+  """An untrained demonstrator with its own standardisation (stands in for a trained one)."""
+  params = em.make_model(EFFECT, D).init(jax.random.PRNGKey(seed), jnp.zeros((1, D)))
+  rng = np.random.default_rng(seed)
+  norm = normalizer.NormalizerState(jnp.asarray(rng.normal(size=D), jnp.float32),
+                                    jnp.asarray(rng.uniform(0.2, 3.0, size=D), jnp.float32),
+                                    jnp.asarray(1, jnp.int32))
+  return Demonstrator(params, norm)
+
+
+class GarbageRewardReacher(reacher.Reacher):
+  """reacher_easy with a reward that has nothing to do with the task (finite, so no episode
+  ends differently)."""
+
+  def get_reward(self, data, task):
+    return 1e3 * jnp.sin(1e4 * jnp.sum(data.qpos) + task["target"][0])
+
+
+@pytest.fixture(scope="module")
+def form_trainer():
+  return Trainer(CONFIG, mesh_lib.make_mesh(), FormReward(EFFECT, _demonstrator()))
+
+
+def _iterate(trainer, n, key=0):
+  state, metrics = trainer.init(jax.random.PRNGKey(key)), []
+  for _ in range(n):
+    state, m = trainer.iteration(state)
+    metrics.append(jax.device_get(m))
+  return state, metrics
+
+
+def test_relabel_is_the_difference_of_the_two_log_densities():
+  source = FormReward(EFFECT, _demonstrator(0))
+  state = source.init(jax.random.PRNGKey(1), D, 2)
+  rng = np.random.default_rng(2)
+  obs = jnp.asarray(rng.normal(size=(3, 5, D)), jnp.float32)
+  discount = jnp.ones((3, 4)).at[1, 2].set(0.0)
+  rewards, metrics = source.relabel(state, {"observation": obs, "discount": discount})
+  model = em.make_model(EFFECT, D)
+  log_d = em.transition_log_prob(model, state.demonstrator.params,
+                                 state.demonstrator.normalizer, obs[:, :-1], obs[:, 1:])
+  log_i = em.transition_log_prob(model, state.imitator.params, state.imitator.normalizer,
+                                 obs[:, :-1], obs[:, 1:])
+  expected = np.where(np.asarray(discount) > 0, log_d - log_i, 0.0)
+  np.testing.assert_allclose(rewards, expected, rtol=1e-5, atol=1e-5)
+  assert float(rewards[1, 2]) == 0.0  # no successor in this episode: no reward
+  np.testing.assert_allclose(metrics["form_reward"], expected.sum() / 11, rtol=1e-5)
+  # An imitator model equal to the demonstrator gives reward 0 everywhere.
+  same = state._replace(imitator=state.imitator._replace(
+      params=state.demonstrator.params, normalizer=state.demonstrator.normalizer))
+  np.testing.assert_array_equal(source.relabel(same, {"observation": obs,
+                                                      "discount": discount})[0], 0.0)
+
+
+def test_imitation_requires_unrolls_that_end_with_the_episodes():
+  with pytest.raises(ValueError, match="must divide the episode length"):
+    TrainConfig(task="reacher_easy", reward_source="form", unroll_length=64).check(1)
+  with pytest.raises(ValueError, match="reward source 'task'"):
+    Trainer(TrainConfig(task="reacher_easy"), reward_source=FormReward(EFFECT, _demonstrator()))
+
+
+def test_unrolls_mark_every_episode_end_for_the_effect_models(form_trainer):
+  """Pairs (x_t, x_{t+delta}) of a collected unroll are kept only inside one episode: an
+  episode ending mid-unroll, a physics error, a staggered first episode ending on the unroll's
+  last step (its final observation is kept: no boundary) and an uninterrupted one."""
+  trainer = form_trainer
+  state = trainer.init(jax.random.PRNGKey(0))
+  env = state.env
+  steps = jnp.asarray([995, 990, 0, 0], env.info["step"].dtype)  # 995: ends after 5 steps
+  qvel = env.data.qvel.at[2].set(jnp.nan)  # env 2: a physics error at its first step
+  env = env.replace(data=env.data.replace(qvel=qvel), info=dict(env.info, step=steps))
+  _, _, unrolls, stats = jax.jit(trainer._collect)(state._replace(env=env),
+                                                   jax.random.PRNGKey(1))
+  assert int(stats["physics_errors"]) == 1
+  boundaries = {0: [4], 1: [], 2: [0], 3: []}  # transitions whose successor is a new episode
+  t = CONFIG.unroll_length
+  expected = np.zeros((5, 4, t))
+  for i, ends in boundaries.items():
+    for d in range(1, 6):
+      for s in range(t):
+        expected[d - 1, i, s] = s + d <= t and not any(s <= b < s + d for b in ends)
+  masks = np.asarray(em.offset_masks(unrolls["discount"], 5))
+  np.testing.assert_array_equal(masks, expected)
+  # reacher starts at rest: a new episode's first observation has zero velocity (its last two
+  # elements). The staggered episode's last observation is its own final one, not a reset.
+  velocity = np.asarray(unrolls["observation"])[..., 4:]
+  assert not velocity[0, 5].any() and not velocity[2, 1].any()
+  assert velocity[1, -1].all() and velocity[3, 1:].all()
+
+
+def test_training_never_sees_the_task_reward(form_trainer, monkeypatch):
+  """The same FORM run with the environment's reward replaced by garbage trains bit for bit
+  the same: only the logged task returns differ."""
+  state, metrics = _iterate(form_trainer, 3)
+  monkeypatch.setitem(tasks._REGISTRY, "reacher_easy",
+                      lambda physics: GarbageRewardReacher(reacher._BIG_TARGET, "easy", physics))
+  garbage = Trainer(CONFIG, mesh_lib.make_mesh(), FormReward(EFFECT, _demonstrator()))
+  assert isinstance(garbage.env, GarbageRewardReacher)
+  other, other_metrics = _iterate(garbage, 3)
+  for part in ("learner", "source", "replay", "normalizer", "key"):
+    for (path, a), b in zip(jax.tree_util.tree_leaves_with_path(getattr(state, part)),
+                            jax.tree.leaves(getattr(other, part))):
+      np.testing.assert_array_equal(np.asarray(a), np.asarray(b),
+                                    err_msg=part + jax.tree_util.keystr(path))
+  np.testing.assert_array_equal(state.env.obs, other.env.obs)
+  assert metrics[-1]["train_reward"] != other_metrics[-1]["train_reward"]  # the garbage was there
+  assert np.isfinite(metrics[-1]["form_reward"]) and metrics[-1]["imitator_log_prob"] != 0
+
+
+def _cli_args(run_dir, *extra):
+  return ["--task", "reacher_easy", "--num_envs", "4", "--unroll_length", "10",
+          "--batch_size", "4", "--replay_capacity", "12", "--updates_per_iteration", "2",
+          "--network_width", "32", "--num_action_samples", "4", "--target_update_period", "3",
+          "--eval_envs", "2", "--eval_every", "2", "--checkpoint_every", "1",
+          "--final_eval_envs", "2", "--env_steps", "80", "--run_dir", str(run_dir), *extra]
+
+
+def test_form_command_line_runs_every_stage(tmp_path, capsys):
+  """The default method is FORM: the shipped expert is recorded, a demonstrator is trained on
+  its demonstrations and kept in the run directory, MPO imitates; then each stage starts from
+  saved artefacts, a run resumes, and mismatched or damaged artefacts are refused."""
+  cli = load_script("run")
+  run_dir, curve, saved = tmp_path / "run", tmp_path / "curve.jsonl", tmp_path / "demos.npz"
+  assert cli.main(_cli_args(run_dir, "--demo_episodes", "3", "--save_demos", str(saved),
+                            "--demonstrator_steps", "20", "--demonstrator_eval_every", "10",
+                            "--results", str(curve))) == 0
+  out = capsys.readouterr().out
+  for expected in ("recording 3 episodes of the expert", "demonstrator step 20",
+                   "demonstrator written to", "form reward", "eval",
+                   "fresh evaluation of the final policy over 2 episodes",
+                   "fresh evaluation of the best policy over 2 episodes", "done:"):
+    assert expected in out, expected
+  demonstrator = effect_models.load_effect_model(run_dir / "demonstrator.npz",
+                                                 task="reacher_easy")
+  meta = demonstrator.metadata
+  assert meta["config"]["width"] == 32 and meta["training"]["steps"] == 20
+  assert meta["training"]["batch_size"] == 4 and meta["training"]["window"] == 10
+  assert meta["demonstrations"]["episodes"] == 3
+  assert meta["demonstrations"]["expert"]["policy_file"] == "reacher_easy.npz"
+  assert demos.load_demonstrations(saved, task="reacher_easy").metadata["episodes"] == 3
+  records = [json.loads(line) for line in open(curve)]
+  kinds = [r["kind"] for r in records]
+  assert kinds == ["effect_model", "learning_curve", "final_return", "final_return"]
+  assert len(records[0]["heldout_log_likelihood"]) == 5 and records[0]["steps"] == 20
+  assert all(r["method"] == "form" for r in records)
+  assert all(np.isfinite(records[1][k]) for k in ("form_reward", "demonstrator_log_prob",
+                                                  "imitator_batch_log_prob", "eval_return"))
+  assert records[1]["settings"]["reward"]["demonstrator_sha256"] == meta["sha256"]
+  assert records[1]["learner_preset"] == "custom"
+  assert [r["policy"] for r in records[2:]] == ["final", "best"]
+  assert records[2]["episodes"] == 2 and np.isfinite(records[2]["final_return"])
+  stored = checkpoint.read_info(str(run_dir / "checkpoints"))
+  assert stored["step"] == 2
+  # Resume: the kept demonstrator is used; the run continues from its checkpoint.
+  assert cli.main(_cli_args(run_dir, "--env_steps", "120", "--resume")) == 0
+  assert "resumed from iteration 2" in capsys.readouterr().out
+
+  # Each stage from saved artefacts: the demonstrations and the demonstrator of the first run
+  # (checked on the demonstrations: its log-likelihood on them is printed).
+  second = tmp_path / "second"
+  assert cli.main(_cli_args(second, "--demos", str(saved), "--demonstrator",
+                            str(run_dir / "demonstrator.npz"))) == 0
+  out = capsys.readouterr().out
+  assert "demonstrations: 3 episodes from" in out
+  assert "its log-likelihood on this run's 3 demonstrations by offset" in out
+  assert (second / "demonstrator.npz").read_bytes() == (run_dir / "demonstrator.npz").read_bytes()
+  assert policy_io.load_policy(second / "policy.npz", task="reacher_easy")
+
+  # Refusals: exit code 2, the file and the mismatch named, nothing written.
+  other_task = tmp_path / "cheetah_demonstrator.npz"
+  effect_models.save_effect_model(other_task, demonstrator.params, np.zeros(17), np.ones(17), {
+      **{k: v for k, v in meta.items() if k not in ("format", "version", "sha256")},
+      "task": "cheetah_run", "observation_size": 17,
+      "observation_layout": [["position", 8], ["velocity", 9]]})
+  truncated = tmp_path / "truncated.npz"
+  truncated.write_bytes((run_dir / "demonstrator.npz").read_bytes()[:300])
+  other_demos = tmp_path / "cheetah_demos.npz"
+  demos.save_demonstrations(other_demos, np.zeros((2, 11, 17)), metadata={
+      "task": "cheetah_run", "observation_layout": {"position": 8, "velocity": 9},
+      "physics": "fast"})
+  refusals = [
+      (["--demonstrator", str(other_task)], "the demonstrator is for cheetah_run"),
+      (["--demonstrator", str(truncated)], "truncated"),
+      (["--demonstrator", str(run_dir / "demonstrator.npz"), "--beta_ar", "0.5"],
+       "trained with beta_ar="),
+      (["--demos", str(other_demos)], "demonstrations are for cheetah_run"),
+      (["--expert", str(tmp_path / "missing.npz")], "no such policy file"),
+  ]
+  for extra, message in refusals:
+    target = tmp_path / "refused"
+    assert cli.main(_cli_args(target, *extra)) == 2, extra
+    err = capsys.readouterr().err
+    assert message in err, (extra, err)
+    assert not target.exists(), extra
+  # A task without a shipped expert says which one is missing and how to train it.
+  target = tmp_path / "humanoid"
+  assert cli.main(_cli_args(target, "--task", "humanoid_run")) == 2
+  err = capsys.readouterr().err
+  assert "no shipped expert for 'humanoid_run'" in err and "--method expert" in err
+  assert not target.exists()
+  # An existing run is not overwritten.
+  before = (run_dir / "demonstrator.npz").read_bytes()
+  assert cli.main(_cli_args(run_dir)) == 2
+  assert "--resume" in capsys.readouterr().err
+  assert (run_dir / "demonstrator.npz").read_bytes() == before
