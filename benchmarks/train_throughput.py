@@ -13,6 +13,11 @@ peak: the peak only grows within a process). Each is timed as the best of `--rep
 after a warm-up call; compile times are recorded apart.
 
   python benchmarks/train_throughput.py --tasks humanoid_run cheetah_run --num_envs 2048
+
+With `--members 1 2 4 8 16` it measures populations (`Trainer(..., seeds=range(P))`: P runs of
+`--num_envs` environments each in one program) and writes `kind: population_throughput`
+records: total env steps per second of the whole iteration over all members, the env-only
+rollout of all P x N environments, and the split into collection and updates.
 """
 
 from __future__ import annotations
@@ -42,8 +47,9 @@ from mjx_form.sim.wrappers import AutoReset  # noqa: E402
 
 def env_only_fn(trainer: Trainer, steps: int, key):
   """(jitted `run(state, key)`, start state): `steps` calls of `AutoReset(task).step` with
-  random actions for the trainer's environments, split over its mesh as the loop's are."""
-  num_envs, mesh = trainer.config.num_envs, trainer.mesh
+  random actions for the trainer's environments (all members'), split over its mesh as the
+  loop's are."""
+  num_envs, mesh = trainer.config.num_envs * trainer.members, trainer.mesh
   start = jax.jit(lambda k: AutoReset(trainer.env).reset(k, num_envs))(key)
   run = jax.jit(ours_fn(trainer.env, num_envs, steps), donate_argnums=0,
                 in_shardings=(mesh_lib.batch_sharding(mesh), mesh_lib.replicated(mesh)),
@@ -66,12 +72,46 @@ def time_iterations(trainer: Trainer, state, repeats: int):
 def time_collect(trainer: Trainer, state, repeats: int):
   """(seconds per collection of num_envs x unroll_length steps, compile seconds)."""
   collect = jax.jit(lambda s, k: trainer._collect(s, k)[0])  # env states out only
-  key = jax.random.PRNGKey(1)
+  key = trainer.keys(1)
   t0 = time.perf_counter()
   exe = collect.lower(state, key).compile()
   compile_s = time.perf_counter() - t0
   jax.block_until_ready(exe(state, key))  # warm-up
   return common.best_time(lambda: jax.block_until_ready(exe(state, key)), repeats), compile_s
+
+
+def measure(trainer: Trainer, label: str, kind: str, args, writer, key) -> None:
+  """Times env-only stepping, collection and the whole iteration of `trainer`; one record."""
+  config, members = trainer.config, trainer.members
+  steps, per_iteration = config.unroll_length, config.env_steps_per_iteration * members
+  env_only, start = env_only_fn(trainer, steps, key)
+  env_sps, env_compile_s = common.time_compiled(env_only, (start, key), steps,
+                                                config.num_envs * members, args.repeats)
+  # Each phase is printed as it ends, so a run stopped by a time limit shows how far it got.
+  print(f"{label}: env only {env_sps:,.0f} steps/s (compile {env_compile_s:.0f}s)", flush=True)
+  state = trainer.init(trainer.keys())
+  collect_s, collect_compile_s = time_collect(trainer, state, args.repeats)
+  print(f"{label}: collect {per_iteration / collect_s:,.0f} steps/s "
+        f"(compile {collect_compile_s:.0f}s)", flush=True)
+  iteration_s, loop_compile_s, state = time_iterations(trainer, state, args.repeats)
+  result = {
+      "sps": per_iteration / iteration_s, "env_sps": env_sps,
+      "collect_sps": per_iteration / collect_s, "ratio_to_env": per_iteration / iteration_s
+      / env_sps, "iteration_s": iteration_s, "collect_s": collect_s,
+      "update_ms": 1e3 * max(iteration_s - collect_s, 0.0) / config.updates_per_iteration,
+      "peak_memory_bytes": results.peak_memory_bytes(), "compile_s": loop_compile_s,
+      "env_compile_s": env_compile_s, "collect_compile_s": collect_compile_s}
+  settings = {**config.to_dict(), "updates_per_env_step": config.updates_per_env_step,
+              "replay_ratio": config.replay_ratio, "repeats": args.repeats}
+  fields = {"members": members} if kind == "population_throughput" else {}
+  writer.write(kind=kind, task=config.task, method="expert", physics=config.physics,
+               num_envs=config.num_envs, settings=settings, **fields, **result)
+  memory = result["peak_memory_bytes"]
+  print(f"{label}: loop {result['sps']:,.0f} steps/s, env only {env_sps:,.0f} (ratio "
+        f"{result['ratio_to_env']:.2f}), collect {result['collect_sps']:,.0f}, "
+        f"{result['update_ms']:.1f} ms/update (all members), peak memory "
+        f"{'n/a' if memory is None else f'{memory / 2**30:.1f} GiB'} (compile "
+        f"{loop_compile_s:.0f}s)", flush=True)
 
 
 def main(argv=None) -> int:
@@ -86,48 +126,24 @@ def main(argv=None) -> int:
   parser.add_argument("--lockstep_episodes", action="store_true",
                       help="start every environment's first episode together (default: staggered "
                       "phases, whose resets then run in every iteration)")
+  parser.add_argument("--members", nargs="*", type=int, default=None,
+                      help="population sizes to measure (kind population_throughput)")
   parser.add_argument("--repeats", type=int, default=3)
   parser.add_argument("--out", default=common.default_results_path("train_throughput"))
   args = parser.parse_args(argv)
   writer = common.ResultWriter(args.out)
   key = jax.random.PRNGKey(0)
 
+  kind = "population_throughput" if args.members else "train_throughput"
   for name in args.tasks:
     for num_envs in args.num_envs:
-      config = TrainConfig(task=name, physics=args.physics, num_envs=num_envs,
-                           updates_per_iteration=args.updates_per_iteration,
-                           stagger_episodes=not args.lockstep_episodes)
-      trainer = Trainer(config)
-      steps, per_iteration = config.unroll_length, config.env_steps_per_iteration
-      env_only, start = env_only_fn(trainer, steps, key)
-      env_sps, env_compile_s = common.time_compiled(env_only, (start, key), steps, num_envs,
-                                                    args.repeats)
-      # Each phase is printed as it ends, so a run stopped by a time limit shows how far it got.
-      print(f"{name} {num_envs} envs: env only {env_sps:,.0f} steps/s "
-            f"(compile {env_compile_s:.0f}s)", flush=True)
-      state = trainer.init(key)
-      collect_s, collect_compile_s = time_collect(trainer, state, args.repeats)
-      print(f"{name} {num_envs} envs: collect {per_iteration / collect_s:,.0f} steps/s "
-            f"(compile {collect_compile_s:.0f}s)", flush=True)
-      iteration_s, loop_compile_s, state = time_iterations(trainer, state, args.repeats)
-      result = {
-          "sps": per_iteration / iteration_s, "env_sps": env_sps,
-          "collect_sps": per_iteration / collect_s, "ratio_to_env": per_iteration / iteration_s
-          / env_sps, "iteration_s": iteration_s, "collect_s": collect_s,
-          "update_ms": 1e3 * max(iteration_s - collect_s, 0.0) / config.updates_per_iteration,
-          "peak_memory_bytes": results.peak_memory_bytes(), "compile_s": loop_compile_s,
-          "env_compile_s": env_compile_s, "collect_compile_s": collect_compile_s}
-      settings = {**config.to_dict(), "updates_per_env_step": config.updates_per_env_step,
-                  "replay_ratio": config.replay_ratio, "repeats": args.repeats}
-      writer.write(kind="train_throughput", task=name, method="expert", physics=args.physics,
-                   num_envs=num_envs, settings=settings, **result)
-      memory = result["peak_memory_bytes"]
-      print(f"{name} {num_envs} envs: loop {result['sps']:,.0f} steps/s, env only "
-            f"{env_sps:,.0f} (ratio {result['ratio_to_env']:.2f}), collect "
-            f"{result['collect_sps']:,.0f}, {result['update_ms']:.1f} ms/update, peak memory "
-            f"{'n/a' if memory is None else f'{memory / 2**30:.1f} GiB'} (compile "
-            f"{loop_compile_s:.0f}s)", flush=True)
-      del state
+      for members in args.members or [1]:
+        config = TrainConfig(task=name, physics=args.physics, num_envs=num_envs,
+                             updates_per_iteration=args.updates_per_iteration,
+                             stagger_episodes=not args.lockstep_episodes)
+        trainer = Trainer(config, seeds=tuple(range(members)))
+        label = f"{name} {num_envs} envs" + (f" x {members} members" if args.members else "")
+        measure(trainer, label, kind, args, writer, key)
   print(f"results appended to {args.out}")
   return 0
 

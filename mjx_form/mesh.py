@@ -28,6 +28,11 @@ def batch_sharding(mesh: Mesh) -> NamedSharding:
   return NamedSharding(mesh, PartitionSpec(BATCH_AXIS))
 
 
+def member_batch_sharding(mesh: Mesh) -> NamedSharding:
+  """A population's per-member batches [P, N, ...]: the second axis split over the mesh."""
+  return NamedSharding(mesh, PartitionSpec(None, BATCH_AXIS))
+
+
 def replicated(mesh: Mesh) -> NamedSharding:
   return NamedSharding(mesh, PartitionSpec())
 

@@ -62,6 +62,16 @@ def use_compilation_cache(directory: str) -> None:
     jax.config.update("jax_compilation_cache_dir", directory)
 
 
+def _seeds(text: str) -> tuple[int, ...]:
+  try:
+    seeds = tuple(int(s) for s in text.split(","))
+  except ValueError:
+    raise argparse.ArgumentTypeError(f"expected comma-separated integers, got {text!r}") from None
+  if len(set(seeds)) != len(seeds):
+    raise argparse.ArgumentTypeError(f"seeds must be distinct, got {text!r}")
+  return seeds
+
+
 def parse_args(argv=None) -> argparse.Namespace:
   parser = argparse.ArgumentParser(
       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter,
@@ -75,6 +85,10 @@ def parse_args(argv=None) -> argparse.Namespace:
   parser.add_argument("--physics", default=DEFAULT_PHYSICS, choices=PHYSICS_MODES,
                       help="parity: dm_control's solver settings; fast: fewer iterations")
   parser.add_argument("--seed", type=int, default=0)
+  parser.add_argument("--seeds", type=_seeds, default=None,
+                      help="comma-separated seeds: a population of runs, one per seed, in one "
+                           "compiled program (--method form and expert; each writes to "
+                           "<run_dir>/seed<s>/); overrides --seed")
   parser.add_argument("--list", action="store_true", help="print the task names and exit")
   parser.add_argument("--method", default="form", choices=METHODS,
                       help="form: imitation from observations (default); expert: MPO on the "
@@ -164,6 +178,8 @@ def parse_args(argv=None) -> argparse.Namespace:
     return args
   if args.log_every is None:
     args.log_every = 50 if args.method == "random" else 1
+  if args.method == "random" and args.seeds:
+    parser.error("--seeds applies to --method form and expert")
   if args.method != "form":
     given = [f"--{name}" for name in FORM_ONLY if getattr(args, name) not in (None, False)]
     if given:
@@ -189,6 +205,7 @@ def train_config(args: argparse.Namespace) -> TrainConfig:
       LearnerConfig(), num_action_samples=args.num_action_samples,
       target_update_period=args.target_update_period,
       mpo=dataclasses.replace(LearnerConfig().mpo, action_penalty=args.action_penalty))
+  seed = args.seeds[0] if args.seeds else args.seed
   return TrainConfig(task=args.task, physics=args.physics,
                      reward_source="form" if args.method == "form" else "task",
                      num_envs=args.num_envs,
@@ -196,7 +213,7 @@ def train_config(args: argparse.Namespace) -> TrainConfig:
                      replay_capacity=args.replay_capacity,
                      updates_per_iteration=args.updates_per_iteration,
                      network_width=args.network_width, eval_envs=args.eval_envs,
-                     seed=args.seed, stagger_episodes=not args.lockstep_episodes,
+                     seed=seed, stagger_episodes=not args.lockstep_episodes,
                      learner=learner)
 
 
@@ -274,27 +291,31 @@ def main(argv=None) -> int:
   use_compilation_cache(args.compilation_cache)
   mesh = mesh_lib.make_mesh()
   if args.method in ("expert", "form"):
-    run_dir = args.run_dir or os.path.join("runs", f"{args.task}_{args.method}_seed{args.seed}")
+    seeds = args.seeds or (args.seed,)
+    name = (f"seed{seeds[0]}" if len(seeds) == 1 else "seeds" + "_".join(map(str, seeds)))
+    run_dir = args.run_dir or os.path.join("runs", f"{args.task}_{args.method}_{name}")
     results_path = args.results or os.path.join(run_dir, "learning_curve.jsonl")
     say = lambda line: print(line, flush=True)
     try:
       config = train_config(args)
       config.check(mesh.devices.size)
       source = form_source(args, run_dir, results_path, say) if args.method == "form" else None
-      row = runner.run(config, run_dir, args.env_steps, resume=args.resume,
-                       log_every=args.log_every, eval_every=args.eval_every,
-                       checkpoint_every=args.checkpoint_every, max_seconds=args.max_seconds,
-                       checkpoint_replay=not args.lean_checkpoints, results_path=results_path,
-                       final_eval_envs=args.final_eval_envs, mesh=mesh, reward_source=source,
-                       print_fn=say)
+      rows = runner.run(config, run_dir, args.env_steps, resume=args.resume,
+                        log_every=args.log_every, eval_every=args.eval_every,
+                        checkpoint_every=args.checkpoint_every, max_seconds=args.max_seconds,
+                        checkpoint_replay=not args.lean_checkpoints, results_path=results_path,
+                        final_eval_envs=args.final_eval_envs, mesh=mesh, reward_source=source,
+                        seeds=seeds, print_fn=say)
     except ValueError as e:  # bad settings or artefacts, an existing run, another config
       print(f"error: {e}", file=sys.stderr)
       return 2
-    finished = row["env_steps"] >= args.env_steps
-    print(f"{'done' if finished else 'stopped'}: "
-          f"eval return {row.get('eval_return', float('nan')):.1f} after "
-          f"{row['env_steps']:,} env steps; policy in {os.path.join(run_dir, 'policy.npz')}, "
-          f"the best evaluation's in {os.path.join(run_dir, 'best_policy.npz')}")
+    for seed, row, directory in zip(seeds, rows, runner.member_dirs(run_dir, seeds)):
+      finished = row["env_steps"] >= args.env_steps
+      print(f"{'done' if finished else 'stopped'}"
+            + (f" (seed {seed})" if len(seeds) > 1 else "") + ": "
+            f"eval return {row.get('eval_return', float('nan')):.1f} after "
+            f"{row['env_steps']:,} env steps; policy in {os.path.join(directory, 'policy.npz')}"
+            f", the best evaluation's in {os.path.join(directory, 'best_policy.npz')}")
     return 0
   try:
     mesh_lib.check_batch_size(args.num_envs, mesh)

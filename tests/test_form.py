@@ -54,7 +54,7 @@ def form_trainer():
 
 
 def _iterate(trainer, n, key=0):
-  state, metrics = trainer.init(jax.random.PRNGKey(key)), []
+  state, metrics = trainer.init(jax.random.PRNGKey(key)[None]), []
   for _ in range(n):
     state, m = trainer.iteration(state)
     metrics.append(jax.device_get(m))
@@ -96,14 +96,15 @@ def test_unrolls_mark_every_episode_end_for_the_effect_models(form_trainer):
   episode ending mid-unroll, a physics error, a staggered first episode ending on the unroll's
   last step (its final observation is kept: no boundary) and an uninterrupted one."""
   trainer = form_trainer
-  state = trainer.init(jax.random.PRNGKey(0))
+  state = trainer.init(jax.random.PRNGKey(0)[None])
   env = state.env
   steps = jnp.asarray([995, 990, 0, 0], env.info["step"].dtype)  # 995: ends after 5 steps
   qvel = env.data.qvel.at[2].set(jnp.nan)  # env 2: a physics error at its first step
   env = env.replace(data=env.data.replace(qvel=qvel), info=dict(env.info, step=steps))
   _, _, unrolls, stats = jax.jit(trainer._collect)(state._replace(env=env),
-                                                   jax.random.PRNGKey(1))
-  assert int(stats["physics_errors"]) == 1
+                                                   jax.random.PRNGKey(1)[None])
+  unrolls = trainer.member(unrolls, 0)  # [N, T(+1), ...] of the one member
+  assert int(stats["physics_errors"][0]) == 1
   boundaries = {0: [4], 1: [], 2: [0], 3: []}  # transitions whose successor is a new episode
   t = CONFIG.unroll_length
   expected = np.zeros((5, 4, t))
@@ -135,8 +136,8 @@ def test_training_never_sees_the_task_reward(form_trainer, monkeypatch):
       np.testing.assert_array_equal(np.asarray(a), np.asarray(b),
                                     err_msg=part + jax.tree_util.keystr(path))
   np.testing.assert_array_equal(state.env.obs, other.env.obs)
-  assert metrics[-1]["train_reward"] != other_metrics[-1]["train_reward"]  # the garbage was there
-  assert np.isfinite(metrics[-1]["form_reward"]) and metrics[-1]["imitator_log_prob"] != 0
+  assert metrics[-1]["train_reward"][0] != other_metrics[-1]["train_reward"][0]  # garbage seen
+  assert np.isfinite(metrics[-1]["form_reward"][0]) and metrics[-1]["imitator_log_prob"][0] != 0
 
 
 def _cli_args(run_dir, *extra):

@@ -68,7 +68,7 @@ def trainers():
   """The same config on one device and on two (conftest forces two host devices), compiled
   ahead; the compilations their first calls still did go to FIRST_CALL_COMPILES."""
   assert jax.device_count() == 2
-  key = jax.random.PRNGKey(0)
+  key = jax.random.PRNGKey(0)[None]  # [members, 2]
   with count_calls(type(tasks.make(CONFIG.task)), "initialize_episode", "get_reward") as calls:
     first = Trainer(CONFIG, mesh_lib.make_mesh(jax.devices()[:1]))
     first.compile_ahead(key)
@@ -108,24 +108,24 @@ def run_iterations(trainer, state, n):
 def test_two_devices_match_one_device(trainers):
   one, two = trainers
   # 4 iterations: the 12-slot replay (4 unrolls per iteration) wraps around once.
-  s1, m1 = run_iterations(one, one.init(jax.random.PRNGKey(3)), 4)
-  s2, m2 = run_iterations(two, two.init(jax.random.PRNGKey(3)), 4)
+  s1, m1 = run_iterations(one, one.init(jax.random.PRNGKey(3)[None]), 4)
+  s2, m2 = run_iterations(two, two.init(jax.random.PRNGKey(3)[None]), 4)
   assert len(s2.env.obs.sharding.device_set) == 2  # the batch really is split
   assert len(s2.replay.data["observation"].sharding.device_set) == 2
   for a, b in zip(jax.tree.leaves(s1.learner), jax.tree.leaves(s2.learner)):
     np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=2e-4, atol=2e-5)
   np.testing.assert_allclose(s1.replay.data["observation"], s2.replay.data["observation"],
                              rtol=1e-4, atol=1e-5)
-  assert int(s1.replay.size) == int(s2.replay.size) == 12
+  assert int(s1.replay.size[0]) == int(s2.replay.size[0]) == 12
   for a, b in zip(m1, m2):
     assert a.keys() == b.keys()
     np.testing.assert_allclose(a["critic_loss"], b["critic_loss"], rtol=1e-3, atol=1e-6)
   # Learning happened: parameters moved and targets were copied (period 3, 8 updates).
-  init = one.init(jax.random.PRNGKey(3))
+  init = one.init(jax.random.PRNGKey(3)[None])
   moved = [not np.allclose(a, b) for a, b in zip(jax.tree.leaves(init.learner.policy),
                                                   jax.tree.leaves(s1.learner.policy))]
   assert any(moved)
-  assert int(s1.learner.updates) == 8
+  assert int(s1.learner.updates[0]) == 8
 
 
 def test_first_episodes_start_at_staggered_phases(trainers):
@@ -133,7 +133,7 @@ def test_first_episodes_start_at_staggered_phases(trainers):
   iteration ends some episodes (on unroll boundaries); the shortened first episodes are not
   reported as returns."""
   trainer, _ = trainers
-  state = trainer.init(jax.random.PRNGKey(7))
+  state = trainer.init(jax.random.PRNGKey(7)[None])
   start = np.asarray(state.env.info["step"])
   unroll = CONFIG.unroll_length
   assert ((start % unroll == 0) & (start >= 0) & (start < 1000)).all()
@@ -146,9 +146,9 @@ def test_first_episodes_start_at_staggered_phases(trainers):
   ends = (1000 - start) // unroll - 1  # the iteration in which each env's first episode ends
   for i, m in enumerate(metrics):
     ending = ends == i % period
-    assert m["episodes"] == np.sum(ending), i
+    assert m["episodes"][0] == np.sum(ending), i
     whole = ending & (start == 0) if i < period else ending  # first episodes: only full ones
-    assert np.isfinite(m["train_return"]) == np.any(whole), i
+    assert np.isfinite(m["train_return"][0]) == np.any(whole), i
   np.testing.assert_array_equal(np.asarray(state.env.info["step"]), start)  # phases kept
   assert np.isfinite(np.asarray(state.episode_return)).all()
   # The iteration returns the types it takes (a weak-typed leaf from init once made every run
@@ -158,13 +158,13 @@ def test_first_episodes_start_at_staggered_phases(trainers):
 
 def test_resume_ends_where_an_uninterrupted_run_ends(trainers, tmp_path):
   _, trainer = trainers
-  straight, _ = run_iterations(trainer, trainer.init(jax.random.PRNGKey(5)), 3)
+  straight, _ = run_iterations(trainer, trainer.init(jax.random.PRNGKey(5)[None]), 3)
 
-  state, _ = run_iterations(trainer, trainer.init(jax.random.PRNGKey(5)), 1)
+  state, _ = run_iterations(trainer, trainer.init(jax.random.PRNGKey(5)[None]), 1)
   config = CONFIG.to_dict()
   checkpoint.save(tmp_path, 1, state, config)
   del state  # the run "stops" here
-  target = trainer.init(jax.random.PRNGKey(99))  # any state of the right structure
+  target = trainer.init(jax.random.PRNGKey(99)[None])  # any state of the right structure
   resumed = checkpoint.restore(tmp_path, target, config)
   assert int(resumed.iteration) == 1
   resumed, _ = run_iterations(trainer, resumed, 2)
@@ -194,7 +194,7 @@ class _ConstantReward:
 def test_task_reward_is_not_stored_for_other_reward_sources():
   trainer = Trainer(dataclasses.replace(CONFIG, reward_source="constant"), mesh_lib.make_mesh(),
                     reward_source=_ConstantReward())
-  abstract = jax.eval_shape(trainer._init, jax.random.PRNGKey(0))
+  abstract = jax.eval_shape(trainer._init, trainer.keys())
   assert set(abstract.replay.data) == {"observation", "action", "behaviour_log_prob",
                                         "discount"}
   # The learner's step traces with the source's rewards and no task reward in the batch.
@@ -210,12 +210,12 @@ def test_action_penalty_setting_reaches_the_learner(tmp_path):
   assert config == dataclasses.replace(CONFIG, learner=dataclasses.replace(
       CONFIG.learner, mpo=dataclasses.replace(CONFIG.learner.mpo, action_penalty=True)))
   trainer = Trainer(config, mesh_lib.make_mesh())
-  abstract = jax.eval_shape(trainer._init, jax.random.PRNGKey(0))
-  assert abstract.learner.duals.log_penalty_temperature.shape == ()
-  assert abstract.learner.dual_opt[0].mu.log_penalty_temperature.shape == ()
+  abstract = jax.eval_shape(trainer._init, trainer.keys())
+  assert abstract.learner.duals.log_penalty_temperature.shape == (1,)  # one member
+  assert abstract.learner.dual_opt[0].mu.log_penalty_temperature.shape == (1,)
   _, metrics = jax.eval_shape(trainer._iteration, abstract)
   assert {"penalty_temperature", "sampled_out_of_bounds", "mean_out_of_bounds"} <= set(metrics)
-  plain = jax.eval_shape(Trainer(CONFIG, mesh_lib.make_mesh())._init, jax.random.PRNGKey(0))
+  plain = Trainer(CONFIG, mesh_lib.make_mesh()).abstract_state
   assert plain.learner.duals.log_penalty_temperature is None
 
 
@@ -326,20 +326,20 @@ def test_command_line_trains_resumes_and_refuses_mismatches(tmp_path, capsys):
 def test_lean_checkpoints_hold_no_replay_and_resume(trainers, tmp_path):
   run_dir, quiet = tmp_path / "lean", (lambda *_: None)
   total = 2 * CONFIG.env_steps_per_iteration
-  row = runner.run(CONFIG, str(run_dir), total, max_seconds=1e-3, checkpoint_replay=False,
-                   eval_every=2, print_fn=quiet)  # stops after iteration 1
+  row, = runner.run(CONFIG, str(run_dir), total, max_seconds=1e-3, checkpoint_replay=False,
+                    eval_every=2, print_fn=quiet)  # stops after iteration 1
   assert row["iteration"] == 1
   ckpt_dir, config = str(run_dir / "checkpoints"), json.load(open(run_dir / "config.json"))
-  full = trainers[1].init(jax.random.PRNGKey(0))
+  full = trainers[1].init(jax.random.PRNGKey(0)[None])
   with pytest.raises(checkpoint.CheckpointError):  # no replay or env states stored
     checkpoint.restore(ckpt_dir, full, config)
   lean = checkpoint.restore(ckpt_dir, runner._checkpointed(full, False), config)
   assert int(lean["iteration"]) == 1
-  assert int(lean["learner"].updates) == CONFIG.updates_per_iteration
+  assert int(lean["learner"].updates[0]) == CONFIG.updates_per_iteration
   with pytest.raises(checkpoint.CheckpointError, match="checkpoint_replay"):
     runner.run(CONFIG, str(run_dir), total, resume=True, checkpoint_replay=True, print_fn=quiet)
-  row = runner.run(CONFIG, str(run_dir), total, resume=True, checkpoint_replay=False,
-                   eval_every=2, print_fn=quiet)
+  row, = runner.run(CONFIG, str(run_dir), total, resume=True, checkpoint_replay=False,
+                    eval_every=2, print_fn=quiet)
   assert row["iteration"] == 2 and row["updates"] == 2 * CONFIG.updates_per_iteration
   assert np.isfinite(row["eval_return"])
 
@@ -357,8 +357,8 @@ def test_expert_learns_reacher_easy():
                        eval_envs=64, learner=LearnerConfig(num_action_samples=8,
                                                            target_update_period=50))
   trainer = Trainer(config)
-  state = trainer.init(jax.random.PRNGKey(0))
-  eval_key = jax.random.PRNGKey(1)
+  state = trainer.init(trainer.keys())
+  eval_key = trainer.keys(1)
   before = float(np.mean(trainer.evaluate(state.learner.policy, state.normalizer, eval_key)))
   state, metrics = run_iterations(trainer, state, 100)
   after = float(np.mean(trainer.evaluate(state.learner.policy, state.normalizer, eval_key)))
@@ -375,8 +375,8 @@ def test_demonstrations_from_an_exported_expert(tmp_path, capsys):
   from mjx_form.files import demos
   from mjx_form.rl import runner
   trainer = Trainer(CONFIG)
-  state = trainer.init(jax.random.PRNGKey(0))
-  runner.export_policy(trainer, state, str(tmp_path / "policy.npz"), {"env_steps": 0})
+  state = trainer.init(trainer.keys())
+  runner.export_policy(trainer, state, 0, str(tmp_path / "policy.npz"), {"env_steps": 0})
   cli = load_script("make_demos")
   out = tmp_path / "demos.npz"
   args = ["--policy", str(tmp_path / "policy.npz"), "--out", str(out), "--episodes", "3",

@@ -2,6 +2,9 @@
 checkpoints, resume, and the exported policy. Each step of work is one compiled
 `Trainer.iteration`; nothing here touches per-step data.
 
+A population (several seeds) writes config.json and checkpoints/ (all members) in the run
+directory and everything else per member in <run directory>/seed<s>/.
+
 Run directory layout:
   config.json         the run's TrainConfig (a resumed run must match it)
   progress.csv        one row per logged iteration: env steps, wall clock, steps/s, returns, losses
@@ -28,6 +31,7 @@ import os
 import time
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 from mjx_form.files import checkpoint, experts, policy_io, results
@@ -116,18 +120,30 @@ def check_run_dir(directory: str, resume: bool, also: tuple[str, ...] = ()) -> N
     raise RunError(f"--resume: {directory} holds no run to continue")
 
 
+def member_dirs(directory: str, seeds: tuple[int, ...]) -> list[str]:
+  """Where each member writes its logs and policies: the run directory itself for a single
+  run, <directory>/seed<s> for the members of a population."""
+  if len(seeds) == 1:
+    return [directory]
+  return [os.path.join(directory, f"seed{s}") for s in seeds]
+
+
 def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bool = False,
         log_every: int = 1, eval_every: int = 10, checkpoint_every: int = 50,
         max_seconds: float | None = None, results_path: str | None = None,
         checkpoint_replay: bool = True, final_eval_envs: int = 0, mesh=None, reward_source=None,
-        print_fn=print) -> dict:
-  """Trains until `total_env_steps`; returns the last logged row (with the final evaluation).
+        seeds: tuple[int, ...] | None = None, print_fn=print) -> list[dict]:
+  """Trains until `total_env_steps`; returns each member's last logged row (with its final
+  evaluation).
 
+  `seeds`: run a population, one member per seed, in one compiled program (default:
+  `config.seed` alone). Each member writes progress.csv, policy.npz and best_policy.npz to its
+  own directory (`member_dirs`) and its own records (its seed in them); one checkpoint in
+  `directory` holds every member.
   `reward_source`: where the learner's rewards come from (default: the task reward, by
   `config.reward_source`); its `settings()` are part of the run's checked configuration.
   `final_eval_envs`: once training is finished, the final and the best policy are evaluated
   afresh on this many episodes and written as `kind: final_return` records (0: not).
-
   `max_seconds`: stop once this process has run that long (checked after each iteration);
   the state is checkpointed and the policy exported, so `resume=True` continues the run.
   `results_path`: where `kind: learning_curve` records (one per evaluation) are appended.
@@ -143,21 +159,22 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
     raise RunError(f"max_seconds must be positive, got {max_seconds}")
 
   process_start = time.perf_counter()
-  trainer = Trainer(config, mesh, reward_source)
-  full_config = {**config.to_dict(), "reward": trainer.source.settings(), **run_settings}
+  trainer = Trainer(config, mesh, reward_source, seeds)
+  full_config = {**config.to_dict(), "seeds": list(trainer.seeds),
+                 "reward": trainer.source.settings(), **run_settings}
   restored = None
   if resume and checkpoint.latest_step(ckpt_dir) is not None:  # refused before compiling
     restored = checkpoint.restore(ckpt_dir, _checkpointed(trainer.abstract_state,
                                                           checkpoint_replay),
                                   full_config, ignore=RESUMABLE, added=ADDED_SETTINGS)
-  eval_key = jax.random.PRNGKey(config.seed + 1)
+  eval_keys = trainer.keys(1)
   print_fn("compiling the run's programs (init, iteration, evaluation) ...")
   compile_start = time.perf_counter()
   with results.count_persistent_cache_hits() as cache_hits:
-    trainer.compile_ahead(eval_key)
+    trainer.compile_ahead(eval_keys)
   print_fn(f"compiled in {time.perf_counter() - compile_start:.0f}s"
            + (f" ({cache_hits[0]} programs from the persistent cache)" if cache_hits[0] else ""))
-  state = trainer.init(jax.random.PRNGKey(config.seed))
+  state = trainer.init(trainer.keys())
   # This process's time before its first iteration: building, tracing, compiling, init.
   startup = {"startup_s": time.perf_counter() - process_start,
              "persistent_cache_hits": cache_hits[0]}
@@ -167,21 +184,27 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
   os.makedirs(directory, exist_ok=True)
   with open(config_path, "w") as f:
     json.dump(full_config, f, indent=1)
-  log = CsvLog(directory)
-  wall_offset = log.rewind(int(state.iteration)) if resume else 0.0
+  dirs = member_dirs(directory, trainer.seeds)
+  for d in dirs:
+    os.makedirs(d, exist_ok=True)
+  logs = [CsvLog(d) for d in dirs]
+  wall_offset = max(log.rewind(int(state.iteration)) for log in logs) if resume else 0.0
   curve = results.ResultWriter(results_path) if results_path else None
 
-  best_path = os.path.join(directory, "best_policy.npz")
-  best_return = _best_return(best_path) if resume else -np.inf
+  best_paths = [os.path.join(d, "best_policy.npz") for d in dirs]
+  best_returns = [_best_return(path) if resume else -np.inf for path in best_paths]
   total_iterations = iterations_for(config, total_env_steps)
   steps_per_iteration = config.env_steps_per_iteration
-  print_fn(f"{config.task}: {config.num_envs} envs x {config.unroll_length}-step unrolls, "
-           f"{config.updates_per_iteration} updates per iteration (updates/env step "
+  population = (f"a population of {trainer.members} (seeds "
+                f"{', '.join(map(str, trainer.seeds))}), " if trainer.members > 1 else "")
+  print_fn(f"{config.task}: {population}{config.num_envs} envs x {config.unroll_length}-step "
+           f"unrolls, {config.updates_per_iteration} updates per iteration (updates/env step "
            f"{config.updates_per_env_step:.2e}, replay ratio {config.replay_ratio:.2f}), "
            f"{total_iterations} iterations, physics {config.physics}, "
            f"{trainer.mesh.devices.size} {jax.default_backend()} device(s)")
   start_iteration = int(state.iteration)
-  timed_steps, timed_seconds, eval_seconds, row = 0, 0.0, 0.0, {}
+  timed_steps, timed_seconds, eval_seconds = 0, 0.0, 0.0
+  rows = [{} for _ in dirs]
   while int(state.iteration) < total_iterations:
     t0 = time.perf_counter()
     state, metrics = trainer.iteration(state)
@@ -195,32 +218,38 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
     out_of_time = (max_seconds is not None
                    and time.perf_counter() - process_start >= max_seconds)
     last = finished or out_of_time
-    row = {"iteration": iteration, "env_steps": iteration * steps_per_iteration,
-           "updates": int(state.learner.updates),
-           "steps_per_s": timed_steps / timed_seconds if timed_seconds else float("nan"),
-           **{k: _scalar(v) for k, v in metrics.items()}}
-    if iteration % eval_every == 0 or last:
+    evaluate = iteration % eval_every == 0 or last
+    if evaluate:
       t0 = time.perf_counter()
-      returns = np.asarray(trainer.evaluate(state.learner.policy, state.normalizer, eval_key))
+      returns = np.asarray(trainer.evaluate(state.learner.policy, state.normalizer, eval_keys))
       eval_seconds += time.perf_counter() - t0
-      row.update(eval_return=float(returns.mean()), eval_return_std=float(returns.std()))
-      if row["eval_return"] > best_return:
-        best_return = row["eval_return"]
-        export_policy(trainer, state, best_path, row)
-    # Wall clock of the run so far (compilation and evaluation included); eval_s is the part
-    # spent in evaluation in this process.
-    row["wall_s"] = wall_offset + time.perf_counter() - process_start
-    row["eval_s"] = eval_seconds
+    wall = wall_offset + time.perf_counter() - process_start
     peak = results.peak_memory_bytes()
-    if peak is not None:
-      row["peak_memory_bytes"] = peak
     checkpointed = iteration % checkpoint_every == 0 or last
-    if iteration % log_every == 0 or last or "eval_return" in row or checkpointed:
-      log.write(row)
-      print_fn(_progress_line(row, total_iterations, steps_per_iteration))
-    if curve is not None and "eval_return" in row:
-      _write_curve_point(curve, trainer, row, eval_episodes=returns.size,
-                         total_env_steps=total_env_steps, startup=startup)
+    updates = np.asarray(state.learner.updates)
+    for i, seed in enumerate(trainer.seeds):
+      row = {"iteration": iteration, "env_steps": iteration * steps_per_iteration,
+             "updates": int(updates[i]),
+             "steps_per_s": timed_steps / timed_seconds if timed_seconds else float("nan"),
+             **{k: _scalar(v[i]) for k, v in metrics.items()}}
+      if evaluate:
+        row.update(eval_return=float(returns[i].mean()), eval_return_std=float(returns[i].std()))
+        if row["eval_return"] > best_returns[i]:
+          best_returns[i] = row["eval_return"]
+          export_policy(trainer, state, i, best_paths[i], row)
+      # Wall clock of the run so far (compilation and evaluation included); eval_s is the part
+      # spent in evaluation in this process.
+      row.update(wall_s=wall, eval_s=eval_seconds)
+      if peak is not None:
+        row["peak_memory_bytes"] = peak
+      if iteration % log_every == 0 or last or evaluate or checkpointed:
+        logs[i].write(row)
+        prefix = f"seed {seed}: " if trainer.members > 1 else ""
+        print_fn(prefix + _progress_line(row, total_iterations, steps_per_iteration))
+      if curve is not None and evaluate:
+        _write_curve_point(curve, trainer, seed, row, eval_episodes=returns.shape[1],
+                           total_env_steps=total_env_steps, startup=startup)
+      rows[i] = row
     if checkpointed:
       checkpoint.save(ckpt_dir, iteration, _checkpointed(state, checkpoint_replay), full_config)
     if out_of_time and not finished:
@@ -228,22 +257,35 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
                f"(checkpointed; continue with --resume)")
       break
 
-  export_policy(trainer, state, os.path.join(directory, "policy.npz"), row)
+  for i, d in enumerate(dirs):
+    export_policy(trainer, state, i, os.path.join(d, "policy.npz"), rows[i])
   if final_eval_envs and int(state.iteration) == total_iterations:
-    best = experts.load_expert(best_path, trainer.env)
-    for name, policy, norm in (("final", state.learner.policy, state.normalizer),
-                               ("best", best.params, best.normalizer)):
-      returns = np.asarray(trainer.evaluate(policy, norm, jax.random.PRNGKey(config.seed + 2),
-                                            num_envs=final_eval_envs))
-      row[f"{name}_policy_return"] = float(returns.mean())
-      print_fn(f"fresh evaluation of the {name} policy over {returns.size} episodes: "
-               f"{returns.mean():.1f} +- {returns.std():.1f}")
+    _final_evaluation(trainer, state, best_paths, rows, final_eval_envs, curve,
+                      total_env_steps, print_fn)
+  return rows
+
+
+def _final_evaluation(trainer: Trainer, state, best_paths: list[str], rows: list[dict],
+                      episodes: int, curve, total_env_steps: int, print_fn) -> None:
+  """Every member's final and best policy on `episodes` fresh episodes: kind final_return."""
+  bests = [experts.load_expert(path, trainer.env) for path in best_paths]
+  best_policy = jax.tree.map(lambda *x: jnp.stack(x), *[b.params for b in bests])
+  best_norm = jax.tree.map(lambda *x: jnp.stack(x), *[b.normalizer for b in bests])
+  keys = trainer.keys(2)
+  for name, policy, norm in (("final", state.learner.policy, state.normalizer),
+                             ("best", best_policy, best_norm)):
+    returns = np.asarray(trainer.evaluate(policy, norm, keys, num_envs=episodes))
+    for i, seed in enumerate(trainer.seeds):
+      rows[i][f"{name}_policy_return"] = float(returns[i].mean())
+      prefix = f"seed {seed}: " if trainer.members > 1 else ""
+      print_fn(f"{prefix}fresh evaluation of the {name} policy over {returns.shape[1]} "
+               f"episodes: {returns[i].mean():.1f} +- {returns[i].std():.1f}")
       if curve is not None:
-        curve.write(**_record_base(trainer), kind="final_return", policy=name,
-                    final_return=float(returns.mean()), final_return_std=float(returns.std()),
-                    episodes=int(returns.size), env_steps=row["env_steps"],
-                    wall_s=row["wall_s"], settings=_record_settings(trainer, total_env_steps))
-  return row
+        curve.write(**_record_base(trainer, seed), kind="final_return", policy=name,
+                    final_return=float(returns[i].mean()),
+                    final_return_std=float(returns[i].std()), episodes=int(returns.shape[1]),
+                    env_steps=rows[i]["env_steps"], wall_s=rows[i]["wall_s"],
+                    settings=_record_settings(trainer, seed, total_env_steps))
 
 
 def _progress_line(row: dict, total_iterations: int, steps_per_iteration: int) -> str:
@@ -286,16 +328,16 @@ def learner_preset(config: TrainConfig) -> str:
   return "paper" if config.learner == LearnerConfig() else "custom"
 
 
-def _record_base(trainer: Trainer) -> dict:
+def _record_base(trainer: Trainer, seed: int) -> dict:
   config = trainer.config
   return {"task": config.task, "method": method_name(config), "physics": config.physics,
-          "num_envs": config.num_envs, "seed": config.seed,
-          "learner_preset": learner_preset(config)}
+          "num_envs": config.num_envs, "seed": seed, "learner_preset": learner_preset(config),
+          "population": trainer.members}
 
 
-def _record_settings(trainer: Trainer, total_env_steps: int) -> dict:
+def _record_settings(trainer: Trainer, seed: int, total_env_steps: int) -> dict:
   config = trainer.config
-  return {**config.to_dict(), "reward": trainer.source.settings(),
+  return {**config.to_dict(), "seed": seed, "reward": trainer.source.settings(),
           "updates_per_env_step": config.updates_per_env_step,
           "replay_ratio": config.replay_ratio, "total_env_steps": total_env_steps,
           "devices": trainer.mesh.devices.size}
@@ -311,28 +353,30 @@ _CURVE_FIELDS = (
     "form_reward", "demonstrator_log_prob", "imitator_batch_log_prob", "imitator_log_prob")
 
 
-def _write_curve_point(writer: results.ResultWriter, trainer: Trainer, row: dict, *,
+def _write_curve_point(writer: results.ResultWriter, trainer: Trainer, seed: int, row: dict, *,
                        eval_episodes: int, total_env_steps: int, startup: dict) -> None:
   """One `kind: learning_curve` record: evaluation return at this point of the run.
 
   `startup`: `startup_s`, this process's seconds before its first iteration, and
   `persistent_cache_hits`, the programs it loaded from JAX's persistent compilation cache.
   """
-  settings = {**_record_settings(trainer, total_env_steps), "eval_episodes": eval_episodes}
-  writer.write(kind="learning_curve", **_record_base(trainer), settings=settings, **startup,
+  settings = {**_record_settings(trainer, seed, total_env_steps),
+              "eval_episodes": eval_episodes}
+  writer.write(kind="learning_curve", **_record_base(trainer, seed), settings=settings,
+               **startup,
                **{k: row[k] for k in _CURVE_FIELDS if k in row and np.isfinite(row[k])})
 
 
-def export_policy(trainer: Trainer, state, path: str, row: dict) -> None:
-  """Writes the policy and its observation normaliser (a small, pickle-free file)."""
+def export_policy(trainer: Trainer, state, member: int, path: str, row: dict) -> None:
+  """Writes a member's policy and its observation normaliser (a small, pickle-free file)."""
   env, cfg = trainer.env, trainer.config
-  arrays = {"policy": jax.device_get(state.learner.policy),
-            "normalizer": {"mean": np.asarray(state.normalizer.mean),
-                           "var": np.asarray(state.normalizer.var)}}
+  norm = trainer.member(state.normalizer, member)
+  arrays = {"policy": jax.device_get(trainer.member(state.learner.policy, member)),
+            "normalizer": {"mean": np.asarray(norm.mean), "var": np.asarray(norm.var)}}
   metadata = {"task": cfg.task, "observation_size": env.observation_size,
               "action_size": env.action_size,
               "observation_layout": [[k, v] for k, v in env.observation_layout.items()],
               "network_width": cfg.network_width, "physics": cfg.physics,
               "env_steps": row.get("env_steps"), "eval_return": row.get("eval_return"),
-              "train_config": cfg.to_dict()}
+              "train_config": {**cfg.to_dict(), "seed": trainer.seeds[member]}}
   policy_io.save_policy(path, arrays, metadata, overwrite=True)

@@ -1,6 +1,7 @@
-"""The compiled training loop: N environments, an on-device replay, a reward source, MPO.
+"""The compiled training loop: N environments, an on-device replay, a reward source, MPO;
+for one run or a population of runs (members) side by side in the same program.
 
-One call of `Trainer.iteration` (a single jitted program) does:
+One call of `Trainer.iteration` (a single jitted program) does, for every member:
   1. collect: every environment takes `unroll_length` steps with actions sampled from the
      online policy; the unrolls (observations [N, T+1, D], actions, behaviour log-probs,
      discounts, and the task reward only if the reward source asks for it) go to the replay;
@@ -10,7 +11,8 @@ One call of `Trainer.iteration` (a single jitted program) does:
 Python only loops over iterations (logging, evaluation, checkpoints).
 
 Sharding: environments, replay slots and sampled batches are split over the mesh's batch
-axis; parameters, optimiser states and normaliser are replicated; XLA averages gradients.
+axis (within each member); parameters, optimiser states and normaliser are replicated; XLA
+averages gradients.
 Every random draw is made on global arrays, so a run does not depend on the device count
 beyond float rounding.
 
@@ -114,28 +116,48 @@ class TrainConfig:
 
 
 class TrainState(NamedTuple):
-  learner: learner_lib.LearnerState
-  normalizer: normalizer.NormalizerState
-  replay: replay.ReplayState
-  env: env_lib.State  # batched [N]
-  episode_return: jax.Array  # [N] task return of each env's running episode (for logging);
+  """The state of a population of P runs ("members"; P = 1 for a single run). Every leaf has
+  a leading member axis, but the environments, whose members sit side by side on one axis."""
+
+  learner: learner_lib.LearnerState  # [P, ...]
+  normalizer: normalizer.NormalizerState  # [P, D]
+  replay: replay.ReplayState  # data [P, capacity, ...], position and size [P]
+  env: env_lib.State  # [P * N]: member i's environments are [i * N, (i + 1) * N)
+  episode_return: jax.Array  # [P * N] task return of each env's running episode (for logging);
                              # NaN while an env runs its shortened (staggered) first episode
-  source: Any  # the reward source's state
-  key: jax.Array
-  iteration: jax.Array  # int32 []
+  source: Any  # the reward source's state, [P, ...]
+  key: jax.Array  # [P, 2]
+  iteration: jax.Array  # int32 []: the members take their iterations together
 
 
 class Trainer:
-  """Builds and compiles a run's functions for `config` on `mesh`."""
+  """Builds and compiles the functions of a run, or of a population of runs, for `config` on
+  `mesh`.
 
-  def __init__(self, config: TrainConfig, mesh=None, reward_source=None):
+  A population (`seeds` with several entries) runs one member per seed in one compiled
+  program. Each member has its own environments, replay, networks, optimiser and dual states,
+  normaliser, reward-source state and random stream, and computes what a single run with its
+  seed computes: the learner, normaliser, replay and source are `vmap`ped over the member axis,
+  and the members' environments share one batch, so the auto-reset's `lax.cond` stays one
+  branch taken for all (a `vmap` of it would run every reset at every step).
+  """
+
+  def __init__(self, config: TrainConfig, mesh=None, reward_source=None,
+               seeds: tuple[int, ...] | None = None):
     """`reward_source` overrides the source named by `config.reward_source` (see
-    mjx_form.rl.reward_sources for the interface)."""
+    mjx_form.rl.reward_sources for the interface); `seeds`: the members' seeds (default:
+    `config.seed` alone)."""
     self.mesh = mesh if mesh is not None else mesh_lib.make_mesh()
     config.check(self.mesh.devices.size)
+    self.seeds = tuple(seeds) if seeds is not None else (config.seed,)
+    if not self.seeds or len(set(self.seeds)) != len(self.seeds) or not all(
+        isinstance(s, int) and not isinstance(s, bool) for s in self.seeds):
+      raise ValueError(f"seeds must be distinct integers, got {seeds!r}")
+    self.members = len(self.seeds)
     self.config = config
     self.env = tasks.make(config.task, physics=config.physics)
     self._batch = mesh_lib.batch_sharding(self.mesh)
+    self._member_batch = mesh_lib.member_batch_sharding(self.mesh)
     self.auto_reset = AutoReset(self.env, self._batch)
     self.networks = make_networks(self.env.action_size, config.network_width)
     self.source = reward_source or make_reward_source(config.reward_source)
@@ -143,7 +165,7 @@ class Trainer:
       raise ValueError(f"the config names reward source {config.reward_source!r}, the trainer "
                        f"was given {self.source.name!r}")
     self._replicated = mesh_lib.replicated(self.mesh)
-    abstract = jax.eval_shape(self._init, jax.random.PRNGKey(0))
+    abstract = jax.eval_shape(self._init, self.keys(0))
     self.state_sharding = self._shardings(abstract)
     self.abstract_state = jax.tree.map(  # shapes, dtypes, shardings
         lambda a, s: jax.ShapeDtypeStruct(a.shape, a.dtype, sharding=s), abstract,
@@ -154,19 +176,28 @@ class Trainer:
     self.evaluate = jax.jit(self._evaluate, static_argnames="num_envs",
                             out_shardings=self._replicated)
 
-  def compile_ahead(self, key: jax.Array) -> None:
+  def keys(self, offset: int = 0) -> jax.Array:
+    """[P, 2]: PRNGKey(seed + offset) of each member (offset 0 starts a run, 1 evaluates)."""
+    return jnp.stack([jax.random.PRNGKey(s + offset) for s in self.seeds])
+
+  def compile_ahead(self, keys: jax.Array) -> None:
     """Compiles `init`, `iteration` and `evaluate` at once, in threads, before their first call.
 
     Without it each program compiles at its first call, one after the other; XLA compiles in
     parallel threads (tracing takes turns), so a run starts sooner. The compiled programs land in
-    JAX's cache; the later calls (`key` of the kind that will be passed) reuse them.
+    JAX's cache; the later calls (`keys` [P, 2] of the kind that will be passed) reuse them.
     """
     state = self.abstract_state
-    jobs = [(self.init, (key,)), (self.iteration, (state,)),
-            (self.evaluate, (state.learner.policy, state.normalizer, key))]
+    jobs = [(self.init, (keys,)), (self.iteration, (state,)),
+            (self.evaluate, (state.learner.policy, state.normalizer, keys))]
     with concurrent.futures.ThreadPoolExecutor(len(jobs)) as pool:
-      for future in [pool.submit(lambda f=f, a=a: f.lower(*a).compile()) for f, a in jobs]:
-        future.result()
+      compiled = [f.result() for f in [pool.submit(lambda f=f, a=a: f.lower(*a).compile())
+                                       for f, a in jobs]]
+    check_memory(compiled[1], self.mesh, f"{self.members} member(s) of {self.config.task}")
+
+  def member(self, tree, i: int):
+    """Member i's part of a tree with a leading member axis (e.g. `state.learner`)."""
+    return jax.tree.map(lambda x: x[i], tree)
 
   # --- state ------------------------------------------------------------------------------
 
@@ -178,69 +209,93 @@ class Trainer:
       example["reward"] = jnp.zeros((t,))
     return example
 
-  def _init(self, key: jax.Array) -> TrainState:
+  def _init_member(self, key: jax.Array):
+    """One member's state but its environments, which `_init` starts for all members at once:
+    (TrainState with env=None, its env keys [N, 2], its episode phases [N])."""
     cfg = self.config
     env_key, learner_key, source_key, key = jax.random.split(key, 4)
-    example = self._unroll_example()
     storage = jax.tree.map(lambda x: jnp.zeros((cfg.replay_capacity,) + x.shape, x.dtype),
-                           example)
-    storage = jax.lax.with_sharding_constraint(storage, self._batch)
+                           self._unroll_example())
     key, stagger_key = jax.random.split(key)
-    env_state = self.auto_reset.reset(env_key, cfg.num_envs)
-    episode_return = jnp.zeros((cfg.num_envs,))
+    start = jnp.zeros((cfg.num_envs,), jnp.int32)
     if cfg.stagger_episodes:
       phases = max(1, env_lib.EPISODE_LENGTH // cfg.unroll_length)
       start = cfg.unroll_length * jax.random.randint(stagger_key, (cfg.num_envs,), 0, phases)
+    state = TrainState(
+        learner=learner_lib.init(self.networks, cfg.learner, learner_key,
+                                 self.env.observation_size, self.env.action_size),
+        normalizer=normalizer.init(self.env.observation_size),
+        replay=replay.ReplayState(storage, jnp.zeros((), jnp.int32), jnp.zeros((), jnp.int32)),
+        env=None, episode_return=None,
+        source=self.source.init(source_key, self.env.observation_size, self.env.action_size),
+        key=key, iteration=None)
+    return state, jax.random.split(env_key, cfg.num_envs), start
+
+  def _init(self, keys: jax.Array) -> TrainState:
+    """Fresh members from their keys [P, 2] (`keys()`)."""
+    members, env_keys, start = jax.vmap(self._init_member)(keys)
+    env_state = self.auto_reset.reset_from_keys(env_keys.reshape(-1, 2))  # [P * N]
+    start = start.reshape(-1)
+    episode_return = jnp.zeros(start.shape, jnp.float32)
+    if self.config.stagger_episodes:
       env_state = env_state.replace(info=dict(
           env_state.info, step=start.astype(env_state.info["step"].dtype)))
       # Partial episodes are not reported. (float32, not weak-typed: a weak-typed leaf here
       # would differ from the iteration's output and make its second call compile again.)
       episode_return = jnp.where(start > 0, jnp.nan, 0.0).astype(jnp.float32)
-    env_state = jax.lax.with_sharding_constraint(env_state, self._batch)
-    return TrainState(
-        learner=learner_lib.init(self.networks, cfg.learner, learner_key,
-                                 self.env.observation_size, self.env.action_size),
-        normalizer=normalizer.init(self.env.observation_size),
-        replay=replay.ReplayState(storage, jnp.zeros((), jnp.int32), jnp.zeros((), jnp.int32)),
-        env=env_state,
+    return members._replace(
+        replay=members.replay._replace(
+            data=jax.lax.with_sharding_constraint(members.replay.data, self._member_batch)),
+        env=jax.lax.with_sharding_constraint(env_state, self._batch),
         episode_return=jax.lax.with_sharding_constraint(episode_return, self._batch),
-        source=self.source.init(source_key, self.env.observation_size, self.env.action_size),
-        key=key, iteration=jnp.zeros((), jnp.int32))
+        iteration=jnp.zeros((), jnp.int32))
 
   def _shardings(self, abstract: TrainState) -> TrainState:
     rep = lambda tree: jax.tree.map(lambda _: self._replicated, tree)
     bat = lambda tree: jax.tree.map(lambda _: self._batch, tree)
     return TrainState(
         learner=rep(abstract.learner), normalizer=rep(abstract.normalizer),
-        replay=replay.ReplayState(bat(abstract.replay.data), self._replicated, self._replicated),
+        replay=replay.ReplayState(jax.tree.map(lambda _: self._member_batch,
+                                               abstract.replay.data),
+                                  self._replicated, self._replicated),
         env=bat(abstract.env), episode_return=self._batch, source=rep(abstract.source),
         key=self._replicated, iteration=self._replicated)
 
   # --- one iteration ----------------------------------------------------------------------
 
-  def _collect(self, state: TrainState, key: jax.Array):
-    """`unroll_length` steps of every env with the online policy; (env, returns, unrolls, stats)."""
-    policy = self.networks.policy
+  def _policies(self, policy_params, norm, obs: jax.Array):
+    """Each member's policy on its environments: obs [P * N, D] -> DiagonalGaussian [P, N, A]."""
+    obs = obs.reshape((self.members, -1, obs.shape[-1]))
+    apply = lambda params, norm, obs: self.networks.policy.apply(
+        params, normalizer.normalize(norm, obs))
+    return jax.vmap(apply)(policy_params, norm, obs)
 
-    def step(carry, key):
+  def _collect(self, state: TrainState, keys: jax.Array):
+    """`unroll_length` steps of every env with its member's online policy; keys [P, 2].
+    Returns (env, returns, unrolls [P, N, ...], stats [P])."""
+    p, t = self.members, self.config.unroll_length
+
+    def step(carry, key):  # key [P, 2]
       env_state, running = carry
-      pi = policy.apply(state.learner.policy, normalizer.normalize(state.normalizer,
-                                                                   env_state.obs))
-      action = pi.sample(key)  # [N, A]
+      pi = self._policies(state.learner.policy, state.normalizer, env_state.obs)
+      action = jax.vmap(lambda pi, k: pi.sample(k))(pi, key)  # [P, N, A]
+      log_prob = pi.log_prob(action).reshape(-1)  # [P * N]
+      action = action.reshape((-1, action.shape[-1]))  # [P * N, A]
       stepped = self.auto_reset.step(env_state, action)
       running = running + stepped.reward
       done = stepped.done > 0
       whole = done & jnp.isfinite(running)  # a whole episode ended (not a staggered first one)
-      out = {"observation": env_state.obs, "action": action,
-             "behaviour_log_prob": pi.log_prob(action), "reward": stepped.reward,
-             "done": done, "whole": whole, "error": stepped.info["physics_error"] > 0,
+      out = {"observation": env_state.obs, "action": action, "behaviour_log_prob": log_prob,
+             "reward": stepped.reward, "done": done, "whole": whole,
+             "error": stepped.info["physics_error"] > 0,
              "finished_return": jnp.where(whole, running, 0.0)}
       return (stepped, jnp.where(done, 0.0, running)), out
 
-    keys = jax.random.split(key, self.config.unroll_length)
-    (env_state, running), traj = jax.lax.scan(step, (state.env, state.episode_return), keys)
-    # traj leaves are time-major [T, N, ...]. The last observation is the true successor of the
-    # last step: the ended episode's final observation where an episode ended there.
+    step_keys = jnp.swapaxes(jax.vmap(lambda k: jax.random.split(k, t))(keys), 0, 1)  # [T, P, 2]
+    (env_state, running), traj = jax.lax.scan(step, (state.env, state.episode_return),
+                                              step_keys)
+    # traj leaves are time-major [T, P * N, ...]. The last observation is the true successor of
+    # the last step: the ended episode's final observation where an episode ended there.
     observation = jnp.concatenate([traj["observation"], env_state.info["final_obs"][None]])
     discount = 1.0 - traj["done"].astype(jnp.float32)
     discount = discount.at[-1].set(1.0 - traj["error"][-1].astype(jnp.float32))
@@ -248,41 +303,51 @@ class Trainer:
                "behaviour_log_prob": traj["behaviour_log_prob"], "discount": discount}
     if self.source.needs_task_reward:
       unrolls["reward"] = traj["reward"]
-    unrolls = jax.tree.map(lambda x: jnp.swapaxes(x, 0, 1), unrolls)  # [N, T(+1), ...]
-    unrolls = jax.lax.with_sharding_constraint(unrolls, self._batch)
-    episodes, whole = jnp.sum(traj["done"]), jnp.sum(traj["whole"])
+    by_member = lambda x: x.reshape((x.shape[0], p, -1) + x.shape[2:])  # [T, P, N, ...]
+    unrolls = jax.tree.map(lambda x: jnp.moveaxis(by_member(x), 0, 2), unrolls)  # [P, N, T..]
+    unrolls = jax.lax.with_sharding_constraint(unrolls, self._member_batch)
+    traj = jax.tree.map(by_member, traj)
+    total = lambda x: jnp.sum(x, axis=(0, 2))  # [P]
+    episodes, whole = total(traj["done"]), total(traj["whole"])
     stats = {"episodes": episodes,
              # NaN in an iteration where no whole episode ended (not a return of 0)
-             "train_return": jnp.where(whole > 0, jnp.sum(traj["finished_return"])
+             "train_return": jnp.where(whole > 0, total(traj["finished_return"])
                                        / jnp.maximum(whole, 1), jnp.nan),
-             "train_reward": jnp.mean(traj["reward"]),
-             "physics_errors": jnp.sum(traj["error"])}
+             "train_reward": jnp.mean(traj["reward"], axis=(0, 2)),
+             "physics_errors": total(traj["error"])}
     return env_state, running, unrolls, stats
 
-  def _iteration(self, state: TrainState) -> tuple[TrainState, dict]:
+  def _learn(self, learner, source, norm, buffer, keys: jax.Array):
+    """One learner update of every member; keys [P, 2]. Returns (learner, source, metrics)."""
     cfg = self.config
-    key, collect_key, learn_key = jax.random.split(state.key, 3)
+    sample_key, source_key, update_key = jnp.moveaxis(
+        jax.vmap(lambda k: jax.random.split(k, 3))(keys), 1, 0)  # [3, P, 2]
+    batch = jax.vmap(lambda b, k: replay.sample(b, k, cfg.batch_size))(buffer, sample_key)
+    batch = jax.lax.with_sharding_constraint(batch, self._member_batch)  # [P, B, ...]
+    source, source_metrics = jax.vmap(self.source.update)(source, batch, source_key)
+    rewards, reward_metrics = jax.vmap(self.source.relabel)(source, batch)
+    update = lambda *args: learner_lib.update(self.networks, cfg.learner, *args)
+    learner, metrics = jax.vmap(update)(learner, norm, batch, rewards, update_key)
+    return learner, source, {**metrics, **source_metrics, **reward_metrics}
+
+  def _iteration(self, state: TrainState) -> tuple[TrainState, dict]:
+    """One iteration of every member; metrics are [P] arrays."""
+    cfg = self.config
+    key, collect_key, learn_key = jnp.moveaxis(
+        jax.vmap(lambda k: jax.random.split(k, 3))(state.key), 1, 0)  # [3, P, 2]
     env_state, running, unrolls, stats = self._collect(state, collect_key)
-    norm = normalizer.update(state.normalizer, unrolls["observation"][:, :-1],
-                             cfg.normalizer_decay)
-    buffer = replay.insert(state.replay, unrolls)
+    norm = jax.vmap(lambda n, obs: normalizer.update(n, obs, cfg.normalizer_decay))(
+        state.normalizer, unrolls["observation"][:, :, :-1])
+    buffer = jax.vmap(replay.insert)(state.replay, unrolls)
 
-    def learn(carry, key):
-      learner, source = carry
-      sample_key, source_key, update_key = jax.random.split(key, 3)
-      batch = replay.sample(buffer, sample_key, cfg.batch_size)
-      batch = jax.lax.with_sharding_constraint(batch, self._batch)
-      source, source_metrics = self.source.update(source, batch, source_key)
-      rewards, reward_metrics = self.source.relabel(source, batch)
-      source_metrics = {**source_metrics, **reward_metrics}
-      learner, metrics = learner_lib.update(self.networks, cfg.learner, learner, norm, batch,
-                                            rewards, update_key)
-      return (learner, source), {**metrics, **source_metrics}
+    def learn(carry, keys):
+      learner, source, metrics = self._learn(*carry, norm, buffer, keys)
+      return (learner, source), metrics
 
-    (learner, source), metrics = jax.lax.scan(
-        learn, (state.learner, state.source),
-        jax.random.split(learn_key, cfg.updates_per_iteration))
-    metrics = {**jax.tree.map(jnp.mean, metrics), **stats}
+    learn_keys = jax.vmap(lambda k: jax.random.split(k, cfg.updates_per_iteration))(learn_key)
+    (learner, source), metrics = jax.lax.scan(learn, (state.learner, state.source),
+                                              jnp.swapaxes(learn_keys, 0, 1))  # [U, P, 2]
+    metrics = {**jax.tree.map(lambda m: jnp.mean(m, axis=0), metrics), **stats}
     state = TrainState(learner=learner, normalizer=norm, replay=buffer, env=env_state,
                        episode_return=running, source=source, key=key,
                        iteration=state.iteration + 1)
@@ -290,23 +355,51 @@ class Trainer:
 
   # --- evaluation -------------------------------------------------------------------------
 
-  def _evaluate(self, policy_params, norm: normalizer.NormalizerState, key: jax.Array,
+  def _evaluate(self, policy_params, norm: normalizer.NormalizerState, keys: jax.Array,
                 num_envs: int | None = None) -> jax.Array:
-    """Task returns [num_envs] (default eval_envs) of full episodes with the policy's mean
-    action."""
+    """Task returns [P, num_envs] (default eval_envs) of full episodes with each member's
+    policy's mean action; policy_params and norm [P, ...], keys [P, 2] (`keys(1)`)."""
     n = num_envs or self.config.eval_envs
-    states = self.auto_reset.reset(key, n)  # (its info keys too: the same env.step trace)
-    states = jax.lax.with_sharding_constraint(states, self._batch)
+    reset_keys = jax.vmap(lambda k: jax.random.split(k, n))(keys).reshape(-1, 2)
+    states = self.auto_reset.reset_from_keys(reset_keys)  # (its info keys too: and the
+    states = jax.lax.with_sharding_constraint(states, self._batch)  # sharding: one step trace)
 
     def step(carry, _):
       env_state, total = carry
-      pi = self.networks.policy.apply(policy_params, normalizer.normalize(norm, env_state.obs))
-      env_state = jax.vmap(self.env.step)(env_state, pi.mode())
+      action = self._policies(policy_params, norm, env_state.obs).mode()
+      env_state = jax.vmap(self.env.step)(env_state, action.reshape((-1, action.shape[-1])))
       return (env_state, total + env_state.reward), None
 
-    (_, total), _ = jax.lax.scan(step, (states, jnp.zeros((n,))), None,
+    (_, total), _ = jax.lax.scan(step, (states, jnp.zeros(reset_keys.shape[:1])), None,
                                  length=env_lib.EPISODE_LENGTH)
-    return total
+    return total.reshape((self.members, n))
+
+
+def program_bytes(compiled) -> int | None:
+  """Device memory a compiled program needs per device (arguments, outputs, temporaries; XLA's
+  own analysis), or None where the backend does not say."""
+  try:
+    m = compiled.memory_analysis()
+  except (AttributeError, NotImplementedError, RuntimeError):
+    return None
+  if m is None:
+    return None
+  return (m.argument_size_in_bytes + m.output_size_in_bytes + m.temp_size_in_bytes
+          - m.alias_size_in_bytes)
+
+
+def check_memory(compiled, mesh, what: str, limit: int | None = None) -> None:
+  """Refuses, before it runs, a program that needs more device memory than a device of `mesh`
+  has (`limit`: default the device's own `bytes_limit`; the CPU reports none: no check)."""
+  if limit is None:
+    stats = mesh.devices.flat[0].memory_stats() if hasattr(mesh.devices.flat[0],
+                                                           "memory_stats") else None
+    limit = (stats or {}).get("bytes_limit")
+  needed = program_bytes(compiled)
+  if limit and needed and needed > limit:
+    raise ValueError(f"{what}: one training iteration needs {needed / 2**30:.1f} GiB per "
+                     f"device, a device has {limit / 2**30:.1f} GiB; use fewer members, fewer "
+                     "environments or a smaller replay")
 
 
 def iterations_for(config: TrainConfig, env_steps: int) -> int:

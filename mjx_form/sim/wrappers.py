@@ -43,8 +43,12 @@ class AutoReset:
 
   def reset(self, key: jax.Array, num_envs: int) -> State:
     """`num_envs` independent fresh starts; every leaf gets a leading (num_envs,) axis."""
-    state = jax.vmap(self.env.reset)(self._constrain(jax.random.split(key, num_envs)))
-    info = dict(state.info, final_obs=state.obs, physics_errors=jnp.zeros((num_envs,)))
+    return self.reset_from_keys(jax.random.split(key, num_envs))
+
+  def reset_from_keys(self, keys: jax.Array) -> State:
+    """One fresh start per key of keys [num_envs, 2] (`reset` splits one key into them)."""
+    state = jax.vmap(self.env.reset)(self._constrain(keys))
+    info = dict(state.info, final_obs=state.obs, physics_errors=jnp.zeros(keys.shape[:1]))
     return state.replace(info=info)
 
   def step(self, state: State, action: jax.Array) -> State:
