@@ -1,6 +1,7 @@
 """FORM in the compiled loop: the reward, episode boundaries in the replay's unrolls, training
-that never sees the task reward, and `scripts/run.py --method form` through every stage
-(reacher_easy, small sizes; the loop runs over the 2 forced host devices)."""
+that never sees the task reward, and `scripts/run.py --method form` through every stage, from
+the README's main command on (reacher_easy, small sizes; the loop runs over the 2 forced host
+devices)."""
 
 import json
 
@@ -9,10 +10,11 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 from conftest import load_script
+from test_readme_commands import run_commands
 
 import tasks
 from mjx_form import mesh as mesh_lib
-from mjx_form.files import checkpoint, demos, effect_models, policy_io
+from mjx_form.files import checkpoint, demos, effect_models
 from mjx_form.imitation import effect_model as em
 from mjx_form.imitation.form import Demonstrator, FormReward
 from mjx_form.rl import normalizer
@@ -22,7 +24,7 @@ from tasks import reacher
 
 pytestmark = pytest.mark.xdist_group("form")
 
-CONFIG = TrainConfig(task="reacher_easy", reward_source="form", num_envs=4, unroll_length=10,
+CONFIG = TrainConfig(task="reacher_easy", reward_source="form", num_envs=4, unroll_length=50,
                      batch_size=4, replay_capacity=12, updates_per_iteration=2,
                      network_width=32, eval_envs=2,
                      learner=LearnerConfig(num_action_samples=4, target_update_period=3))
@@ -98,16 +100,17 @@ def test_unrolls_mark_every_episode_end_for_the_effect_models(form_trainer):
   trainer = form_trainer
   state = trainer.init(jax.random.PRNGKey(0)[None])
   env = state.env
-  steps = jnp.asarray([995, 990, 0, 0], env.info["step"].dtype)  # 995: ends after 5 steps
+  steps = jnp.asarray([995, 950, 0, 0], env.info["step"].dtype)
   qvel = env.data.qvel.at[2].set(jnp.nan)  # env 2: a physics error at its first step
   env = env.replace(data=env.data.replace(qvel=qvel), info=dict(env.info, step=steps))
   _, _, unrolls, stats = jax.jit(trainer._collect)(state._replace(env=env),
                                                    jax.random.PRNGKey(1)[None])
   unrolls = trainer.member(unrolls, 0)  # [N, T(+1), ...] of the one member
   assert int(stats["physics_errors"][0]) == 1
-  boundaries = {0: [4], 1: [], 2: [0], 3: []}  # transitions whose successor is a new episode
+  # transitions whose successor starts a new episode (995: after 5 steps; 950: on the last)
+  boundaries = {i: [] for i in range(CONFIG.num_envs)} | {0: [4], 2: [0]}
   t = CONFIG.unroll_length
-  expected = np.zeros((5, 4, t))
+  expected = np.zeros((5, CONFIG.num_envs, t))
   for i, ends in boundaries.items():
     for d in range(1, 6):
       for s in range(t):
@@ -119,6 +122,7 @@ def test_unrolls_mark_every_episode_end_for_the_effect_models(form_trainer):
   velocity = np.asarray(unrolls["observation"])[..., 4:]
   assert not velocity[0, 5].any() and not velocity[2, 1].any()
   assert velocity[1, -1].all() and velocity[3, 1:].all()
+  assert np.asarray(stats["episodes"])[0] >= 3  # env 0, 1 and 2 at least
 
 
 def test_training_never_sees_the_task_reward(form_trainer, monkeypatch):
@@ -140,38 +144,72 @@ def test_training_never_sees_the_task_reward(form_trainer, monkeypatch):
   assert np.isfinite(metrics[-1]["form_reward"][0]) and metrics[-1]["imitator_log_prob"][0] != 0
 
 
-def _cli_args(run_dir, *extra):
-  return ["--task", "reacher_easy", "--num_envs", "4", "--unroll_length", "10",
-          "--batch_size", "4", "--replay_capacity", "12", "--updates_per_iteration", "2",
-          "--network_width", "32", "--num_action_samples", "4", "--target_update_period", "3",
-          "--eval_envs", "2", "--eval_every", "2", "--checkpoint_every", "1",
-          "--final_eval_envs", "2", "--env_steps", "80", "--run_dir", str(run_dir), *extra]
+def _readme_args(run_dir, *extra):
+  """The README's main command, shortened to one iteration, in `run_dir`."""
+  argv = run_commands()[0]
+  steps = argv.index("--env_steps") + 1
+  args = load_script("run").parse_args(argv)
+  one_iteration = str(args.num_envs * args.unroll_length)
+  return argv[:steps] + [one_iteration] + argv[steps + 1:] + ["--run_dir", str(run_dir),
+                                                              *extra]
 
 
 def test_form_command_line_runs_every_stage(tmp_path, capsys):
-  """The default method is FORM: the shipped expert is recorded, a demonstrator is trained on
-  its demonstrations and kept in the run directory, MPO imitates; then each stage starts from
-  saved artefacts, a run resumes, and mismatched or damaged artefacts are refused."""
+  """The README's main command (the default method, FORM): the shipped expert's
+  demonstrations check the shipped demonstrator, MPO imitates, the policies are evaluated
+  afresh; the run resumes; a demonstrator is trained where asked, kept in the run directory;
+  each stage starts from saved artefacts; mismatched or damaged artefacts are refused."""
   cli = load_script("run")
-  run_dir, curve, saved = tmp_path / "run", tmp_path / "curve.jsonl", tmp_path / "demos.npz"
-  assert cli.main(_cli_args(run_dir, "--demo_episodes", "3", "--save_demos", str(saved),
-                            "--demonstrator_steps", "20", "--demonstrator_eval_every", "10",
-                            "--results", str(curve))) == 0
+  first, curve = tmp_path / "readme", tmp_path / "curve.jsonl"
+  saved = tmp_path / "demos.npz"
+  readme = cli.parse_args(_readme_args(first))
+  k, final_episodes = readme.demo_episodes, readme.final_eval_envs
+  assert cli.main(_readme_args(first, "--results", str(curve), "--save_demos", str(saved))) == 0
   out = capsys.readouterr().out
-  for expected in ("recording 3 episodes of the expert", "demonstrator step 20",
-                   "demonstrator written to", "form reward", "eval",
-                   "fresh evaluation of the final policy over 2 episodes",
-                   "fresh evaluation of the best policy over 2 episodes", "done:"):
+  for expected in (f"recording {k} episodes of the expert",
+                   "tasks/demonstrators/reacher_easy.npz",
+                   f"its log-likelihood on this run's {k} demonstrations", "form reward",
+                   f"fresh evaluation of the final policy over {final_episodes} episodes",
+                   "done:"):
+    assert expected in out, expected
+  shipped = effect_models.load_effect_model(tasks.bundled_demonstrator("reacher_easy"))
+  assert (first / "demonstrator.npz").read_bytes() == open(
+      tasks.bundled_demonstrator("reacher_easy"), "rb").read()
+  records = [json.loads(line) for line in open(curve)]
+  assert [r["kind"] for r in records] == ["learning_curve", "final_return", "final_return"]
+  assert all(r["method"] == "form" for r in records)
+  assert all(np.isfinite(records[0][k]) for k in ("form_reward", "demonstrator_log_prob",
+                                                  "imitator_batch_log_prob", "eval_return"))
+  assert records[0]["settings"]["reward"]["demonstrator_sha256"] == shipped.metadata["sha256"]
+  assert records[0]["learner_preset"] == "custom"
+  assert [r["policy"] for r in records[1:]] == ["final", "best"]
+  assert records[1]["episodes"] == final_episodes and np.isfinite(records[1]["final_return"])
+  # Resume: the kept demonstrator is used; the run continues from its checkpoint.
+  assert cli.main(_readme_args(first, "--env_steps", str(2 * readme.env_steps), "--resume",
+                               "--final_eval_envs", "0")) == 0
+  assert "resumed from iteration 1" in capsys.readouterr().out
+  assert checkpoint.latest_step(str(first / "checkpoints")) == 2
+
+  # Stages from saved artefacts: the first run's demonstrations train a demonstrator, kept in
+  # the run directory.
+  run_dir = tmp_path / "trained"
+  assert cli.main(_readme_args(run_dir, "--demos", str(saved), "--train_demonstrator",
+                               "--demonstrator_steps", "20", "--demonstrator_eval_every", "10",
+                               "--results", str(curve))) == 0
+  out = capsys.readouterr().out
+  for expected in (f"demonstrations: {k} episodes from", "demonstrator step 20",
+                   "demonstrator written to"):
     assert expected in out, expected
   demonstrator = effect_models.load_effect_model(run_dir / "demonstrator.npz",
                                                  task="reacher_easy")
   meta = demonstrator.metadata
-  assert meta["config"]["width"] == 32 and meta["training"]["steps"] == 20
-  assert meta["training"]["batch_size"] == 4 and meta["training"]["window"] == 10
-  assert meta["demonstrations"]["episodes"] == 3
+  assert meta["config"] == shipped.metadata["config"] and meta["training"]["steps"] == 20
+  assert (meta["training"]["batch_size"], meta["training"]["window"]) == (readme.batch_size,
+                                                                          readme.unroll_length)
+  assert meta["demonstrations"]["episodes"] == k and meta["demonstrations"]["file"] == "demos.npz"
   assert meta["demonstrations"]["expert"]["policy_file"] == "reacher_easy.npz"
-  assert demos.load_demonstrations(saved, task="reacher_easy").metadata["episodes"] == 3
-  records = [json.loads(line) for line in open(curve)]
+  assert demos.load_demonstrations(saved, task="reacher_easy").actions.shape == (k, 1000, 2)
+  records = [json.loads(line) for line in open(curve)][3:]
   kinds = [r["kind"] for r in records]
   assert kinds == ["effect_model", "learning_curve", "final_return", "final_return"]
   assert len(records[0]["heldout_log_likelihood"]) == 5 and records[0]["steps"] == 20
@@ -181,23 +219,7 @@ def test_form_command_line_runs_every_stage(tmp_path, capsys):
   assert records[1]["settings"]["reward"]["demonstrator_sha256"] == meta["sha256"]
   assert records[1]["learner_preset"] == "custom"
   assert [r["policy"] for r in records[2:]] == ["final", "best"]
-  assert records[2]["episodes"] == 2 and np.isfinite(records[2]["final_return"])
-  stored = checkpoint.read_info(str(run_dir / "checkpoints"))
-  assert stored["step"] == 2
-  # Resume: the kept demonstrator is used; the run continues from its checkpoint.
-  assert cli.main(_cli_args(run_dir, "--env_steps", "120", "--resume")) == 0
-  assert "resumed from iteration 2" in capsys.readouterr().out
-
-  # Each stage from saved artefacts: the demonstrations and the demonstrator of the first run
-  # (checked on the demonstrations: its log-likelihood on them is printed).
-  second = tmp_path / "second"
-  assert cli.main(_cli_args(second, "--demos", str(saved), "--demonstrator",
-                            str(run_dir / "demonstrator.npz"))) == 0
-  out = capsys.readouterr().out
-  assert "demonstrations: 3 episodes from" in out
-  assert "its log-likelihood on this run's 3 demonstrations by offset" in out
-  assert (second / "demonstrator.npz").read_bytes() == (run_dir / "demonstrator.npz").read_bytes()
-  assert policy_io.load_policy(second / "policy.npz", task="reacher_easy")
+  assert records[2]["episodes"] == final_episodes and np.isfinite(records[2]["final_return"])
 
   # Refusals: exit code 2, the file and the mismatch named, nothing written.
   other_task = tmp_path / "cheetah_demonstrator.npz"
@@ -221,18 +243,18 @@ def test_form_command_line_runs_every_stage(tmp_path, capsys):
   ]
   for extra, message in refusals:
     target = tmp_path / "refused"
-    assert cli.main(_cli_args(target, *extra)) == 2, extra
+    assert cli.main(_readme_args(target, *extra)) == 2, extra
     err = capsys.readouterr().err
     assert message in err, (extra, err)
     assert not target.exists(), extra
   # A task without a shipped expert says which one is missing and how to train it.
   target = tmp_path / "humanoid"
-  assert cli.main(_cli_args(target, "--task", "humanoid_run")) == 2
+  assert cli.main(_readme_args(target, "--task", "humanoid_run")) == 2
   err = capsys.readouterr().err
   assert "no shipped expert for 'humanoid_run'" in err and "--method expert" in err
   assert not target.exists()
   # An existing run is not overwritten.
   before = (run_dir / "demonstrator.npz").read_bytes()
-  assert cli.main(_cli_args(run_dir)) == 2
+  assert cli.main(_readme_args(run_dir)) == 2
   assert "--resume" in capsys.readouterr().err
   assert (run_dir / "demonstrator.npz").read_bytes() == before

@@ -1,6 +1,6 @@
 """The README's `scripts/run.py` command lines parse, and their training settings pass the
-config checks (a renamed or removed flag breaks this test, not a reader's first run); its main
-command runs."""
+config checks (a renamed or removed flag breaks this test, not a reader's first run). The main
+command itself runs in tests/test_form.py."""
 
 import os
 import shlex
@@ -42,18 +42,3 @@ def test_readme_run_commands_parse_and_pass_the_checks():
     if args.method in ("expert", "form"):
       run.train_config(args).check(1)
 
-
-def test_readme_main_command_runs_every_stage(tmp_path, capsys):
-  """The README's main job, shortened to one iteration: the shipped expert's demonstrations
-  check the shipped demonstrator, one iteration of imitation, the fresh evaluations."""
-  run = load_script("run")
-  argv = run_commands()[0]
-  steps = argv.index("--env_steps") + 1
-  args = run.parse_args(argv)
-  one_iteration = str(args.num_envs * args.unroll_length)
-  argv = argv[:steps] + [one_iteration] + argv[steps + 1:] + ["--run_dir", str(tmp_path / "r")]
-  assert run.main(argv) == 0
-  out = capsys.readouterr().out
-  assert "recording" in out and "tasks/demonstrators/reacher_easy.npz" in out, out
-  assert "its log-likelihood on this run's" in out and "form reward" in out
-  assert "fresh evaluation of the final policy" in out and "done:" in out

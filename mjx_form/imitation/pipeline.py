@@ -115,15 +115,15 @@ def prepare(env, config: em.EffectModelConfig, explicit: dict, artefacts: Artefa
     file = _load(kept, env)
     return FormReward(*_demonstrator(file, kept, explicit), file.metadata["sha256"])
 
-  path = artefacts.demonstrator
+  path, file = artefacts.demonstrator, None
   shipped = tasks.bundled_demonstrator(env.name)
   if path is None and shipped is not None and not artefacts.train_demonstrator:
-    settings = _load(shipped, env).metadata["config"]
-    if settings == dataclasses.asdict(config):
+    file = _load(shipped, env)
+    if file.metadata["config"] == dataclasses.asdict(config):
       path = shipped
     else:
       print_fn(f"the shipped demonstrator {shipped} was trained with other settings "
-               f"({settings}); training one with this run's")
+               f"({file.metadata['config']}); training one with this run's")
   episodes = artefacts.demo_episodes or (DEFAULT_CHECK_EPISODES if path
                                          else DEFAULT_TRAINING_EPISODES)
   can_record = artefacts.demos is not None or artefacts.expert is not None or (
@@ -136,11 +136,12 @@ def prepare(env, config: em.EffectModelConfig, explicit: dict, artefacts: Artefa
 
   if path is None:  # train one; it is written to the run directory
     os.makedirs(run_dir, exist_ok=True)
-    file = train_demonstrator(env, config, demos_obs, demos_info, artefacts.training, physics, seed,
-                  results_path, print_fn, kept)
+    file = train_demonstrator(env, config, demos_obs, demos_info, artefacts.training, physics,
+                              seed, results_path, print_fn, kept)
     return FormReward(*_demonstrator(file, kept, explicit), file.metadata["sha256"])
 
-  file = _load(path, env)
+  if file is None or path != shipped:  # (the shipped one is read already)
+    file = _load(path, env)
   config, demonstrator = _demonstrator(file, path, explicit)
   print_fn(f"demonstrator {path}: best of {file.metadata['training'].get('steps')} training "
            f"steps at step {file.metadata['training'].get('best_step')}, held-out "
