@@ -47,7 +47,7 @@ from mjx_form.sim.wrappers import AutoReset  # noqa: E402
 METHODS = ("form", "expert", "random")
 # Options that only --method form reads (a user who gives one to another method is told so).
 FORM_ONLY = ("expert", "demos", "demo_episodes", "save_demos", "demonstrator",
-             "train_demonstrator", "beta_ar", "effect_l2")
+             "train_demonstrator", "beta_ar", "effect_l2", "standardise_reward")
 
 DEFAULT_COMPILATION_CACHE = os.path.join(
     os.environ.get("XDG_CACHE_HOME", os.path.expanduser("~/.cache")), "mjx_form", "jax")
@@ -162,6 +162,9 @@ def parse_args(argv=None) -> argparse.Namespace:
                          "mjx_form/imitation/settings.py)")
   form.add_argument("--effect_l2", type=float, default=None,
                     help="effect models' L2 weight (default: per task)")
+  form.add_argument("--standardise_reward", action="store_true",
+                    help="give the learner the FORM reward standardised by its running mean "
+                         "and standard deviation (mjx_form/imitation/form.py)")
   steps = demonstrator_lib.DemonstratorTraining()
   form.add_argument("--demonstrator_steps", type=int, default=steps.max_steps,
                     help="most gradient steps of demonstrator training (it stops earlier when "
@@ -233,7 +236,8 @@ def form_source(args: argparse.Namespace, run_dir: str, results_path: str, print
       save_demos=args.save_demos, training=training)
   return pipeline.prepare(tasks.make(args.task, physics=args.physics), config, explicit,
                           artefacts, run_dir, resume=args.resume, physics=args.physics,
-                          seed=args.seed, results_path=results_path, print_fn=print_fn)
+                          seed=args.seed, results_path=results_path,
+                          standardise_reward=args.standardise_reward, print_fn=print_fn)
 
 
 def random_rollout(args: argparse.Namespace, mesh) -> dict:

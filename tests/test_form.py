@@ -86,6 +86,36 @@ def test_relabel_is_the_difference_of_the_two_log_densities():
                                                       "discount": discount})[0], 0.0)
 
 
+def test_standardised_reward_uses_the_running_statistics_of_the_raw_reward():
+  """With standardise_reward the learner gets (r - m) / s, m and s the bias-corrected EMA
+  (decay 0.99 per batch) of the raw reward over the valid transitions of the batches so far,
+  each batch's rewards taken under the imitator after that batch's step (numpy reference)."""
+  plain = FormReward(EFFECT, _demonstrator(0))
+  scaled = FormReward(EFFECT, _demonstrator(0), standardise_reward=True)
+  assert plain.settings()["standardise_reward"] is False
+  assert scaled.settings()["standardise_reward"] is True
+  state = plain.init(jax.random.PRNGKey(1), D, 2)
+  rng, kept = np.random.default_rng(3), []
+  for i in range(5):
+    obs = jnp.asarray(rng.normal(size=(3, 6, D)) * (1 + i), jnp.float32)
+    discount = jnp.asarray(rng.random((3, 5)) > 0.2, jnp.float32)
+    batch = {"observation": obs, "discount": discount}
+    state, _ = plain.update(state, batch, jax.random.PRNGKey(10 + i))
+    raw, raw_metrics = plain.relabel(state, batch)
+    kept.append(np.asarray(raw, np.float64)[np.asarray(discount) > 0])
+  decay, t = EFFECT.normalizer_decay, len(kept)
+  w = (1 - decay) * decay ** (t - np.arange(1, t + 1)) / (1 - decay ** t)
+  mean = sum(wi * k.mean() for wi, k in zip(w, kept))
+  var = sum(wi * (k ** 2).mean() for wi, k in zip(w, kept)) - mean ** 2
+  rewards, metrics = scaled.relabel(state, batch)
+  valid = np.asarray(discount) > 0
+  expected = np.where(valid, (np.asarray(raw) - mean) / np.sqrt(var + 1e-6), 0.0)
+  np.testing.assert_allclose(rewards, expected, rtol=1e-4, atol=1e-4)
+  assert abs(float(np.std(expected[valid])) - 1.0) < 0.8 and float(np.std(raw)) > 2.0
+  np.testing.assert_allclose(metrics["form_reward"], raw_metrics["form_reward"], rtol=1e-6)
+  np.testing.assert_allclose(metrics["form_reward_std"], np.sqrt(var), rtol=1e-4)
+
+
 def test_imitation_requires_unrolls_that_end_with_the_episodes():
   with pytest.raises(ValueError, match="must divide the episode length"):
     TrainConfig(task="reacher_easy", reward_source="form", unroll_length=64).check(1)
@@ -181,6 +211,7 @@ def test_form_command_line_runs_every_stage(tmp_path, capsys):
   assert all(np.isfinite(records[0][k]) for k in ("form_reward", "demonstrator_log_prob",
                                                   "imitator_batch_log_prob", "eval_return"))
   assert records[0]["settings"]["reward"]["demonstrator_sha256"] == shipped.metadata["sha256"]
+  assert records[0]["settings"]["reward"]["standardise_reward"] is False
   assert records[0]["learner_preset"] == "custom"
   assert [r["policy"] for r in records[1:]] == ["final", "best"]
   assert records[1]["episodes"] == final_episodes and np.isfinite(records[1]["final_return"])
@@ -195,7 +226,7 @@ def test_form_command_line_runs_every_stage(tmp_path, capsys):
   run_dir = tmp_path / "trained"
   assert cli.main(_readme_args(run_dir, "--demos", str(saved), "--train_demonstrator",
                                "--demonstrator_steps", "20", "--demonstrator_eval_every", "10",
-                               "--results", str(curve))) == 0
+                               "--standardise_reward", "--results", str(curve))) == 0
   out = capsys.readouterr().out
   for expected in (f"demonstrations: {k} episodes from", "demonstrator step 20",
                    "demonstrator written to"):
@@ -217,6 +248,7 @@ def test_form_command_line_runs_every_stage(tmp_path, capsys):
   assert all(np.isfinite(records[1][k]) for k in ("form_reward", "demonstrator_log_prob",
                                                   "imitator_batch_log_prob", "eval_return"))
   assert records[1]["settings"]["reward"]["demonstrator_sha256"] == meta["sha256"]
+  assert records[1]["settings"]["reward"]["standardise_reward"] is True
   assert records[1]["learner_preset"] == "custom"
   assert [r["policy"] for r in records[2:]] == ["final", "best"]
   assert records[2]["episodes"] == final_episodes and np.isfinite(records[2]["final_return"])

@@ -63,6 +63,28 @@ def test_leading_axes_are_pooled():
   jax.tree.map(lambda u, v: np.testing.assert_allclose(u, v, rtol=1e-6), a, b)
 
 
+def test_mask_counts_only_kept_rows():
+  """A masked update equals the numpy EMA over the kept rows alone; a batch with none kept
+  leaves the state (count included) as it was."""
+  rng = np.random.default_rng(7)
+  update = jax.jit(normalizer.update, static_argnums=2)
+  state, kept = normalizer.init(3), []
+  for i in range(12):
+    batch = rng.normal(i + np.arange(3), 1.0 + 0.3 * i, size=(6, 5, 3)).astype(np.float32)
+    batch[0, 0] = 1e6  # a dropped row far from the rest: it must not leak into the statistics
+    mask = rng.random((6, 5)) < 0.6
+    mask[0, 0] = False
+    state = update(state, batch, 0.9, mask)
+    kept.append(batch[mask])
+    mean, var = reference(kept, 0.9)
+    np.testing.assert_allclose(state.mean, mean, rtol=1e-5, atol=1e-5)
+    np.testing.assert_allclose(state.var, var, rtol=1e-4, atol=1e-4)
+  unchanged = update(state, batch, 0.9, np.zeros((6, 5), bool))
+  jax.tree.map(np.testing.assert_array_equal, unchanged, state)
+  with pytest.raises(ValueError, match="mask has shape"):
+    normalizer.update(state, batch, 0.9, np.ones((6,), bool))
+
+
 def test_standardises_stationary_stream():
   mu, sigma = np.array([3.0, -2.0, 100.0, 0.0]), np.array([0.5, 2.0, 10.0, 1e-3])
   update = jax.jit(normalizer.update)

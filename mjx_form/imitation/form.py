@@ -14,6 +14,14 @@ episode cut short by a physics error, or one that ended mid-unroll) gets reward 
 task reward's 0 at a physics error; the imitation runs keep time-limit ends on unroll ends
 (`unroll_length` divides the episode), where the final observation is stored.
 
+With `standardise_reward` the learner gets (r - m) / s instead of r, with m and s the EMA mean
+and standard deviation of r over the valid transitions of the batches so far (decay 0.99 per
+batch, as the observations). A constant shift and a positive scale leave the best policy of
+these tasks unchanged (no episode ends early, time-limit ends are bootstrapped), and they keep
+the critic's targets near the scale its learning rate was set for: raw FORM rewards reach -200
+per step where the imitator strays from the demonstrations (benchmarks/NOTES.md). The raw r is
+what the logs report either way.
+
 The source never sees the task reward (`needs_task_reward = False`: it is not even stored).
 """
 
@@ -39,6 +47,7 @@ class Demonstrator(NamedTuple):
 class FormState(NamedTuple):
   demonstrator: Demonstrator  # constant through the run
   imitator: em.EffectModelState
+  reward: normalizer.NormalizerState  # EMA mean and variance of the raw reward, [1]
 
 
 class FormReward:
@@ -48,11 +57,12 @@ class FormReward:
   needs_task_reward = False
 
   def __init__(self, config: em.EffectModelConfig, demonstrator: Demonstrator,
-               demonstrator_sha256: str = ""):
+               demonstrator_sha256: str = "", standardise_reward: bool = False):
     """`demonstrator_sha256` identifies the demonstrator file (kept with checkpoints, so a run
-    resumes only with the same one)."""
+    resumes only with the same one); `standardise_reward`: see the module docstring."""
     config.check()
     self.config = config
+    self.standardise_reward = bool(standardise_reward)
     self.demonstrator = demonstrator
     self.demonstrator_sha256 = demonstrator_sha256
     self.observation_size = int(demonstrator.normalizer.mean.shape[-1])
@@ -64,17 +74,24 @@ class FormReward:
       raise ValueError(f"the demonstrator models {self.observation_size}-dimensional "
                        f"observations, the task has {observation_size}")
     demonstrator = jax.tree.map(jnp.asarray, self.demonstrator)
-    return FormState(demonstrator, em.init(self.model, self.config, key))
+    return FormState(demonstrator, em.init(self.model, self.config, key), normalizer.init(1))
 
   def update(self, state: FormState, batch: dict, key: jax.Array) -> tuple[FormState, dict]:
+    """One imitator step on the batch, then the batch's rewards (under the new imitator) are
+    folded into the reward statistics."""
     imitator, metrics = em.update(self.model, self.config, state.imitator,
                                   batch["observation"], batch["discount"], key)
     metrics = {f"imitator_{k}": v for k, v in metrics.items()}
-    return state._replace(imitator=imitator), metrics
+    state = state._replace(imitator=imitator)
+    raw, valid = self.raw_rewards(state, batch)
+    reward = normalizer.update(state.reward, raw[..., None], self.config.normalizer_decay,
+                               mask=valid)
+    return state._replace(reward=reward), metrics
 
   def settings(self) -> dict:
     return {"effect_model": dataclasses.asdict(self.config),
-            "demonstrator_sha256": self.demonstrator_sha256}
+            "demonstrator_sha256": self.demonstrator_sha256,
+            "standardise_reward": self.standardise_reward}
 
   def log_probs(self, state: FormState, observation: jax.Array) -> tuple[jax.Array, jax.Array]:
     """Raw-space log pD and log pI of each transition of observation [B, T+1, D]: [B, T] each."""
@@ -84,12 +101,20 @@ class FormReward:
     log_i = em.transition_log_prob(self.model, imitator.params, imitator.normalizer, x, x_next)
     return log_d, log_i
 
+  def raw_rewards(self, state: FormState, batch: dict) -> tuple[jax.Array, jax.Array]:
+    """log pD - log pI of each transition [B, T], and where it is defined (successor stored)."""
+    log_d, log_i = self.log_probs(state, batch["observation"])
+    return log_d - log_i, batch["discount"] > 0
+
   def relabel(self, state: FormState, batch: dict) -> tuple[jax.Array, dict]:
     log_d, log_i = self.log_probs(state, batch["observation"])
-    valid = batch["discount"] > 0
-    rewards = jnp.where(valid, log_d - log_i, 0.0)
+    raw, valid = log_d - log_i, batch["discount"] > 0
+    given = normalizer.normalize(state.reward, raw[..., None])[..., 0] if (
+        self.standardise_reward) else raw
+    rewards = jnp.where(valid, given, 0.0)
     count = jnp.maximum(jnp.sum(valid), 1)
     mean = lambda v: jnp.sum(jnp.where(valid, v, 0.0)) / count
-    metrics = {"form_reward": mean(log_d - log_i), "demonstrator_log_prob": mean(log_d),
-               "imitator_batch_log_prob": mean(log_i)}
+    metrics = {"form_reward": mean(raw), "demonstrator_log_prob": mean(log_d),
+               "imitator_batch_log_prob": mean(log_i),
+               "form_reward_std": jnp.sqrt(state.reward.var[0])}
     return rewards, metrics

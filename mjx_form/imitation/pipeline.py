@@ -101,11 +101,12 @@ def _load(path: str, env) -> effect_models.EffectModelFile:
 
 def prepare(env, config: em.EffectModelConfig, explicit: dict, artefacts: Artefacts,
             run_dir: str, *, resume: bool, physics: str, seed: int, results_path: str | None,
+            standardise_reward: bool = False,
             print_fn: Callable[[str], None] = print) -> FormReward:
   """Stages 1-2: the FORM reward source of this run, its demonstrator kept in `run_dir`.
 
   `config`: the effect-model settings asked for; `explicit`: those of them the user set (a
-  ready demonstrator must agree with them).
+  ready demonstrator must agree with them); `standardise_reward`: see mjx_form.imitation.form.
   """
   runner.check_run_dir(run_dir, resume, also=(DEMONSTRATOR_FILE,))
   kept = os.path.join(run_dir, DEMONSTRATOR_FILE)
@@ -113,7 +114,8 @@ def prepare(env, config: em.EffectModelConfig, explicit: dict, artefacts: Artefa
     if not os.path.exists(kept):
       raise PipelineError(f"--resume: {run_dir} holds no {DEMONSTRATOR_FILE}")
     file = _load(kept, env)
-    return FormReward(*_demonstrator(file, kept, explicit), file.metadata["sha256"])
+    return FormReward(*_demonstrator(file, kept, explicit), file.metadata["sha256"],
+                      standardise_reward)
 
   path, file = artefacts.demonstrator, None
   shipped = tasks.bundled_demonstrator(env.name)
@@ -138,7 +140,8 @@ def prepare(env, config: em.EffectModelConfig, explicit: dict, artefacts: Artefa
     os.makedirs(run_dir, exist_ok=True)
     file = train_demonstrator(env, config, demos_obs, demos_info, artefacts.training, physics,
                               seed, results_path, print_fn, kept)
-    return FormReward(*_demonstrator(file, kept, explicit), file.metadata["sha256"])
+    return FormReward(*_demonstrator(file, kept, explicit), file.metadata["sha256"],
+                      standardise_reward)
 
   if file is None or path != shipped:  # (the shipped one is read already)
     file = _load(path, env)
@@ -154,7 +157,8 @@ def prepare(env, config: em.EffectModelConfig, explicit: dict, artefacts: Artefa
              + " ".join(f"{v:.2f}" for v in np.asarray(fit)))
   os.makedirs(run_dir, exist_ok=True)
   shutil.copyfile(path, kept)
-  return FormReward(config, demonstrator, file.metadata["sha256"])
+  return FormReward(config, demonstrator, file.metadata["sha256"],
+                      standardise_reward)
 
 
 def _demonstrator(file: effect_models.EffectModelFile, path: str,

@@ -42,22 +42,39 @@ def _check(state: NormalizerState, x: jax.Array, what: str) -> None:
     raise ValueError(f"{what} has shape {jnp.shape(x)}; expected (..., {size})")
 
 
-def update(state: NormalizerState, batch: jax.Array, decay: float = 0.99) -> NormalizerState:
-  """Folds the statistics of `batch` [..., D] (all leading axes pooled) into the EMAs."""
+def update(state: NormalizerState, batch: jax.Array, decay: float = 0.99,
+           mask: jax.Array | None = None) -> NormalizerState:
+  """Folds the statistics of `batch` [..., D] (all leading axes pooled) into the EMAs.
+
+  `mask` [...] (the leading axes of `batch`): only the rows where it is true count; a batch
+  with no such row leaves the state as it is.
+  """
   _check(state, batch, "batch")
   if isinstance(decay, (int, float)) and not 0.0 <= decay < 1.0:
     raise ValueError(f"decay must be in [0, 1), got {decay}")
   batch = jnp.asarray(batch, state.mean.dtype)
   axes = tuple(range(batch.ndim - 1))
-  batch_mean = jnp.mean(batch, axis=axes)                                  # [D]
-  batch_var = jnp.mean(jnp.square(batch - batch_mean), axis=axes)          # [D]
+  if mask is None:
+    batch_mean = jnp.mean(batch, axis=axes)                                # [D]
+    batch_var = jnp.mean(jnp.square(batch - batch_mean), axis=axes)        # [D]
+  else:
+    if jnp.shape(mask) != batch.shape[:-1]:
+      raise ValueError(f"mask has shape {jnp.shape(mask)}; expected {batch.shape[:-1]}")
+    weights = jnp.asarray(mask, batch.dtype)[..., None]                    # [..., 1]
+    rows = jnp.sum(weights)
+    share = weights / jnp.maximum(rows, 1)
+    batch_mean = jnp.sum(share * batch, axis=axes)                         # [D]
+    batch_var = jnp.sum(share * jnp.square(batch - batch_mean), axis=axes)  # [D]
   count = state.count + 1
   decay = jnp.asarray(decay, state.mean.dtype)
   rate = (1 - decay) / (1 - decay ** count.astype(state.mean.dtype))       # 1 at the first update
   delta = batch_mean - state.mean
   mean = state.mean + rate * delta
   var = (1 - rate) * state.var + rate * batch_var + rate * (1 - rate) * jnp.square(delta)
-  return NormalizerState(mean, jnp.maximum(var, 0), count)
+  updated = NormalizerState(mean, jnp.maximum(var, 0), count)
+  if mask is None:
+    return updated
+  return jax.tree.map(lambda new, old: jnp.where(rows > 0, new, old), updated, state)
 
 
 def normalize(state: NormalizerState, x: jax.Array, clip: float | None = None,

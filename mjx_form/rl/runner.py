@@ -297,8 +297,8 @@ def _progress_line(row: dict, total_iterations: int, steps_per_iteration: int) -
           + f"  train return {_show(row['train_return'])}"
           + (f"  eval {row['eval_return']:.1f}" if "eval_return" in row else ""))
   if "form_reward" in row:
-    line += (f"  form reward {row['form_reward']:.2f} (log pD {row['demonstrator_log_prob']:.1f}"
-             f", log pI {row['imitator_batch_log_prob']:.1f})")
+    line += (f"  form reward {row['form_reward']:.2f} (sd {row['form_reward_std']:.2f}; log pD "
+             f"{row['demonstrator_log_prob']:.1f}, log pI {row['imitator_batch_log_prob']:.1f})")
   return line + (f"  q {row['q_mean']:.2f}  critic {row['critic_loss']:.3f}  mean out of bounds "
                  f"{row['mean_out_of_bounds']:.2f}")
 
@@ -350,7 +350,8 @@ _CURVE_FIELDS = (
     # the policy's saturation: shares of its mean and samples outside [-1, 1]
     "mean_out_of_bounds", "sampled_out_of_bounds", "penalty_temperature",
     # FORM: the reward and both models' log-likelihoods on the learner's batches
-    "form_reward", "demonstrator_log_prob", "imitator_batch_log_prob", "imitator_log_prob")
+    "form_reward", "form_reward_std", "demonstrator_log_prob", "imitator_batch_log_prob",
+    "imitator_log_prob")
 
 
 def _write_curve_point(writer: results.ResultWriter, trainer: Trainer, seed: int, row: dict, *,
