@@ -84,11 +84,13 @@ def measure(trainer: Trainer, label: str, kind: str, args, writer, key) -> None:
   """Times env-only stepping, collection and the whole iteration of `trainer`; one record."""
   config, members = trainer.config, trainer.members
   steps, per_iteration = config.unroll_length, config.env_steps_per_iteration * members
-  env_only, start = env_only_fn(trainer, steps, key)
-  env_sps, env_compile_s = common.time_compiled(env_only, (start, key), steps,
-                                                config.num_envs * members, args.repeats)
-  # Each phase is printed as it ends, so a run stopped by a time limit shows how far it got.
-  print(f"{label}: env only {env_sps:,.0f} steps/s (compile {env_compile_s:.0f}s)", flush=True)
+  env_sps = env_compile_s = None
+  if not args.skip_env_only:
+    env_only, start = env_only_fn(trainer, steps, key)
+    env_sps, env_compile_s = common.time_compiled(env_only, (start, key), steps,
+                                                  config.num_envs * members, args.repeats)
+    # Each phase is printed as it ends, so a run stopped by a time limit shows how far it got.
+    print(f"{label}: env only {env_sps:,.0f} steps/s (compile {env_compile_s:.0f}s)", flush=True)
   state = trainer.init(trainer.keys())
   collect_s, collect_compile_s = time_collect(trainer, state, args.repeats)
   print(f"{label}: collect {per_iteration / collect_s:,.0f} steps/s "
@@ -96,8 +98,9 @@ def measure(trainer: Trainer, label: str, kind: str, args, writer, key) -> None:
   iteration_s, loop_compile_s, state = time_iterations(trainer, state, args.repeats)
   result = {
       "sps": per_iteration / iteration_s, "env_sps": env_sps,
-      "collect_sps": per_iteration / collect_s, "ratio_to_env": per_iteration / iteration_s
-      / env_sps, "iteration_s": iteration_s, "collect_s": collect_s,
+      "collect_sps": per_iteration / collect_s,
+      "ratio_to_env": None if env_sps is None else per_iteration / iteration_s / env_sps,
+      "iteration_s": iteration_s, "collect_s": collect_s,
       "update_ms": 1e3 * max(iteration_s - collect_s, 0.0) / config.updates_per_iteration,
       "peak_memory_bytes": results.peak_memory_bytes(), "compile_s": loop_compile_s,
       "env_compile_s": env_compile_s, "collect_compile_s": collect_compile_s}
@@ -107,8 +110,9 @@ def measure(trainer: Trainer, label: str, kind: str, args, writer, key) -> None:
   writer.write(kind=kind, task=config.task, method="expert", physics=config.physics,
                num_envs=config.num_envs, settings=settings, **fields, **result)
   memory = result["peak_memory_bytes"]
-  print(f"{label}: loop {result['sps']:,.0f} steps/s, env only {env_sps:,.0f} (ratio "
-        f"{result['ratio_to_env']:.2f}), collect {result['collect_sps']:,.0f}, "
+  env = "n/a" if env_sps is None else f"{env_sps:,.0f} (ratio {result['ratio_to_env']:.2f})"
+  print(f"{label}: loop {result['sps']:,.0f} steps/s, env only {env}, "
+        f"collect {result['collect_sps']:,.0f}, "
         f"{result['update_ms']:.1f} ms/update (all members), peak memory "
         f"{'n/a' if memory is None else f'{memory / 2**30:.1f} GiB'} (compile "
         f"{loop_compile_s:.0f}s)", flush=True)
@@ -129,6 +133,8 @@ def main(argv=None) -> int:
   parser.add_argument("--members", nargs="*", type=int, default=None,
                       help="population sizes to measure (kind population_throughput)")
   parser.add_argument("--repeats", type=int, default=3)
+  parser.add_argument("--skip_env_only", action="store_true",
+                      help="skip the env-only rollout (its compile costs ~35 s per size on a GPU)")
   parser.add_argument("--out", default=common.default_results_path("train_throughput"))
   args = parser.parse_args(argv)
   writer = common.ResultWriter(args.out)
