@@ -427,6 +427,83 @@ def _demonstration_returns(folder: str = DEMONSTRATORS) -> dict[str, float]:
   return out
 
 
+def _form_variant(record: dict) -> str:
+  """How a FORM run used its reward, and its learner's target period: e.g. `raw, T 200`."""
+  settings = record.get("settings", {})
+  reward = "standardised" if settings.get("reward", {}).get("standardise_reward") else "raw"
+  return f"{reward}, T {settings.get('learner', {}).get('target_update_period', '-')}"
+
+
+def form_runs_table(records: list[dict]) -> str:
+  """One row per FORM learning run (result file and seed): its settings, where its periodic
+  evaluations got, and its fresh final evaluation where it finished."""
+  runs: dict[tuple, list[dict]] = {}
+  finals: dict[tuple, float] = {}
+  for r in records:
+    if r.get("method") != "form":
+      continue
+    if r.get("kind") == "learning_curve" and r.get("eval_return") is not None:
+      runs.setdefault((r["_file"], r["task"], r["seed"]), []).append(r)
+    elif r.get("kind") == "final_return" and r.get("policy") == "final":
+      finals[(r["_file"], r["task"], r["seed"])] = r["final_return"]
+  if not runs:
+    return "No FORM learning runs yet."
+  lines = ["FORM learning runs, one row per run and seed (periodic evaluations: mean task "
+           "return of the run's `--eval_envs` episodes; fresh: the final policy over "
+           "`--final_eval_envs` episodes, `-` where the run was stopped by `--max_seconds` "
+           "before it). Wall clock includes start-up (demonstrations, compiling):", "",
+           "| task | device | reward, T | envs | updates / iteration | seed | env steps | wall "
+           "clock | last eval | best eval | fresh eval | log pD at the end | result file |",
+           "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+  for key, curve in sorted(runs.items(), key=lambda kv: (_order(kv[0][1]), kv[0][0],
+                                                         kv[0][2])):
+    curve = sorted(curve, key=lambda r: r["env_steps"])
+    last, best = curve[-1], max(curve, key=lambda r: r["eval_return"])
+    fresh = finals.get(key)
+    lines.append(f"| {key[1]} | `{last['device']}` | {_form_variant(last)} | "
+                 f"{last['num_envs']} | {last['settings']['updates_per_iteration']} | "
+                 f"{key[2]} | {last['env_steps'] / 1e6:.1f}M | {_duration(last['wall_s'])} | "
+                 f"{last['eval_return']:.1f} | {best['eval_return']:.1f} | "
+                 f"{'-' if fresh is None else f'{fresh:.1f}'} | "
+                 f"{last['demonstrator_log_prob']:.1f} | {_run_label(key[0], key[1])} |")
+  return "\n".join(lines)
+
+
+def population_table(records: list[dict]) -> str:
+  """`kind: population_throughput`: P runs in one program against one run, per task, device
+  and environments per member."""
+  rows = [r for r in records if r.get("kind") == "population_throughput"]
+  if not rows:
+    return "No population throughput results yet."
+  newest = _newest(rows, lambda r: (r["task"], r["device"], r["num_envs"], r["members"],
+                                    r["settings"]["updates_per_iteration"]))
+  lines = ["Populations (`Trainer(..., seeds=range(P))`, `benchmarks/train_throughput.py "
+           "--members`): total env steps per second of the whole training iteration over all "
+           "P members, its speed-up over P = 1 on the same device, and the iteration's split "
+           "into collection (all members' environments and policies) and updates (each member's "
+           "`updates_per_iteration` MPO/Retrace updates, side by side); peak device memory of "
+           "the process (each member's replay of 10,000 unrolls included):", "",
+           "| task | device | envs / member | updates / iteration | P | total steps/s | "
+           "speed-up over P = 1 | iteration | collection | updates | ms / update / member | "
+           "peak memory |",
+           "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+  ordered = sorted(newest.values(), key=lambda r: (_order(r["task"]), r["device"],
+                                                   r["num_envs"], r["members"]))
+  for r in ordered:
+    one = newest.get((r["task"], r["device"], r["num_envs"], 1,
+                      r["settings"]["updates_per_iteration"]))
+    speedup = f"{r['sps'] / one['sps']:.2f}x" if one else "-"
+    updates_s = r["iteration_s"] - r["collect_s"]
+    per_member = 1e3 * updates_s / r["settings"]["updates_per_iteration"] / r["members"]
+    memory = r.get("peak_memory_bytes")
+    lines.append(f"| {r['task']} | `{r['device']}` | {r['num_envs']} | "
+                 f"{r['settings']['updates_per_iteration']} | {r['members']} | {_k(r['sps'])} | "
+                 f"{speedup} | {r['iteration_s']:.2f} s | {r['collect_s']:.2f} s | "
+                 f"{updates_s:.2f} s | {per_member:.2f} | "
+                 f"{'-' if memory is None else f'{memory / 2**30:.1f} GiB'} |")
+  return "\n".join(lines)
+
+
 def form_table(records: list[dict], expert_returns: dict[str, float] | None = None,
                demonstration_returns: dict[str, float] | None = None) -> str:
   """FORM's results: one row per task and configuration, over its seeds. Each seed's return is
@@ -444,23 +521,26 @@ def form_table(records: list[dict], expert_returns: dict[str, float] | None = No
   if demonstration_returns is None:
     demonstration_returns = _demonstration_returns()
   newest = _newest(rows, lambda r: (r["task"], r["physics"], r["num_envs"], r["env_steps"],
-                                    r.get("learner_preset"), r["device"], r["seed"],
-                                    r["policy"]))
+                                    r.get("learner_preset"), r["device"], _form_variant(r),
+                                    r["seed"], r["policy"]))
   groups: dict[tuple, dict[str, list[dict]]] = {}
   for key, r in newest.items():
-    groups.setdefault(key[:6], {}).setdefault(r["policy"], []).append(r)
+    groups.setdefault(key[:7], {}).setdefault(r["policy"], []).append(r)
   lines = ["FORM (`--method form`): return of the final policy in a fresh evaluation after "
            "training (`--final_eval_envs` episodes per seed, policy mean action), mean +- "
            "standard deviation over seeds (each seed: its mean over the episodes); best: the "
            "same for the policy of each run's best periodic evaluation. Expert: the mean return "
            "of the demonstrations the run's demonstrator was trained on (1000 episodes of the "
            "shipped expert), else the shipped expert's return at export; fraction = FORM / "
-           "expert; the paper's fraction is its FORM return over its expert's:", "",
-           "| task | device | physics | envs | seeds | episodes / seed | env steps | wall clock "
-           "(mean) | FORM return | best policy | expert | fraction | paper's fraction |",
-           "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+           "expert; the paper's fraction is its FORM return over its expert's. Reward: `raw` = "
+           "log pD - log pI as the paper, `standardised` = `--standardise_reward`; T = the "
+           "learner's target period (the paper's is 200):", "",
+           "| task | device | physics | envs | reward, T | seeds | episodes / seed | env steps "
+           "| wall clock (mean) | FORM return | best policy | expert | fraction | paper's "
+           "fraction |",
+           "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
   for key in sorted(groups, key=lambda k: (_order(k[0]), k[2], k[3], str(k))):
-    task, physics, num_envs, env_steps, _, device = key
+    task, physics, num_envs, env_steps, _, device, variant = key
     final, best = groups[key].get("final", []), groups[key].get("best", [])
     if not final:
       continue
@@ -476,7 +556,7 @@ def form_table(records: list[dict], expert_returns: dict[str, float] | None = No
     fraction = f"{mean / expert:.2f}" if expert else "-"
     paper = (f"{PAPER_FORM[task] / PAPER_EXPERT[task]:.2f}"
              if task in PAPER_FORM and task in PAPER_EXPERT else "-")
-    lines.append(f"| {task} | `{device}` | {physics} | {num_envs} | {len(final)} | "
+    lines.append(f"| {task} | `{device}` | {physics} | {num_envs} | {variant} | {len(final)} | "
                  f"{'/'.join(str(e) for e in episodes)} | {env_steps / 1e6:.1f}M | "
                  f"{_duration(wall)} | {mean:.1f}{spread} | {best_text} | "
                  f"{'-' if expert is None else f'{expert:.1f}'} | {fraction} | {paper} |")
@@ -540,7 +620,8 @@ def notes_tables(records: list[dict]) -> dict[str, str]:
   return {"parity": parity_table(records), "sweep": sweep_table(records),
           "throughput": throughput_table(records), "learning": learning_table(records),
           "train_throughput": train_throughput_table(records),
-          "effect_models": effect_model_table(records, best_per_task=False)}
+          "effect_models": effect_model_table(records, best_per_task=False),
+          "form_runs": form_runs_table(records), "populations": population_table(records)}
 
 
 TABLES = {README: readme_tables, NOTES: notes_tables}

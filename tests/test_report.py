@@ -66,10 +66,15 @@ def test_form_table_averages_the_final_policy_over_seeds():
   assert len(rows) == 2, table
   # 512 envs: seeds 800, 700, 600 -> 700 +- 81.6 (population std), 700 / 875 = 0.80; best:
   # (850 + 750) / 2; paper: 827.9 / 930.5 = 0.89; wall clock: the seeds' mean, 700 s.
-  assert ("| cheetah_run | `gpu:X` | fast | 512 | 3 | 256 | 20.0M | 11.7 min | 700.0 +- 81.6 | "
-          "800.0 | 875.0 | 0.80 | 0.89 |") in rows, rows
-  assert ("| cheetah_run | `gpu:X` | fast | 64 | 1 | 256 | 20.0M | 10.0 min | 300.0 | - | "
-          "875.0 | 0.34 | 0.89 |") in rows, rows  # one seed: no spread
+  assert ("| cheetah_run | `gpu:X` | fast | 512 | raw, T - | 3 | 256 | 20.0M | 11.7 min | "
+          "700.0 +- 81.6 | 800.0 | 875.0 | 0.80 | 0.89 |") in rows, rows
+  assert ("| cheetah_run | `gpu:X` | fast | 64 | raw, T - | 1 | 256 | 20.0M | 10.0 min | 300.0 | "
+          "- | 875.0 | 0.34 | 0.89 |") in rows, rows  # one seed: no spread
+  # A standardised reward or another target period is another row.
+  variant = {"reward": {"standardise_reward": True}, "learner": {"target_update_period": 25}}
+  table = report.form_table(records + [_final_return(0, 400.0, settings=variant)],
+                            expert_returns={"cheetah_run": 875.0}, demonstration_returns={})
+  assert "| 512 | standardised, T 25 | 1 | 256 | 20.0M | 10.0 min | 400.0 |" in table, table
   unknown = report.form_table([_final_return(0, 500.0)], expert_returns={},
                               demonstration_returns={})
   assert "| 500.0 | - | - | - | 0.89 |" in unknown
@@ -79,6 +84,46 @@ def test_form_table_averages_the_final_policy_over_seeds():
   table = report.form_table(behind, expert_returns={"cheetah_run": 875.0},
                             demonstration_returns={"d1": 1000.0})
   assert "| 875.0 +- 25.0 | - | 1000.0 | 0.88 | 0.89 |" in table, table
+
+
+def _curve_point(steps, value, **fields):
+  return {"kind": "learning_curve", "task": "walker_walk", "method": "form", "seed": 0,
+          "num_envs": 512, "env_steps": steps, "wall_s": steps / 1e4, "eval_return": value,
+          "demonstrator_log_prob": value / 100, "device": "gpu:X", "_file": "d/2026-12-01_x.jsonl",
+          "settings": {"updates_per_iteration": 128, "reward": {"standardise_reward": True},
+                       "learner": {"target_update_period": 25}}, **fields}
+
+
+def test_form_runs_table_has_one_row_per_run_and_seed():
+  assert report.form_runs_table([]).startswith("No FORM learning runs")
+  records = [_curve_point(1e6, 100.0), _curve_point(3e6, 300.0), _curve_point(2e6, 350.0),
+             _curve_point(1e6, 50.0, seed=1),
+             dict(_final_return(1, 77.0, task="walker_walk"), _file="d/2026-12-01_x.jsonl"),
+             dict(_curve_point(1e6, 999.0), method="expert")]
+  table = report.form_runs_table(records)
+  rows = [line for line in table.splitlines() if line.startswith("| walker_walk")]
+  # seed 0: last eval 300 at 3M, best 350, no fresh evaluation; seed 1: its final_return.
+  assert rows == [
+      "| walker_walk | `gpu:X` | standardised, T 25 | 512 | 128 | 0 | 3.0M | 300 s | 300.0 | "
+      "350.0 | - | 3.0 | 2026-12-01 |",
+      "| walker_walk | `gpu:X` | standardised, T 25 | 512 | 128 | 1 | 1.0M | 100 s | 50.0 | "
+      "50.0 | 77.0 | 0.5 | 2026-12-01 |"], table
+
+
+def test_population_table_gives_the_speed_up_over_one_member():
+  assert report.population_table([]).startswith("No population")
+
+  def record(members, sps, iteration_s, collect_s):
+    return {"kind": "population_throughput", "task": "cheetah_run", "device": "gpu:X",
+            "num_envs": 512, "members": members, "sps": sps, "iteration_s": iteration_s,
+            "collect_s": collect_s, "peak_memory_bytes": 2**30 * members,
+            "settings": {"updates_per_iteration": 100}}
+  table = report.population_table([record(1, 50_000, 1.0, 0.4), record(8, 200_000, 2.0, 0.8)])
+  rows = [line for line in table.splitlines() if line.startswith("| cheetah_run")]
+  # P = 8: 4.00x; updates 1.2 s over 100 updates and 8 members = 1.50 ms each.
+  assert rows[1] == ("| cheetah_run | `gpu:X` | 512 | 100 | 8 | 200k | 4.00x | 2.00 s | 0.80 s | "
+                     "1.20 s | 1.50 | 8.0 GiB |"), rows
+  assert "| 1 | 50k | 1.00x | 1.00 s | 0.40 s | 0.60 s | 6.00 | 1.0 GiB |" in rows[0], rows
 
 
 def test_demonstrator_tables_show_the_held_out_likelihood():
