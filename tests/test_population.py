@@ -5,6 +5,7 @@ import csv
 import json
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 from conftest import load_script
@@ -12,6 +13,7 @@ from test_train import CONFIG, _cli_args, run_iterations
 
 from mjx_form import mesh as mesh_lib
 from mjx_form.files import checkpoint, policy_io
+from mjx_form.rl import train as train_lib
 from mjx_form.rl.train import Trainer
 
 pytestmark = pytest.mark.xdist_group("train")  # the single runs' programs are test_train's
@@ -109,3 +111,15 @@ def test_population_from_the_command_line_writes_each_member(tmp_path, capsys):
   # Another set of seeds does not resume this population.
   assert cli.main(_cli_args(run_dir, "--seeds", "0,2", "--env_steps", "120", "--resume")) == 2
   assert "seeds" in capsys.readouterr().err
+
+
+def test_memory_check_refuses_a_program_larger_than_the_device():
+  """compile_ahead's check: XLA's memory analysis of the compiled program against the device's
+  memory (here a given limit; the CPU reports none, and then nothing is refused)."""
+  compiled = jax.jit(lambda x: x * 2).lower(jnp.ones((1000,))).compile()
+  needed = train_lib.program_bytes(compiled)
+  assert needed >= 4000  # its 1000 float32 argument at least
+  with pytest.raises(ValueError, match="population of 3: one training iteration needs"):
+    train_lib.check_memory(compiled, mesh_lib.make_mesh(), "population of 3", limit=needed - 1)
+  train_lib.check_memory(compiled, mesh_lib.make_mesh(), "population of 3", limit=needed)
+  train_lib.check_memory(compiled, mesh_lib.make_mesh(), "population of 3")
