@@ -95,13 +95,14 @@ def test_standardised_reward_uses_the_running_statistics_of_the_raw_reward():
   assert plain.settings()["standardise_reward"] is False
   assert scaled.settings()["standardise_reward"] is True
   state = plain.init(jax.random.PRNGKey(1), D, 2)
+  update, relabel = jax.jit(plain.update), jax.jit(plain.relabel)
   rng, kept = np.random.default_rng(3), []
   for i in range(5):
     obs = jnp.asarray(rng.normal(size=(3, 6, D)) * (1 + i), jnp.float32)
     discount = jnp.asarray(rng.random((3, 5)) > 0.2, jnp.float32)
     batch = {"observation": obs, "discount": discount}
-    state, _ = plain.update(state, batch, jax.random.PRNGKey(10 + i))
-    raw, raw_metrics = plain.relabel(state, batch)
+    state, _ = update(state, batch, jax.random.PRNGKey(10 + i))
+    raw, raw_metrics = relabel(state, batch)
     kept.append(np.asarray(raw, np.float64)[np.asarray(discount) > 0])
   decay, t = EFFECT.normalizer_decay, len(kept)
   w = (1 - decay) * decay ** (t - np.arange(1, t + 1)) / (1 - decay ** t)
@@ -226,7 +227,7 @@ def test_form_command_line_runs_every_stage(tmp_path, capsys):
   run_dir = tmp_path / "trained"
   assert cli.main(_readme_args(run_dir, "--demos", str(saved), "--train_demonstrator",
                                "--demonstrator_steps", "20", "--demonstrator_eval_every", "10",
-                               "--standardise_reward", "--results", str(curve))) == 0
+                               "--results", str(curve))) == 0
   out = capsys.readouterr().out
   for expected in (f"demonstrations: {k} episodes from", "demonstrator step 20",
                    "demonstrator written to"):
@@ -248,7 +249,12 @@ def test_form_command_line_runs_every_stage(tmp_path, capsys):
   assert all(np.isfinite(records[1][k]) for k in ("form_reward", "demonstrator_log_prob",
                                                   "imitator_batch_log_prob", "eval_return"))
   assert records[1]["settings"]["reward"]["demonstrator_sha256"] == meta["sha256"]
-  assert records[1]["settings"]["reward"]["standardise_reward"] is True
+  assert records[1]["settings"]["reward"]["standardise_reward"] is False
+  # --standardise_reward reaches the reward source (its arithmetic: the test above).
+  args = cli.parse_args(_readme_args(tmp_path / "standardised", "--standardise_reward",
+                                     "--demo_episodes", "1"))
+  source = cli.form_source(args, str(tmp_path / "standardised"), None, print)
+  assert source.standardise_reward and source.settings()["standardise_reward"] is True
   assert records[1]["learner_preset"] == "custom"
   assert [r["policy"] for r in records[2:]] == ["final", "best"]
   assert records[2]["episodes"] == final_episodes and np.isfinite(records[2]["final_return"])
