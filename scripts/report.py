@@ -494,7 +494,7 @@ def population_table(records: list[dict]) -> str:
                       r["settings"]["updates_per_iteration"]))
     speedup = f"{r['sps'] / one['sps']:.2f}x" if one else "-"
     updates_s = r["iteration_s"] - r["collect_s"]
-    per_member = 1e3 * updates_s / r["settings"]["updates_per_iteration"] / r["members"]
+    per_member = r["update_ms"] / r["members"]  # update_ms: all members' update, side by side
     memory = r.get("peak_memory_bytes")
     lines.append(f"| {r['task']} | `{r['device']}` | {r['num_envs']} | "
                  f"{r['settings']['updates_per_iteration']} | {r['members']} | {_k(r['sps'])} | "

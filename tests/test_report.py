@@ -116,7 +116,8 @@ def test_population_table_gives_the_speed_up_over_one_member():
   def record(members, sps, iteration_s, collect_s):
     return {"kind": "population_throughput", "task": "cheetah_run", "device": "gpu:X",
             "num_envs": 512, "members": members, "sps": sps, "iteration_s": iteration_s,
-            "collect_s": collect_s, "peak_memory_bytes": 2**30 * members,
+            "collect_s": collect_s, "update_ms": 1e3 * (iteration_s - collect_s) / 100,
+            "peak_memory_bytes": 2**30 * members,
             "settings": {"updates_per_iteration": 100}}
   table = report.population_table([record(1, 50_000, 1.0, 0.4), record(8, 200_000, 2.0, 0.8)])
   rows = [line for line in table.splitlines() if line.startswith("| cheetah_run")]
