@@ -338,6 +338,15 @@ def test_lean_checkpoints_hold_no_replay_and_resume(trainers, tmp_path):
   assert int(lean["learner"].updates[0]) == CONFIG.updates_per_iteration
   with pytest.raises(checkpoint.CheckpointError, match="checkpoint_replay"):
     runner.run(CONFIG, str(run_dir), total, resume=True, checkpoint_replay=True, print_fn=quiet)
+  # Resumed at the step where it stopped, it trains no further but evaluates its final and
+  # best policies afresh (a time-budgeted run's fresh evaluation), leaving the logs as they were.
+  policy = (run_dir / "policy.npz").read_bytes()
+  row, = runner.run(CONFIG, str(run_dir), total // 2, resume=True, checkpoint_replay=False,
+                    final_eval_envs=2, print_fn=quiet)
+  assert row["iteration"] == 1 and row["env_steps"] == total // 2
+  assert np.isfinite([row["final_policy_return"], row["best_policy_return"]]).all()
+  assert (run_dir / "policy.npz").read_bytes() == policy
+  assert len((run_dir / "progress.csv").read_text().splitlines()) == 2  # header, iteration 1
   row, = runner.run(CONFIG, str(run_dir), total, resume=True, checkpoint_replay=False,
                     eval_every=2, print_fn=quiet)
   assert row["iteration"] == 2 and row["updates"] == 2 * CONFIG.updates_per_iteration

@@ -143,7 +143,8 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
   `reward_source`: where the learner's rewards come from (default: the task reward, by
   `config.reward_source`); its `settings()` are part of the run's checked configuration.
   `final_eval_envs`: once training is finished, the final and the best policy are evaluated
-  afresh on this many episodes and written as `kind: final_return` records (0: not).
+  afresh on this many episodes and written as `kind: final_return` records (0: not). A run
+  stopped by `max_seconds` gets them by resuming with `total_env_steps` where it stopped.
   `max_seconds`: stop once this process has run that long (checked after each iteration);
   the state is checkpointed and the policy exported, so `resume=True` continues the run.
   `results_path`: where `kind: learning_curve` records (one per evaluation) are appended.
@@ -204,7 +205,9 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
            f"{trainer.mesh.devices.size} {jax.default_backend()} device(s)")
   start_iteration = int(state.iteration)
   timed_steps, timed_seconds, eval_seconds = 0, 0.0, 0.0
-  rows = [{} for _ in dirs]
+  # Each member's last row; a run resumed at its end (no iteration left) keeps where it stopped.
+  rows = [{"iteration": start_iteration, "env_steps": start_iteration * steps_per_iteration,
+           "wall_s": wall_offset} for _ in dirs]
   while int(state.iteration) < total_iterations:
     t0 = time.perf_counter()
     state, metrics = trainer.iteration(state)
@@ -257,8 +260,9 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
                f"(checkpointed; continue with --resume)")
       break
 
-  for i, d in enumerate(dirs):
-    export_policy(trainer, state, i, os.path.join(d, "policy.npz"), rows[i])
+  if int(state.iteration) > start_iteration:
+    for i, d in enumerate(dirs):
+      export_policy(trainer, state, i, os.path.join(d, "policy.npz"), rows[i])
   if final_eval_envs and int(state.iteration) == total_iterations:
     _final_evaluation(trainer, state, best_paths, rows, final_eval_envs, curve,
                       total_env_steps, print_fn)
