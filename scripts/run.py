@@ -37,7 +37,7 @@ import tasks  # noqa: E402
 from mjx_form import mesh as mesh_lib  # noqa: E402
 from mjx_form.imitation import demonstrator as demonstrator_lib  # noqa: E402
 from mjx_form.imitation import pipeline, settings  # noqa: E402
-from mjx_form.rl import runner  # noqa: E402
+from mjx_form.rl import grid, runner  # noqa: E402
 from mjx_form.rl.learner import LearnerConfig  # noqa: E402
 from mjx_form.rl.train import TrainConfig  # noqa: E402
 from mjx_form.sim.physics import DEFAULT_PHYSICS, PHYSICS_MODES  # noqa: E402
@@ -72,6 +72,27 @@ def _seeds(text: str) -> tuple[int, ...]:
   return seeds
 
 
+def _grid(parser, items: list[str], method: str) -> dict[str, tuple]:
+  """--grid NAME=V1,V2 ... as {name: values}, refusing unknown names, bad or repeated values."""
+  out = {}
+  for item in items:
+    name, sep, values = item.partition("=")
+    if not sep or not values:
+      parser.error(f"--grid expects NAME=V1,V2,..., got {item!r}")
+    if name in out:
+      parser.error(f"--grid {name} given twice")
+    try:
+      parsed = tuple(grid.parse_value(name, v) for v in values.split(","))
+    except ValueError as e:
+      parser.error(str(e))
+    if len(set(parsed)) != len(parsed):
+      parser.error(f"--grid {name}: repeated values in {values!r}")
+    if name in grid.SOURCE and method != "form":
+      parser.error(f"--grid {name} applies to --method form only")
+    out[name] = parsed
+  return out
+
+
 def parse_args(argv=None) -> argparse.Namespace:
   parser = argparse.ArgumentParser(
       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter,
@@ -89,6 +110,12 @@ def parse_args(argv=None) -> argparse.Namespace:
                       help="comma-separated seeds: a population of runs, one per seed, in one "
                            "compiled program (--method form and expert; each writes to "
                            "<run_dir>/seed<s>/); overrides --seed")
+  parser.add_argument("--grid", action="append", default=[], metavar="NAME=V1,V2,...",
+                      help="members with their own values of a setting (repeatable): the "
+                           "population is every combination of the seeds and the values, each "
+                           "member in <run_dir>/seed<s>_<name><value>/; the values replace "
+                           "--NAME. Settings that may differ: " + ", ".join(grid.NAMES)
+                           + " (standardise_reward: 0/1, --method form)")
   parser.add_argument("--list", action="store_true", help="print the task names and exit")
   parser.add_argument("--method", default="form", choices=METHODS,
                       help="form: imitation from observations (default); expert: MPO on the "
@@ -181,8 +208,9 @@ def parse_args(argv=None) -> argparse.Namespace:
     return args
   if args.log_every is None:
     args.log_every = 50 if args.method == "random" else 1
-  if args.method == "random" and args.seeds:
-    parser.error("--seeds applies to --method form and expert")
+  if args.method == "random" and (args.seeds or args.grid):
+    parser.error("--seeds and --grid apply to --method form and expert")
+  args.grid = _grid(parser, args.grid, args.method)
   if args.method != "form":
     given = [f"--{name}" for name in FORM_ONLY if getattr(args, name) not in (None, False)]
     if given:
@@ -295,8 +323,9 @@ def main(argv=None) -> int:
   use_compilation_cache(args.compilation_cache)
   mesh = mesh_lib.make_mesh()
   if args.method in ("expert", "form"):
-    seeds = args.seeds or (args.seed,)
-    name = (f"seed{seeds[0]}" if len(seeds) == 1 else "seeds" + "_".join(map(str, seeds)))
+    seeds, overrides = grid.expand(args.seeds or (args.seed,), args.grid)
+    name = (f"seed{seeds[0]}" if len(set(seeds)) == 1 else "seeds" + "_".join(
+        map(str, args.seeds))) + "".join(f"_{k}" for k in args.grid)
     run_dir = args.run_dir or os.path.join("runs", f"{args.task}_{args.method}_{name}")
     results_path = args.results or os.path.join(run_dir, "learning_curve.jsonl")
     say = lambda line: print(line, flush=True)
@@ -309,14 +338,15 @@ def main(argv=None) -> int:
                         checkpoint_every=args.checkpoint_every, max_seconds=args.max_seconds,
                         checkpoint_replay=not args.lean_checkpoints, results_path=results_path,
                         final_eval_envs=args.final_eval_envs, mesh=mesh, reward_source=source,
-                        seeds=seeds, print_fn=say)
+                        seeds=seeds, overrides=overrides, print_fn=say)
     except ValueError as e:  # bad settings or artefacts, an existing run, another config
       print(f"error: {e}", file=sys.stderr)
       return 2
-    for seed, row, directory in zip(seeds, rows, runner.member_dirs(run_dir, seeds)):
+    for seed, own, row, directory in zip(seeds, overrides, rows,
+                                         runner.member_dirs(run_dir, seeds, overrides)):
       finished = row["env_steps"] >= args.env_steps
       print(f"{'done' if finished else 'stopped'}"
-            + (f" (seed {seed})" if len(seeds) > 1 else "") + ": "
+            + (f" ({grid.label(seed, own)})" if len(seeds) > 1 else "") + ": "
             f"eval return {row.get('eval_return', float('nan')):.1f} after "
             f"{row['env_steps']:,} env steps; policy in {os.path.join(directory, 'policy.npz')}"
             f", the best evaluation's in {os.path.join(directory, 'best_policy.npz')}")

@@ -115,6 +115,15 @@ def test_standardised_reward_uses_the_running_statistics_of_the_raw_reward():
   assert abs(float(np.std(expected[valid])) - 1.0) < 0.8 and float(np.std(raw)) > 2.0
   np.testing.assert_allclose(metrics["form_reward"], raw_metrics["form_reward"], rtol=1e-6)
   np.testing.assert_allclose(metrics["form_reward_std"], np.sqrt(var), rtol=1e-4)
+  # Population members may differ in this setting: traced per member, it gives each member
+  # what its own source gives.
+  members = jax.vmap(lambda on: plain.specialise({"standardise_reward": on}).relabel(
+      state, batch)[0])(jnp.array([False, True]))
+  np.testing.assert_allclose(members[0], raw, rtol=1e-6, atol=1e-6)
+  np.testing.assert_allclose(members[1], rewards, rtol=1e-6, atol=1e-6)
+  assert scaled.specialise({"standardise_reward": False}).settings()["standardise_reward"] is False
+  with pytest.raises(ValueError, match="beta_ar"):
+    plain.specialise({"beta_ar": 0.1})
 
 
 def test_imitation_requires_unrolls_that_end_with_the_episodes():

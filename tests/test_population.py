@@ -1,7 +1,9 @@
-"""Populations: several runs in one compiled program, each member the run its seed gives alone
-(reacher_easy, small sizes, a population of 2 over the 2 forced host devices)."""
+"""Populations: several runs in one compiled program, each member the run its seed and its own
+settings give alone (reacher_easy, small sizes, a population of 2 over the 2 forced host
+devices)."""
 
 import csv
+import dataclasses
 import json
 
 import jax
@@ -19,12 +21,21 @@ from mjx_form.rl.train import Trainer
 pytestmark = pytest.mark.xdist_group("train")  # the single runs' programs are test_train's
 
 SEEDS = (0, 1)
+# Member 1 has its own learner settings (mjx_form.rl.grid; `--grid NAME=...` gives them): it
+# copies its targets every 2 updates where CONFIG (and member 0) copy every 3, and learns 10x
+# faster.
+OVERRIDES = ({"target_update_period": CONFIG.learner.target_update_period,
+              "learning_rate": CONFIG.learner.learning_rate},
+             {"target_update_period": 2, "learning_rate": 1e-3})
+MEMBER_CONFIGS = (CONFIG, dataclasses.replace(CONFIG, seed=1, learner=dataclasses.replace(
+    CONFIG.learner, target_update_period=2, learning_rate=1e-3)))
 
 
 @pytest.fixture(scope="module")
 def population():
-  trainer = Trainer(CONFIG, mesh_lib.make_mesh(), seeds=SEEDS)
+  trainer = Trainer(CONFIG, mesh_lib.make_mesh(), seeds=SEEDS, overrides=OVERRIDES)
   assert trainer.members == 2 and trainer.mesh.devices.size == 2
+  assert [trainer.member_config(i) for i in range(2)] == list(MEMBER_CONFIGS)
   return trainer
 
 
@@ -33,7 +44,7 @@ def _members_of(trainer, state, i):
   return trainer.member((state.learner, state.normalizer, state.replay), i)
 
 
-def test_members_are_the_runs_their_seeds_give_alone(population):
+def test_members_are_the_runs_their_seeds_and_settings_give_alone(population):
   pop_state, pop_metrics = run_iterations(population, population.init(population.keys()), 3)
   pop_returns = np.asarray(population.evaluate(pop_state.learner.policy,
                                                pop_state.normalizer, population.keys(1)))
@@ -41,8 +52,8 @@ def test_members_are_the_runs_their_seeds_give_alone(population):
   # The population's environments and replay are split over both devices.
   assert len(pop_state.env.obs.sharding.device_set) == 2
   assert len(pop_state.replay.data["observation"].sharding.device_set) == 2
-  single = Trainer(CONFIG, mesh_lib.make_mesh())  # one program for both seeds
-  for i, seed in enumerate(SEEDS):
+  for i, (seed, config) in enumerate(zip(SEEDS, MEMBER_CONFIGS)):
+    single = Trainer(config, mesh_lib.make_mesh())  # a single run with the member's settings
     key = jax.random.PRNGKey(seed)[None]
     state, metrics = run_iterations(single, single.init(key), 3)
     returns = np.asarray(single.evaluate(state.learner.policy, state.normalizer,
@@ -85,32 +96,52 @@ def test_a_failing_member_leaves_the_others_alone(population):
 def test_population_from_the_command_line_writes_each_member(tmp_path, capsys):
   cli = load_script("run")
   run_dir, curve = tmp_path / "pop", tmp_path / "curve.jsonl"
-  args = _cli_args(run_dir, "--seeds", "0,1", "--env_steps", "80", "--results", str(curve))
-  assert cli.train_config(cli.parse_args(args)) == CONFIG  # the fixture's programs
+  # Both seeds with member 1's settings (the fixture's iteration program: the members' values
+  # are data, so other values of the same settings compile nothing new).
+  grid = ("--grid", "target_update_period=2", "--grid", "learning_rate=0.001")
+  args = _cli_args(run_dir, "--seeds", "0,1", *grid, "--env_steps", "80",
+                   "--results", str(curve))
+  assert cli.train_config(cli.parse_args(args)) == CONFIG
   assert cli.main(args) == 0
   out = capsys.readouterr().out
-  assert "a population of 2 (seeds 0, 1)" in out and "seed 1: iter 1/2" in out
-  assert "seed 1: fresh evaluation of the best policy" in out
-  assert json.load(open(run_dir / "config.json"))["seeds"] == [0, 1]
+  names = [f"seed{s}_learning_rate0.001_target_update_period2" for s in SEEDS]
+  assert ("a population of 2 (seed 0, learning_rate 0.001, target_update_period 2; seed 1, "
+          "learning_rate 0.001, target_update_period 2)") in out
+  assert "seed 1, learning_rate 0.001, target_update_period 2: iter 1/2" in out
+  assert "seed 1, learning_rate 0.001, target_update_period 2: fresh evaluation of the best" in out
+  stored = json.load(open(run_dir / "config.json"))
+  assert stored["seeds"] == [0, 1] and stored["overrides"] == [
+      {"learning_rate": 1e-3, "target_update_period": 2}] * 2
   assert checkpoint.latest_step(str(run_dir / "checkpoints")) == 2  # one for all members
   records = [json.loads(line) for line in open(curve)]
-  for seed in SEEDS:
-    member = run_dir / f"seed{seed}"
+  for seed, name in zip(SEEDS, names):
+    member = run_dir / name
     with open(member / "progress.csv") as f:
       assert [int(r["iteration"]) for r in csv.DictReader(f)] == [1, 2]
     _, meta = policy_io.load_policy(member / "policy.npz", task="reacher_easy")
     assert meta["env_steps"] == 80 and meta["train_config"]["seed"] == seed
+    assert meta["train_config"]["learner"]["target_update_period"] == 2
     assert policy_io.load_policy(member / "best_policy.npz")[1]["train_config"]["seed"] == seed
     mine = [r for r in records if r["seed"] == seed]
     assert [r["kind"] for r in mine] == ["learning_curve", "final_return", "final_return"]
-    assert all(r["population"] == 2 and r["settings"]["seed"] == seed for r in mine)
+    assert all(r["population"] == 2 and r["settings"]["seed"] == seed
+               and r["settings"]["learner"]["learning_rate"] == 1e-3
+               and r["learner_preset"] == "custom" for r in mine)
   # The members' policies are their own.
-  policies = [policy_io.load_policy(run_dir / f"seed{s}" / "policy.npz")[1]["sha256"]
-              for s in SEEDS]
+  policies = [policy_io.load_policy(run_dir / n / "policy.npz")[1]["sha256"] for n in names]
   assert len(set(policies)) == 2
-  # Another set of seeds does not resume this population.
-  assert cli.main(_cli_args(run_dir, "--seeds", "0,2", "--env_steps", "120", "--resume")) == 2
+  # Another set of seeds, or other values, does not resume this population.
+  assert cli.main(_cli_args(run_dir, "--seeds", "0,2", *grid, "--env_steps", "120",
+                            "--resume")) == 2
   assert "seeds" in capsys.readouterr().err
+  assert cli.main(_cli_args(run_dir, "--seeds", "0,1", "--grid", "target_update_period=4",
+                            "--grid", "learning_rate=0.001", "--env_steps", "120",
+                            "--resume")) == 2
+  assert "overrides" in capsys.readouterr().err
+  # Settings that must be shared are refused as grid entries, naming what may vary.
+  with pytest.raises(SystemExit):
+    cli.parse_args(_cli_args(run_dir, "--grid", "num_envs=4,8"))
+  assert "target_update_period" in capsys.readouterr().err
 
 
 def test_memory_check_refuses_a_program_larger_than_the_device():

@@ -27,6 +27,7 @@ The source never sees the task reward (`needs_task_reward = False`: it is not ev
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 from typing import Any, NamedTuple
 
@@ -55,6 +56,7 @@ class FormReward:
 
   name = "form"
   needs_task_reward = False
+  variable_settings = ("standardise_reward",)  # may differ between a population's members
 
   def __init__(self, config: em.EffectModelConfig, demonstrator: Demonstrator,
                demonstrator_sha256: str = "", standardise_reward: bool = False):
@@ -67,6 +69,17 @@ class FormReward:
     self.demonstrator_sha256 = demonstrator_sha256
     self.observation_size = int(demonstrator.normalizer.mean.shape[-1])
     self.model = em.make_model(config, self.observation_size)
+
+  def specialise(self, values: dict) -> "FormReward":
+    """This source with some `variable_settings` replaced (Python values, or a population
+    member's traced ones)."""
+    unknown = set(values) - set(self.variable_settings)
+    if unknown:
+      raise ValueError(f"FORM settings {sorted(unknown)} cannot differ between members")
+    source = copy.copy(self)
+    for name, value in values.items():
+      setattr(source, name, value)
+    return source
 
   def init(self, key: jax.Array, observation_size: int, action_size: int) -> FormState:
     del action_size
@@ -109,8 +122,8 @@ class FormReward:
   def relabel(self, state: FormState, batch: dict) -> tuple[jax.Array, dict]:
     log_d, log_i = self.log_probs(state, batch["observation"])
     raw, valid = log_d - log_i, batch["discount"] > 0
-    given = normalizer.normalize(state.reward, raw[..., None])[..., 0] if (
-        self.standardise_reward) else raw
+    given = jnp.where(self.standardise_reward,
+                      normalizer.normalize(state.reward, raw[..., None])[..., 0], raw)
     rewards = jnp.where(valid, given, 0.0)
     count = jnp.maximum(jnp.sum(valid), 1)
     mean = lambda v: jnp.sum(jnp.where(valid, v, 0.0)) / count

@@ -2,8 +2,9 @@
 checkpoints, resume, and the exported policy. Each step of work is one compiled
 `Trainer.iteration`; nothing here touches per-step data.
 
-A population (several seeds) writes config.json and checkpoints/ (all members) in the run
-directory and everything else per member in <run directory>/seed<s>/.
+A population (several seeds, or members with their own settings: mjx_form.rl.grid) writes
+config.json and checkpoints/ (all members) in the run directory and everything else per member
+in <run directory>/seed<s>/ (seed<s>_<setting><value>/ for a member with its own settings).
 
 Run directory layout:
   config.json         the run's TrainConfig (a resumed run must match it)
@@ -35,6 +36,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from mjx_form.files import checkpoint, experts, policy_io, results
+from mjx_form.rl import grid
 from mjx_form.rl.learner import LearnerConfig
 from mjx_form.rl.train import TrainConfig, Trainer, iterations_for
 
@@ -120,26 +122,30 @@ def check_run_dir(directory: str, resume: bool, also: tuple[str, ...] = ()) -> N
     raise RunError(f"--resume: {directory} holds no run to continue")
 
 
-def member_dirs(directory: str, seeds: tuple[int, ...]) -> list[str]:
+def member_dirs(directory: str, seeds: tuple[int, ...],
+                overrides: tuple[dict, ...] | None = None) -> list[str]:
   """Where each member writes its logs and policies: the run directory itself for a single
   run, <directory>/seed<s> for the members of a population."""
   if len(seeds) == 1:
     return [directory]
-  return [os.path.join(directory, f"seed{s}") for s in seeds]
+  overrides = overrides or tuple({} for _ in seeds)
+  return [os.path.join(directory, grid.dirname(s, o)) for s, o in zip(seeds, overrides)]
 
 
 def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bool = False,
         log_every: int = 1, eval_every: int = 10, checkpoint_every: int = 50,
         max_seconds: float | None = None, results_path: str | None = None,
         checkpoint_replay: bool = True, final_eval_envs: int = 0, mesh=None, reward_source=None,
-        seeds: tuple[int, ...] | None = None, print_fn=print) -> list[dict]:
+        seeds: tuple[int, ...] | None = None, overrides: tuple[dict, ...] | None = None,
+        print_fn=print) -> list[dict]:
   """Trains until `total_env_steps`; returns each member's last logged row (with its final
   evaluation).
 
   `seeds`: run a population, one member per seed, in one compiled program (default:
-  `config.seed` alone). Each member writes progress.csv, policy.npz and best_policy.npz to its
-  own directory (`member_dirs`) and its own records (its seed in them); one checkpoint in
-  `directory` holds every member.
+  `config.seed` alone); `overrides`: each member's own settings (mjx_form.rl.grid). Each member
+  writes progress.csv, policy.npz and best_policy.npz to its own directory (`member_dirs`) and
+  its own records (its seed and settings in them); one checkpoint in `directory` holds every
+  member.
   `reward_source`: where the learner's rewards come from (default: the task reward, by
   `config.reward_source`); its `settings()` are part of the run's checked configuration.
   `final_eval_envs`: once training is finished, the final and the best policy are evaluated
@@ -160,9 +166,11 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
     raise RunError(f"max_seconds must be positive, got {max_seconds}")
 
   process_start = time.perf_counter()
-  trainer = Trainer(config, mesh, reward_source, seeds)
+  trainer = Trainer(config, mesh, reward_source, seeds, overrides)
   full_config = {**config.to_dict(), "seeds": list(trainer.seeds),
                  "reward": trainer.source.settings(), **run_settings}
+  if any(trainer.overrides):  # (absent otherwise: checkpoints from before grids match)
+    full_config["overrides"] = [dict(sorted(o.items())) for o in trainer.overrides]
   restored = None
   if resume and checkpoint.latest_step(ckpt_dir) is not None:  # refused before compiling
     restored = checkpoint.restore(ckpt_dir, _checkpointed(trainer.abstract_state,
@@ -185,7 +193,8 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
   os.makedirs(directory, exist_ok=True)
   with open(config_path, "w") as f:
     json.dump(full_config, f, indent=1)
-  dirs = member_dirs(directory, trainer.seeds)
+  dirs = member_dirs(directory, trainer.seeds, trainer.overrides)
+  labels = [grid.label(s, o) for s, o in zip(trainer.seeds, trainer.overrides)]
   for d in dirs:
     os.makedirs(d, exist_ok=True)
   logs = [CsvLog(d) for d in dirs]
@@ -196,8 +205,8 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
   best_returns = [_best_return(path) if resume else -np.inf for path in best_paths]
   total_iterations = iterations_for(config, total_env_steps)
   steps_per_iteration = config.env_steps_per_iteration
-  population = (f"a population of {trainer.members} (seeds "
-                f"{', '.join(map(str, trainer.seeds))}), " if trainer.members > 1 else "")
+  population = (f"a population of {trainer.members} ({'; '.join(labels)}), "
+                if trainer.members > 1 else "")
   print_fn(f"{config.task}: {population}{config.num_envs} envs x {config.unroll_length}-step "
            f"unrolls, {config.updates_per_iteration} updates per iteration (updates/env step "
            f"{config.updates_per_env_step:.2e}, replay ratio {config.replay_ratio:.2f}), "
@@ -230,7 +239,7 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
     peak = results.peak_memory_bytes()
     checkpointed = iteration % checkpoint_every == 0 or last
     updates = np.asarray(state.learner.updates)
-    for i, seed in enumerate(trainer.seeds):
+    for i in range(trainer.members):
       row = {"iteration": iteration, "env_steps": iteration * steps_per_iteration,
              "updates": int(updates[i]),
              "steps_per_s": timed_steps / timed_seconds if timed_seconds else float("nan"),
@@ -247,10 +256,10 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
         row["peak_memory_bytes"] = peak
       if iteration % log_every == 0 or last or evaluate or checkpointed:
         logs[i].write(row)
-        prefix = f"seed {seed}: " if trainer.members > 1 else ""
+        prefix = f"{labels[i]}: " if trainer.members > 1 else ""
         print_fn(prefix + _progress_line(row, total_iterations, steps_per_iteration))
       if curve is not None and evaluate:
-        _write_curve_point(curve, trainer, seed, row, eval_episodes=returns.shape[1],
+        _write_curve_point(curve, trainer, i, row, eval_episodes=returns.shape[1],
                            total_env_steps=total_env_steps, startup=startup)
       rows[i] = row
     if checkpointed:
@@ -265,12 +274,13 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
       export_policy(trainer, state, i, os.path.join(d, "policy.npz"), rows[i])
   if final_eval_envs and int(state.iteration) == total_iterations:
     _final_evaluation(trainer, state, best_paths, rows, final_eval_envs, curve,
-                      total_env_steps, print_fn)
+                      total_env_steps, labels, print_fn)
   return rows
 
 
 def _final_evaluation(trainer: Trainer, state, best_paths: list[str], rows: list[dict],
-                      episodes: int, curve, total_env_steps: int, print_fn) -> None:
+                      episodes: int, curve, total_env_steps: int, labels: list[str],
+                      print_fn) -> None:
   """Every member's final and best policy on `episodes` fresh episodes: kind final_return."""
   bests = [experts.load_expert(path, trainer.env) for path in best_paths]
   best_policy = jax.tree.map(lambda *x: jnp.stack(x), *[b.params for b in bests])
@@ -279,17 +289,17 @@ def _final_evaluation(trainer: Trainer, state, best_paths: list[str], rows: list
   for name, policy, norm in (("final", state.learner.policy, state.normalizer),
                              ("best", best_policy, best_norm)):
     returns = np.asarray(trainer.evaluate(policy, norm, keys, num_envs=episodes))
-    for i, seed in enumerate(trainer.seeds):
+    for i in range(trainer.members):
       rows[i][f"{name}_policy_return"] = float(returns[i].mean())
-      prefix = f"seed {seed}: " if trainer.members > 1 else ""
+      prefix = f"{labels[i]}: " if trainer.members > 1 else ""
       print_fn(f"{prefix}fresh evaluation of the {name} policy over {returns.shape[1]} "
                f"episodes: {returns[i].mean():.1f} +- {returns[i].std():.1f}")
       if curve is not None:
-        curve.write(**_record_base(trainer, seed), kind="final_return", policy=name,
+        curve.write(**_record_base(trainer, i), kind="final_return", policy=name,
                     final_return=float(returns[i].mean()),
                     final_return_std=float(returns[i].std()), episodes=int(returns.shape[1]),
                     env_steps=rows[i]["env_steps"], wall_s=rows[i]["wall_s"],
-                    settings=_record_settings(trainer, seed, total_env_steps))
+                    settings=_record_settings(trainer, i, total_env_steps))
 
 
 def _progress_line(row: dict, total_iterations: int, steps_per_iteration: int) -> str:
@@ -332,16 +342,17 @@ def learner_preset(config: TrainConfig) -> str:
   return "paper" if config.learner == LearnerConfig() else "custom"
 
 
-def _record_base(trainer: Trainer, seed: int) -> dict:
-  config = trainer.config
+def _record_base(trainer: Trainer, member: int) -> dict:
+  config = trainer.member_config(member)
   return {"task": config.task, "method": method_name(config), "physics": config.physics,
-          "num_envs": config.num_envs, "seed": seed, "learner_preset": learner_preset(config),
-          "population": trainer.members}
+          "num_envs": config.num_envs, "seed": config.seed,
+          "learner_preset": learner_preset(config), "population": trainer.members}
 
 
-def _record_settings(trainer: Trainer, seed: int, total_env_steps: int) -> dict:
-  config = trainer.config
-  return {**config.to_dict(), "seed": seed, "reward": trainer.source.settings(),
+def _record_settings(trainer: Trainer, member: int, total_env_steps: int) -> dict:
+  """Member `member`'s settings (its own where it overrides the run's)."""
+  config = trainer.member_config(member)
+  return {**config.to_dict(), "reward": trainer.member_source(member).settings(),
           "updates_per_env_step": config.updates_per_env_step,
           "replay_ratio": config.replay_ratio, "total_env_steps": total_env_steps,
           "devices": trainer.mesh.devices.size}
@@ -358,23 +369,23 @@ _CURVE_FIELDS = (
     "imitator_log_prob")
 
 
-def _write_curve_point(writer: results.ResultWriter, trainer: Trainer, seed: int, row: dict, *,
+def _write_curve_point(writer: results.ResultWriter, trainer: Trainer, member: int, row: dict, *,
                        eval_episodes: int, total_env_steps: int, startup: dict) -> None:
   """One `kind: learning_curve` record: evaluation return at this point of the run.
 
   `startup`: `startup_s`, this process's seconds before its first iteration, and
   `persistent_cache_hits`, the programs it loaded from JAX's persistent compilation cache.
   """
-  settings = {**_record_settings(trainer, seed, total_env_steps),
+  settings = {**_record_settings(trainer, member, total_env_steps),
               "eval_episodes": eval_episodes}
-  writer.write(kind="learning_curve", **_record_base(trainer, seed), settings=settings,
+  writer.write(kind="learning_curve", **_record_base(trainer, member), settings=settings,
                **startup,
                **{k: row[k] for k in _CURVE_FIELDS if k in row and np.isfinite(row[k])})
 
 
 def export_policy(trainer: Trainer, state, member: int, path: str, row: dict) -> None:
   """Writes a member's policy and its observation normaliser (a small, pickle-free file)."""
-  env, cfg = trainer.env, trainer.config
+  env, cfg = trainer.env, trainer.member_config(member)
   norm = trainer.member(state.normalizer, member)
   arrays = {"policy": jax.device_get(trainer.member(state.learner.policy, member)),
             "normalizer": {"mean": np.asarray(norm.mean), "var": np.asarray(norm.var)}}
@@ -383,5 +394,5 @@ def export_policy(trainer: Trainer, state, member: int, path: str, row: dict) ->
               "observation_layout": [[k, v] for k, v in env.observation_layout.items()],
               "network_width": cfg.network_width, "physics": cfg.physics,
               "env_steps": row.get("env_steps"), "eval_return": row.get("eval_return"),
-              "train_config": {**cfg.to_dict(), "seed": trainer.seeds[member]}}
+              "train_config": cfg.to_dict()}
   policy_io.save_policy(path, arrays, metadata, overwrite=True)

@@ -43,7 +43,7 @@ import jax.numpy as jnp
 import tasks
 from mjx_form import mesh as mesh_lib
 from mjx_form.rl import learner as learner_lib
-from mjx_form.rl import normalizer, replay
+from mjx_form.rl import grid, normalizer, replay
 from mjx_form.rl.networks import make_networks
 from mjx_form.rl.reward_sources import make_reward_source
 from mjx_form.sim import env as env_lib
@@ -128,6 +128,9 @@ class TrainState(NamedTuple):
   source: Any  # the reward source's state, [P, ...]
   key: jax.Array  # [P, 2]
   iteration: jax.Array  # int32 []: the members take their iterations together
+  # Each member's own value of the settings members override (mjx_form.rl.grid), [P] each;
+  # {} where none does. Data, not constants: grids of other values share the compiled program.
+  settings: dict
 
 
 class Trainer:
@@ -135,24 +138,35 @@ class Trainer:
   `mesh`.
 
   A population (`seeds` with several entries) runs one member per seed in one compiled
-  program. Each member has its own environments, replay, networks, optimiser and dual states,
+  program; `overrides` give members their own values of some settings (mjx_form.rl.grid).
+  Each member has its own environments, replay, networks, optimiser and dual states,
   normaliser, reward-source state and random stream, and computes what a single run with its
-  seed computes: the learner, normaliser, replay and source are `vmap`ped over the member axis,
+  seed and settings computes: the learner, normaliser, replay and source are `vmap`ped over the member axis,
   and the members' environments share one batch, so the auto-reset's `lax.cond` stays one
   branch taken for all (a `vmap` of it would run every reset at every step).
   """
 
   def __init__(self, config: TrainConfig, mesh=None, reward_source=None,
-               seeds: tuple[int, ...] | None = None):
+               seeds: tuple[int, ...] | None = None, overrides: tuple[dict, ...] | None = None):
     """`reward_source` overrides the source named by `config.reward_source` (see
     mjx_form.rl.reward_sources for the interface); `seeds`: the members' seeds (default:
-    `config.seed` alone)."""
+    `config.seed` alone); `overrides`: each member's own values of settings that may differ
+    between members (mjx_form.rl.grid; default: none), one dict per seed."""
     self.mesh = mesh if mesh is not None else mesh_lib.make_mesh()
     config.check(self.mesh.devices.size)
     self.seeds = tuple(seeds) if seeds is not None else (config.seed,)
-    if not self.seeds or len(set(self.seeds)) != len(self.seeds) or not all(
-        isinstance(s, int) and not isinstance(s, bool) for s in self.seeds):
-      raise ValueError(f"seeds must be distinct integers, got {seeds!r}")
+    self.overrides = tuple(dict(o) for o in overrides) if overrides is not None else tuple(
+        {} for _ in self.seeds)
+    if not self.seeds or not all(isinstance(s, int) and not isinstance(s, bool)
+                                 for s in self.seeds):
+      raise ValueError(f"seeds must be integers, got {seeds!r}")
+    if len(self.overrides) != len(self.seeds):
+      raise ValueError(f"{len(self.overrides)} overrides for {len(self.seeds)} seeds")
+    names = sorted({n for o in self.overrides for n in o})
+    members = [(s, tuple(sorted(o.items()))) for s, o in zip(self.seeds, self.overrides)]
+    if len(set(members)) != len(members):
+      raise ValueError("the members must differ (in seed or settings), got "
+                       + "; ".join(grid.label(s, o) for s, o in zip(self.seeds, self.overrides)))
     self.members = len(self.seeds)
     self.config = config
     self.env = tasks.make(config.task, physics=config.physics)
@@ -164,6 +178,17 @@ class Trainer:
     if self.source.name != config.reward_source:
       raise ValueError(f"the config names reward source {config.reward_source!r}, the trainer "
                        f"was given {self.source.name!r}")
+    variable = tuple(getattr(self.source, "variable_settings", ()))
+    for name in names:
+      if name not in grid.LEARNER and name not in variable:
+        raise ValueError(f"{name!r} cannot differ between members of a {self.source.name} "
+                         f"run (it can: {', '.join((*grid.LEARNER, *variable))})")
+    for overrides in self.overrides:
+      for name, value in overrides.items():
+        grid.check_value(name, value)
+    # Each member's value of every setting some member overrides (TrainState.settings).
+    self._settings = [{**{n: self._default(n) for n in names}, **o} for o in self.overrides]
+    self._setting_names = names
     self._replicated = mesh_lib.replicated(self.mesh)
     abstract = jax.eval_shape(self._init, self.keys(0))
     self.state_sharding = self._shardings(abstract)
@@ -175,6 +200,26 @@ class Trainer:
                              out_shardings=(self.state_sharding, self._replicated))
     self.evaluate = jax.jit(self._evaluate, static_argnames="num_envs",
                             out_shardings=self._replicated)
+
+  def _default(self, name: str):
+    """The run's own value of a setting that members may override."""
+    if name in grid.LEARNER:
+      value = self.config.learner
+      for part in grid.LEARNER[name][0]:
+        value = getattr(value, part)
+      return value
+    return self.source.settings()[name]
+
+  def member_config(self, i: int) -> TrainConfig:
+    """Member i's settings (its seed and overrides applied; the source's are `member_source`)."""
+    learner_values = {k: v for k, v in self.overrides[i].items() if k in grid.LEARNER}
+    return dataclasses.replace(self.config, seed=self.seeds[i],
+                               learner=grid.learner_config(self.config.learner, learner_values))
+
+  def member_source(self, i: int):
+    """Member i's reward source (its overrides of the source's settings applied)."""
+    values = {k: v for k, v in self.overrides[i].items() if k not in grid.LEARNER}
+    return self.source.specialise(values) if values else self.source
 
   def keys(self, offset: int = 0) -> jax.Array:
     """[P, 2]: PRNGKey(seed + offset) of each member (offset 0 starts a run, 1 evaluates)."""
@@ -228,7 +273,7 @@ class Trainer:
         replay=replay.ReplayState(storage, jnp.zeros((), jnp.int32), jnp.zeros((), jnp.int32)),
         env=None, episode_return=None,
         source=self.source.init(source_key, self.env.observation_size, self.env.action_size),
-        key=key, iteration=None)
+        key=key, iteration=None, settings=None)
     return state, jax.random.split(env_key, cfg.num_envs), start
 
   def _init(self, keys: jax.Array) -> TrainState:
@@ -248,7 +293,8 @@ class Trainer:
             data=jax.lax.with_sharding_constraint(members.replay.data, self._member_batch)),
         env=jax.lax.with_sharding_constraint(env_state, self._batch),
         episode_return=jax.lax.with_sharding_constraint(episode_return, self._batch),
-        iteration=jnp.zeros((), jnp.int32))
+        iteration=jnp.zeros((), jnp.int32),
+        settings=grid.arrays(self._settings, self._setting_names))
 
   def _shardings(self, abstract: TrainState) -> TrainState:
     rep = lambda tree: jax.tree.map(lambda _: self._replicated, tree)
@@ -259,7 +305,7 @@ class Trainer:
                                                abstract.replay.data),
                                   self._replicated, self._replicated),
         env=bat(abstract.env), episode_return=self._batch, source=rep(abstract.source),
-        key=self._replicated, iteration=self._replicated)
+        key=self._replicated, iteration=self._replicated, settings=rep(abstract.settings))
 
   # --- one iteration ----------------------------------------------------------------------
 
@@ -317,17 +363,26 @@ class Trainer:
              "physics_errors": total(traj["error"])}
     return env_state, running, unrolls, stats
 
-  def _learn(self, learner, source, norm, buffer, keys: jax.Array):
+  def _learn(self, learner, source, norm, buffer, settings: dict, keys: jax.Array):
     """One learner update of every member; keys [P, 2]. Returns (learner, source, metrics)."""
     cfg = self.config
+    learner_values = {k: v for k, v in settings.items() if k in grid.LEARNER}
+    source_values = {k: v for k, v in settings.items() if k not in grid.LEARNER}
     sample_key, source_key, update_key = jnp.moveaxis(
         jax.vmap(lambda k: jax.random.split(k, 3))(keys), 1, 0)  # [3, P, 2]
     batch = jax.vmap(lambda b, k: replay.sample(b, k, cfg.batch_size))(buffer, sample_key)
     batch = jax.lax.with_sharding_constraint(batch, self._member_batch)  # [P, B, ...]
-    source, source_metrics = jax.vmap(self.source.update)(source, batch, source_key)
-    rewards, reward_metrics = jax.vmap(self.source.relabel)(source, batch)
-    update = lambda *args: learner_lib.update(self.networks, cfg.learner, *args)
-    learner, metrics = jax.vmap(update)(learner, norm, batch, rewards, update_key)
+    # Settings members may override come in as each member's entry of a [P] array.
+    own_source = lambda values: self.source.specialise(values) if values else self.source
+    source, source_metrics = jax.vmap(lambda s, b, k, v: own_source(v).update(s, b, k))(
+        source, batch, source_key, source_values)
+    rewards, reward_metrics = jax.vmap(lambda s, b, v: own_source(v).relabel(s, b))(
+        source, batch, source_values)
+    def update(learner, norm, batch, rewards, key, values):
+      config = grid.learner_config(cfg.learner, values)
+      return learner_lib.update(self.networks, config, learner, norm, batch, rewards, key)
+    learner, metrics = jax.vmap(update)(learner, norm, batch, rewards, update_key,
+                                        learner_values)
     return learner, source, {**metrics, **source_metrics, **reward_metrics}
 
   def _iteration(self, state: TrainState) -> tuple[TrainState, dict]:
@@ -341,7 +396,7 @@ class Trainer:
     buffer = jax.vmap(replay.insert)(state.replay, unrolls)
 
     def learn(carry, keys):
-      learner, source, metrics = self._learn(*carry, norm, buffer, keys)
+      learner, source, metrics = self._learn(*carry, norm, buffer, state.settings, keys)
       return (learner, source), metrics
 
     learn_keys = jax.vmap(lambda k: jax.random.split(k, cfg.updates_per_iteration))(learn_key)
@@ -350,7 +405,7 @@ class Trainer:
     metrics = {**jax.tree.map(lambda m: jnp.mean(m, axis=0), metrics), **stats}
     state = TrainState(learner=learner, normalizer=norm, replay=buffer, env=env_state,
                        episode_return=running, source=source, key=key,
-                       iteration=state.iteration + 1)
+                       iteration=state.iteration + 1, settings=state.settings)
     return state, metrics
 
   # --- evaluation -------------------------------------------------------------------------

@@ -1,0 +1,117 @@
+"""Per-member settings of a population: which settings may differ between its members, and how
+a member's own values reach the one compiled program.
+
+Members share everything that fixes the program's shapes and structure: the task, every size
+(environments, unrolls, batches, replay, networks, action samples), the reward source and its
+models (FORM's effect-model settings too: the demonstrator is trained offline with them, one
+file for the population). The settings below are numbers inside the learner update or the
+reward source's step, so each member may have its own: they travel as [P] arrays, and inside
+the vmapped update each member's config holds its value where a single run's holds a constant
+(`learner_config`), so a member computes what a single run with its settings computes.
+
+A member is a seed and its overrides, e.g. (0, {"target_update_period": 25}); a grid
+(`expand`) is every combination of the seeds and the listed values.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import itertools
+from typing import Any
+
+import jax.numpy as jnp
+
+# name (as on the command line) -> (path in LearnerConfig, type)
+LEARNER = {
+    "target_update_period": (("target_update_period",), int),
+    "learning_rate": (("learning_rate",), float),
+    "dual_learning_rate": (("dual_learning_rate",), float),
+    "discount": (("discount",), float),
+    "retrace_lambda": (("retrace_lambda",), float),
+    "max_grad_norm": (("max_grad_norm",), float),
+    "epsilon": (("mpo", "epsilon"), float),
+    "epsilon_mean": (("mpo", "epsilon_mean"), float),
+    "epsilon_scale": (("mpo", "epsilon_scale"), float),
+}
+# name -> type: settings a reward source lists in its `variable_settings` (FORM's
+# standardise_reward); the source's `specialise(values)` gives a member's source.
+SOURCE = {"standardise_reward": bool}
+NAMES = (*LEARNER, *SOURCE)
+
+
+def parse_value(name: str, text: str):
+  """One grid value from the command line, as its setting's type."""
+  if name not in NAMES:
+    raise ValueError(f"--grid: {name!r} cannot differ between members (it can: "
+                     f"{', '.join(NAMES)})")
+  kind = LEARNER[name][1] if name in LEARNER else SOURCE[name]
+  if kind is bool:
+    if text.lower() not in ("0", "1", "true", "false"):
+      raise ValueError(f"--grid {name}: expected 0/1 or true/false, got {text!r}")
+    return text.lower() in ("1", "true")
+  try:
+    value = kind(text)
+  except ValueError:
+    raise ValueError(f"--grid {name}: expected {kind.__name__} values, got {text!r}") from None
+  check_value(name, value)
+  return value
+
+
+def check_value(name: str, value) -> None:
+  """Refuses a value its setting cannot take (ValueError naming both)."""
+  if name == "discount" and not 0.0 < value <= 1.0:
+    raise ValueError(f"discount must be in (0, 1], got {value}")
+  if name == "retrace_lambda" and not 0.0 <= value <= 1.0:
+    raise ValueError(f"retrace_lambda must be in [0, 1], got {value}")
+  if name in LEARNER and name not in ("discount", "retrace_lambda") and not value > 0:
+    raise ValueError(f"{name} must be positive, got {value}")
+
+
+def expand(seeds: tuple[int, ...], grid: dict[str, tuple]) -> tuple[tuple[int, ...],
+                                                                  tuple[dict, ...]]:
+  """Every combination of a seed and one value of each grid setting: (seeds, overrides), one
+  entry per member, seeds outermost."""
+  names = list(grid)
+  combos = [dict(zip(names, values)) for values in itertools.product(*grid.values())]
+  members = [(s, c) for s in seeds for c in combos]
+  return tuple(s for s, _ in members), tuple(c for _, c in members)
+
+
+def label(seed: int, overrides: dict) -> str:
+  """How progress lines name a member: 'seed 0' or 'seed 0, target_update_period 25'."""
+  return ", ".join([f"seed {seed}"] + [f"{k} {_show(v)}" for k, v in sorted(overrides.items())])
+
+
+def dirname(seed: int, overrides: dict) -> str:
+  """A member's directory in a population's run directory: seed0, seed0_target_update_period25."""
+  return "_".join([f"seed{seed}"] + [f"{k}{_show(v)}" for k, v in sorted(overrides.items())])
+
+
+def _show(value) -> str:
+  return str(int(value)) if isinstance(value, bool) else f"{value:g}" if isinstance(
+      value, float) else str(value)
+
+
+def learner_config(config, values: dict):
+  """`config` (a LearnerConfig) with the LEARNER settings in `values` replaced; values may be
+  Python numbers or traced scalars (a member's entry of `arrays`)."""
+  for name, value in values.items():
+    path, _ = LEARNER[name]
+    config = _replace(config, path, value)
+  return config
+
+
+def _replace(obj, path: tuple[str, ...], value):
+  if len(path) == 1:
+    return dataclasses.replace(obj, **{path[0]: value})
+  return dataclasses.replace(obj, **{path[0]: _replace(getattr(obj, path[0]), path[1:], value)})
+
+
+def arrays(values: list[dict], names) -> dict[str, Any]:
+  """The members' values of `names` as [P] arrays (int32 for integer settings, float32 else)."""
+  out = {}
+  for name in names:
+    kind = LEARNER[name][1] if name in LEARNER else SOURCE[name]
+    dtype = jnp.int32 if kind is int else jnp.bool_ if kind is bool else jnp.float32
+    out[name] = jnp.asarray([v[name] for v in values], dtype)
+  return out

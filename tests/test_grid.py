@@ -1,0 +1,65 @@
+"""Per-member settings of a population (mjx_form.rl.grid): parsing, the grid's members, and a
+member's learner config (the compiled program's use of them: tests/test_population.py)."""
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import pytest
+
+from mjx_form.rl import grid
+from mjx_form.rl.learner import LearnerConfig
+
+
+def test_a_grid_is_every_combination_of_seeds_and_values():
+  seeds, overrides = grid.expand((0, 1), {"target_update_period": (25, 200),
+                                          "standardise_reward": (False, True)})
+  assert seeds == (0,) * 4 + (1,) * 4
+  assert overrides[:4] == (
+      {"target_update_period": 25, "standardise_reward": False},
+      {"target_update_period": 25, "standardise_reward": True},
+      {"target_update_period": 200, "standardise_reward": False},
+      {"target_update_period": 200, "standardise_reward": True})
+  assert overrides[4:] == overrides[:4]
+  assert grid.expand((3,), {}) == ((3,), ({},))
+
+
+def test_members_are_named_by_their_seed_and_settings():
+  own = {"target_update_period": 25, "standardise_reward": True, "learning_rate": 3e-4}
+  assert grid.label(0, {}) == "seed 0" and grid.dirname(2, {}) == "seed2"
+  assert grid.label(1, own) == ("seed 1, learning_rate 0.0003, standardise_reward 1, "
+                                "target_update_period 25")
+  assert grid.dirname(1, own) == "seed1_learning_rate0.0003_standardise_reward1_target_update_period25"
+
+
+def test_values_are_parsed_as_their_setting_and_checked():
+  assert grid.parse_value("target_update_period", "25") == 25
+  assert grid.parse_value("epsilon_mean", "5e-3") == 0.005
+  assert grid.parse_value("standardise_reward", "true") is True
+  assert grid.parse_value("standardise_reward", "0") is False
+  for name, text, message in (("target_update_period", "2.5", "expected int"),
+                              ("target_update_period", "0", "must be positive"),
+                              ("discount", "1.5", r"\(0, 1\]"),
+                              ("retrace_lambda", "-0.1", r"\[0, 1\]"),
+                              ("standardise_reward", "yes", "0/1"),
+                              ("num_envs", "8", "cannot differ")):
+    with pytest.raises(ValueError, match=message):
+      grid.parse_value(name, text)
+
+
+def test_a_member_learner_config_takes_its_values_nested_or_traced():
+  base = LearnerConfig()
+  config = grid.learner_config(base, {"epsilon_mean": 0.01, "discount": 0.95})
+  assert config.mpo.epsilon_mean == 0.01 and config.discount == 0.95
+  assert dataclasses.replace(config, discount=base.discount,
+                             mpo=base.mpo) == base  # nothing else changed
+  # Traced: each member's entry of a [P] array stands where the config holds a number.
+  periods = jnp.array([2, 3], jnp.int32)
+  copies = jax.vmap(lambda p: grid.learner_config(base, {"target_update_period": p})
+                    .target_update_period)(periods)
+  assert copies.tolist() == [2, 3]
+  arrays = grid.arrays([{"target_update_period": 2, "learning_rate": 1e-3},
+                        {"target_update_period": 3, "learning_rate": 1e-4}],
+                       ["target_update_period", "learning_rate"])
+  assert arrays["target_update_period"].dtype == jnp.int32
+  assert arrays["learning_rate"].dtype == jnp.float32 and arrays["learning_rate"].shape == (2,)
