@@ -347,8 +347,10 @@ def main(argv=None) -> int:
       finished = row["env_steps"] >= args.env_steps
       print(f"{'done' if finished else 'stopped'}"
             + (f" ({grid.label(seed, own)})" if len(seeds) > 1 else "") + ": "
-            f"eval return {row.get('eval_return', float('nan')):.1f} after "
-            f"{row['env_steps']:,} env steps; policy in {os.path.join(directory, 'policy.npz')}"
+            + "".join(f"{what} {row[key]:.1f}, " for what, key in (
+                ("eval return", "eval_return"), ("fresh evaluation", "final_policy_return"))
+                      if key in row)
+            + f"{row['env_steps']:,} env steps; policy in {os.path.join(directory, 'policy.npz')}"
             f", the best evaluation's in {os.path.join(directory, 'best_policy.npz')}")
     return 0
   try:
