@@ -32,6 +32,7 @@ from scipy import stats  # noqa: E402
 import tasks  # noqa: E402
 from mjx_form.files import effect_models, experts, results  # noqa: E402
 from mjx_form.imitation import effect_model as em  # noqa: E402
+from mjx_form.imitation import pipeline  # noqa: E402
 from mjx_form.rl import normalizer  # noqa: E402
 from mjx_form.rl.networks import make_networks  # noqa: E402
 from mjx_form.sim import env as env_lib  # noqa: E402
@@ -78,12 +79,10 @@ def main(argv=None) -> int:
     parser.error(f"no demonstrator shipped for {args.task}; pass --demonstrator")
   file = effect_models.load_effect_model(path, task=args.task,
                                          observation_layout=env.observation_layout)
-  config = em.EffectModelConfig(**file.metadata["config"])
+  config, demonstrator = pipeline.demonstrator_from_file(file, path)
   model = em.make_model(config, env.observation_size)
-  norm = normalizer.NormalizerState(jnp.asarray(file.mean), jnp.asarray(file.var),
-                                    jnp.asarray(1, jnp.int32))
-  score = jax.jit(lambda obs: em.transition_log_prob(model, file.params, norm, obs[:, :-1],
-                                                     obs[:, 1:]))
+  score = jax.jit(lambda obs: em.transition_log_prob(
+      model, demonstrator.params, demonstrator.normalizer, obs[:, :-1], obs[:, 1:]))
   expert = experts.load_expert(tasks.bundled_expert(args.task), env)
   writer = results.ResultWriter(args.results) if args.results else None
   behaviours = [(f"expert + noise {s}", float(s)) for s in args.noise.split(",")]

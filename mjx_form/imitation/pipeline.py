@@ -114,7 +114,7 @@ def prepare(env, config: em.EffectModelConfig, explicit: dict, artefacts: Artefa
     if not os.path.exists(kept):
       raise PipelineError(f"--resume: {run_dir} holds no {DEMONSTRATOR_FILE}")
     file = _load(kept, env)
-    return FormReward(*_demonstrator(file, kept, explicit), file.metadata["sha256"],
+    return FormReward(*demonstrator_from_file(file, kept, explicit), file.metadata["sha256"],
                       standardise_reward)
 
   path, file = artefacts.demonstrator, None
@@ -140,12 +140,12 @@ def prepare(env, config: em.EffectModelConfig, explicit: dict, artefacts: Artefa
     os.makedirs(run_dir, exist_ok=True)
     file = train_demonstrator(env, config, demos_obs, demos_info, artefacts.training, physics,
                               seed, results_path, print_fn, kept)
-    return FormReward(*_demonstrator(file, kept, explicit), file.metadata["sha256"],
+    return FormReward(*demonstrator_from_file(file, kept, explicit), file.metadata["sha256"],
                       standardise_reward)
 
   if file is None or path != shipped:  # (the shipped one is read already)
     file = _load(path, env)
-  config, demonstrator = _demonstrator(file, path, explicit)
+  config, demonstrator = demonstrator_from_file(file, path, explicit)
   print_fn(f"demonstrator {path}: best of {file.metadata['training'].get('steps')} training "
            f"steps at step {file.metadata['training'].get('best_step')}, held-out "
            f"log-likelihood by offset {file.metadata['training'].get('heldout_log_likelihood')}")
@@ -161,8 +161,9 @@ def prepare(env, config: em.EffectModelConfig, explicit: dict, artefacts: Artefa
                       standardise_reward)
 
 
-def _demonstrator(file: effect_models.EffectModelFile, path: str,
-                  explicit: dict) -> tuple[em.EffectModelConfig, Demonstrator]:
+def demonstrator_from_file(file: effect_models.EffectModelFile, path: str,
+                           explicit: dict | None = None) -> tuple[em.EffectModelConfig,
+                                                                  Demonstrator]:
   """The file's settings (which the imitator model shares) and its model as a Demonstrator;
   refused where `explicit` settings differ from the file's or its parameters do not fit."""
   try:
@@ -170,7 +171,7 @@ def _demonstrator(file: effect_models.EffectModelFile, path: str,
     config.check()
   except (TypeError, ValueError) as e:
     raise PipelineError(f"{path}: unusable effect-model settings: {e}") from None
-  for key, value in explicit.items():
+  for key, value in (explicit or {}).items():
     if value is not None and getattr(config, key) != value:
       raise PipelineError(f"{path}: the demonstrator was trained with {key}="
                           f"{getattr(config, key)}, this run asks for {value} (the imitator "
