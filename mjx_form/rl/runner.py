@@ -364,6 +364,10 @@ _CURVE_FIELDS = (
     "eval_return_std", "train_return", "peak_memory_bytes",
     # the policy's saturation: shares of its mean and samples outside [-1, 1]
     "mean_out_of_bounds", "sampled_out_of_bounds", "penalty_temperature",
+    # MPO's state: temperature, the mean and scale multipliers, the KLs over their bounds
+    # (> 1: constraint violated), the policy's mean scale and entropy, the critic
+    "temperature", "alpha_mean", "alpha_scale", "kl_mean_rel", "kl_scale_rel",
+    "kl_nonparametric_rel", "scale_mean", "entropy", "q_online", "critic_loss",
     # FORM: the reward and both models' log-likelihoods on the learner's batches
     "form_reward", "form_reward_std", "demonstrator_log_prob", "imitator_batch_log_prob",
     "imitator_log_prob")
