@@ -533,8 +533,9 @@ def form_table(records: list[dict], expert_returns: dict[str, float] | None = No
            "of the demonstrations the run's demonstrator was trained on (1000 episodes of the "
            "shipped expert), else the shipped expert's return at export; fraction = FORM / "
            "expert; the paper's fraction is its FORM return over its expert's. Reward: `raw` = "
-           "log pD - log pI as the paper, `standardised` = `--standardise_reward`; T = the "
-           "learner's target period (the paper's is 200):", "",
+           "log pD - log pI as the paper, `standardised` = `--reward_scale standardised` (the "
+           "default); T = the learner's target period (the paper's is 200; the default 25):",
+           "",
            "| task | device | physics | envs | reward, T | seeds | episodes / seed | env steps "
            "| wall clock (mean) | FORM return | best policy | expert | fraction | paper's "
            "fraction |",

@@ -47,7 +47,7 @@ from mjx_form.sim.wrappers import AutoReset  # noqa: E402
 METHODS = ("form", "expert", "random")
 # Options that only --method form reads (a user who gives one to another method is told so).
 FORM_ONLY = ("expert", "demos", "demo_episodes", "save_demos", "demonstrator",
-             "train_demonstrator", "beta_ar", "effect_l2", "standardise_reward")
+             "train_demonstrator", "beta_ar", "effect_l2", "reward_scale", "preset")
 
 DEFAULT_COMPILATION_CACHE = os.path.join(
     os.environ.get("XDG_CACHE_HOME", os.path.expanduser("~/.cache")), "mjx_form", "jax")
@@ -144,9 +144,10 @@ def parse_args(argv=None) -> argparse.Namespace:
                      help="width of every network: policy, critic and effect models")
   train.add_argument("--num_action_samples", type=int,
                      default=defaults.learner.num_action_samples)
-  train.add_argument("--target_update_period", type=int,
-                     default=defaults.learner.target_update_period,
-                     help="learner updates between copies of the online networks to the targets")
+  train.add_argument("--target_update_period", type=int, default=None,
+                     help="learner updates between copies of the online networks to the "
+                          f"targets (default: {defaults.learner.target_update_period}, the "
+                          "paper's, for expert; for form see --preset)")
   train.add_argument("--action_penalty", action="store_true",
                      help="MPO's penalty on sampled actions outside [-1, 1] (multi-objective "
                           "MPO, epsilon 1e-3; on by default in Acme, not stated in the paper): "
@@ -189,9 +190,14 @@ def parse_args(argv=None) -> argparse.Namespace:
                          "mjx_form/imitation/settings.py)")
   form.add_argument("--effect_l2", type=float, default=None,
                     help="effect models' L2 weight (default: per task)")
-  form.add_argument("--standardise_reward", action="store_true",
-                    help="give the learner the FORM reward standardised by its running mean "
-                         "and standard deviation (mjx_form/imitation/form.py)")
+  form.add_argument("--preset", default=None, choices=settings.PRESETS,
+                    help="the imitation run's reward scale and target period: default "
+                         "(standardised, 25: measured, mjx_form/imitation/settings.py) or "
+                         "paper (raw, 200); --reward_scale and --target_update_period win")
+  form.add_argument("--reward_scale", default=None, choices=("standardised", "raw"),
+                    help="standardised: the learner gets the FORM reward standardised by its "
+                         "running mean and sd (mjx_form/imitation/form.py); raw: log pD - log pI "
+                         "as the paper (default: --preset's)")
   steps = demonstrator_lib.DemonstratorTraining()
   form.add_argument("--demonstrator_steps", type=int, default=steps.max_steps,
                     help="most gradient steps of demonstrator training (it stops earlier when "
@@ -232,9 +238,13 @@ def parse_args(argv=None) -> argparse.Namespace:
 
 
 def train_config(args: argparse.Namespace) -> TrainConfig:
+  period = args.target_update_period
+  if period is None:
+    period = (form_run_settings(args)["target_update_period"] if args.method == "form"
+              else LearnerConfig().target_update_period)
   learner = dataclasses.replace(
       LearnerConfig(), num_action_samples=args.num_action_samples,
-      target_update_period=args.target_update_period,
+      target_update_period=period,
       mpo=dataclasses.replace(LearnerConfig().mpo, action_penalty=args.action_penalty))
   seed = args.seeds[0] if args.seeds else args.seed
   return TrainConfig(task=args.task, physics=args.physics,
@@ -246,6 +256,16 @@ def train_config(args: argparse.Namespace) -> TrainConfig:
                      network_width=args.network_width, eval_envs=args.eval_envs,
                      seed=seed, stagger_episodes=not args.lockstep_episodes,
                      learner=learner)
+
+
+def form_run_settings(args: argparse.Namespace) -> dict:
+  """The FORM run's reward scale and target period: --preset's for the task, then the flags."""
+  chosen = settings.run_settings(args.task, args.preset or "default")
+  if args.reward_scale is not None:
+    chosen["standardise_reward"] = args.reward_scale == "standardised"
+  if args.target_update_period is not None:
+    chosen["target_update_period"] = args.target_update_period
+  return chosen
 
 
 def form_source(args: argparse.Namespace, run_dir: str, results_path: str, print_fn):
@@ -265,7 +285,8 @@ def form_source(args: argparse.Namespace, run_dir: str, results_path: str, print
   return pipeline.prepare(tasks.make(args.task, physics=args.physics), config, explicit,
                           artefacts, run_dir, resume=args.resume, physics=args.physics,
                           seed=args.seed, results_path=results_path,
-                          standardise_reward=args.standardise_reward, print_fn=print_fn)
+                          standardise_reward=form_run_settings(args)["standardise_reward"],
+                          print_fn=print_fn)
 
 
 def random_rollout(args: argparse.Namespace, mesh) -> dict:

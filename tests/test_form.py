@@ -221,7 +221,9 @@ def test_form_command_line_runs_every_stage(tmp_path, capsys):
   assert all(np.isfinite(records[0][k]) for k in ("form_reward", "demonstrator_log_prob",
                                                   "imitator_batch_log_prob", "eval_return"))
   assert records[0]["settings"]["reward"]["demonstrator_sha256"] == shipped.metadata["sha256"]
-  assert records[0]["settings"]["reward"]["standardise_reward"] is False
+  # FORM's default run settings (mjx_form/imitation/settings.py): standardised reward, T 25.
+  assert records[0]["settings"]["reward"]["standardise_reward"] is True
+  assert records[0]["settings"]["learner"]["target_update_period"] == 25
   assert records[0]["learner_preset"] == "custom"
   assert [r["policy"] for r in records[1:]] == ["final", "best"]
   assert records[1]["episodes"] == final_episodes and np.isfinite(records[1]["final_return"])
@@ -258,12 +260,18 @@ def test_form_command_line_runs_every_stage(tmp_path, capsys):
   assert all(np.isfinite(records[1][k]) for k in ("form_reward", "demonstrator_log_prob",
                                                   "imitator_batch_log_prob", "eval_return"))
   assert records[1]["settings"]["reward"]["demonstrator_sha256"] == meta["sha256"]
-  assert records[1]["settings"]["reward"]["standardise_reward"] is False
-  # --standardise_reward reaches the reward source (its arithmetic: the test above).
-  args = cli.parse_args(_readme_args(tmp_path / "standardised", "--standardise_reward",
+  assert records[1]["settings"]["reward"]["standardise_reward"] is True
+  # --preset paper gives the paper's raw reward and target period, to the reward source (its
+  # arithmetic: the test above) and the learner; single flags override a preset.
+  args = cli.parse_args(_readme_args(tmp_path / "paper", "--preset", "paper",
                                      "--demo_episodes", "1"))
-  source = cli.form_source(args, str(tmp_path / "standardised"), None, print)
-  assert source.standardise_reward and source.settings()["standardise_reward"] is True
+  source = cli.form_source(args, str(tmp_path / "paper"), None, print)
+  assert not source.standardise_reward and source.settings()["standardise_reward"] is False
+  assert cli.train_config(args).learner.target_update_period == 200
+  args = cli.parse_args(_readme_args(tmp_path / "mixed", "--preset", "paper", "--reward_scale",
+                                     "standardised", "--target_update_period", "50"))
+  assert cli.form_run_settings(args) == {"standardise_reward": True, "target_update_period": 50}
+  assert cli.train_config(cli.parse_args(["--method", "expert"])).learner.target_update_period == 200
   assert records[1]["learner_preset"] == "custom"
   assert [r["policy"] for r in records[2:]] == ["final", "best"]
   assert records[2]["episodes"] == final_episodes and np.isfinite(records[2]["final_return"])

@@ -1,4 +1,5 @@
-"""FORM's per-task effect-model settings, in one place.
+"""FORM's per-task settings, in one place: the effect models' regularisers, and the learner's
+target period and reward scale of an imitation run.
 
 The paper tunes two regularisers per task and shares them between the demonstrator and the
 imitator model: the autoregressive weight beta_ar and the L2 weight, each over the grid
@@ -29,3 +30,25 @@ def effect_model_config(task: str, **overrides) -> EffectModelConfig:
   config = dataclasses.replace(EffectModelConfig(), **chosen)
   config.check()
   return config
+
+
+# The imitation run's learner and reward settings. The paper's: raw reward log pD - log pI,
+# targets copied every 200 updates (`--preset paper`). The default, measured on the GPU
+# (benchmarks/NOTES.md, the FORM sections of 2026-11-23): the FORM reward standardised by its
+# running mean and sd (form.py) and targets copied every 25 updates. walker_walk, raw and 200:
+# 101 at 7.7M steps; standardised and 25: 486 at 5.9M, then 3 seeds with best policies of
+# 918.7 / 942.7 / 940.6 at 13.4M (the demonstrations: 878.8); walker_stand at 2M steps: 274
+# against 91; cheetah_run fails either way (~110 against ~70).
+PAPER_RUN = {"standardise_reward": False, "target_update_period": 200}
+DEFAULT_RUN = {"standardise_reward": True, "target_update_period": 25}
+PER_TASK_RUN: dict[str, dict] = {}
+PRESETS = ("default", "paper")
+
+
+def run_settings(task: str, preset: str = "default") -> dict:
+  """`standardise_reward` and `target_update_period` of a FORM run of `task`."""
+  if preset not in PRESETS:
+    raise ValueError(f"unknown preset {preset!r} (valid: {', '.join(PRESETS)})")
+  if preset == "paper":
+    return dict(PAPER_RUN)
+  return {**DEFAULT_RUN, **PER_TASK_RUN.get(task, {})}
