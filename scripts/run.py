@@ -194,6 +194,8 @@ def parse_args(argv=None) -> argparse.Namespace:
                     help="the imitation run's reward scale and target period: default "
                          "(standardised, 25: measured, mjx_form/imitation/settings.py) or "
                          "paper (raw, 200); --reward_scale and --target_update_period win")
+  form.add_argument("--standardise_reward", dest="reward_scale", action="store_const",
+                    const="standardised", help=argparse.SUPPRESS)  # before --reward_scale
   form.add_argument("--reward_scale", default=None, choices=("standardised", "raw"),
                     help="standardised: the learner gets the FORM reward standardised by its "
                          "running mean and sd (mjx_form/imitation/form.py); raw: log pD - log pI "
