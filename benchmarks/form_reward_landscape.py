@@ -2,13 +2,16 @@
 """Does a demonstrator model rank behaviour the way the task does? (FORM diagnostics)
 
 Records episodes of the shipped expert with growing action noise (its mean action plus
-N(0, sigma^2), clipped) and of uniform random actions, and scores every transition with the
-demonstrator's log pD(x_{t+1} | x_t) (raw observation space, FORM's reward term). Prints, per
-behaviour, the task return and the distribution of log pD, and the rank correlation between an
-episode's task return and its mean log pD over all episodes; appends `kind:
-form_reward_landscape` records.
+N(0, sigma^2), clipped), of uniform random actions and of any `--policy` file (e.g. a FORM
+run's imitator, its mean action), and scores every transition with the demonstrator's
+log pD(x_{t+1} | x_t) (raw observation space, FORM's reward term). Prints, per behaviour, the
+task return, the distribution of log pD and the observation dimensions furthest from the
+noiseless expert's (in its standard deviations: where a policy's posture differs), and the rank
+correlation between an episode's task return and its mean log pD over all episodes; appends
+`kind: form_reward_landscape` records.
 
   python benchmarks/form_reward_landscape.py --task cheetah_run --episodes 8 \\
+      --policy runs/cheetah_run_form_seed0/policy.npz \\
       --results benchmarks/results/<date>_form_reward_landscape_cpu.jsonl
 """
 
@@ -38,10 +41,10 @@ from mjx_form.rl.networks import make_networks  # noqa: E402
 from mjx_form.sim import env as env_lib  # noqa: E402
 
 
-def rollout(env, expert, noise, key, episodes):
-  """Observations [K, T+1, D] and returns [K]: the expert's mean action plus N(0, noise^2)
-  (clipped), or uniform random actions where `noise` is None."""
-  policy = make_networks(env.action_size, expert.metadata["network_width"]).policy
+def rollout(env, agent, noise, key, episodes):
+  """Observations [K, T+1, D] and returns [K]: `agent`'s (a loaded policy file's) mean action
+  plus N(0, noise^2) (clipped), or uniform random actions where `noise` is None."""
+  policy = make_networks(env.action_size, agent.metadata["network_width"]).policy
 
   @jax.jit
   def run(key):
@@ -52,7 +55,7 @@ def rollout(env, expert, noise, key, episodes):
       if noise is None:
         action = jax.random.uniform(key, (episodes, env.action_size), minval=-1, maxval=1)
       else:
-        mean = policy.apply(expert.params, normalizer.normalize(expert.normalizer, states.obs))
+        mean = policy.apply(agent.params, normalizer.normalize(agent.normalizer, states.obs))
         action = mean.mode() + noise * jax.random.normal(key, mean.mode().shape)
       nxt = jax.vmap(env.step)(states, jnp.clip(action, -1.0, 1.0))
       return nxt, (states.obs, nxt.reward)
@@ -64,6 +67,12 @@ def rollout(env, expert, noise, key, episodes):
   return jax.device_get(run(key))
 
 
+def dimension_names(layout) -> list[str]:
+  """One name per observation dimension: 'position[3]' from the layout {'position': 8, ...}."""
+  return [f"{key}[{i}]" if size > 1 else key for key, size in layout.items()
+          for i in range(size)]
+
+
 def main(argv=None) -> int:
   parser = argparse.ArgumentParser(description=__doc__,
                                    formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -71,6 +80,9 @@ def main(argv=None) -> int:
   parser.add_argument("--demonstrator", help="default: tasks/demonstrators/<task>.npz")
   parser.add_argument("--episodes", type=int, default=8, help="per behaviour")
   parser.add_argument("--noise", default="0,0.3,1", help="action noise scales of the expert")
+  parser.add_argument("--policy", action="append", default=[],
+                      help="a policy file of this task to score too (its mean action; "
+                           "repeatable), e.g. a FORM run's policy.npz")
   parser.add_argument("--results", default=None)
   args = parser.parse_args(argv)
   env = tasks.make(args.task)
@@ -84,26 +96,42 @@ def main(argv=None) -> int:
   score = jax.jit(lambda obs: em.transition_log_prob(
       model, demonstrator.params, demonstrator.normalizer, obs[:, :-1], obs[:, 1:]))
   expert = experts.load_expert(tasks.bundled_expert(args.task), env)
+  try:
+    others = [(f"policy {p}", experts.load_expert(p, env)) for p in args.policy]
+  except ValueError as e:
+    parser.error(str(e))
   writer = results.ResultWriter(args.results) if args.results else None
-  behaviours = [(f"expert + noise {s}", float(s)) for s in args.noise.split(",")]
-  behaviours.append(("uniform random", None))
+  behaviours = [(f"expert + noise 0", 0.0, expert)]  # first: the reference posture
+  behaviours += [(f"expert + noise {s}", float(s), expert) for s in args.noise.split(",")
+                 if float(s) != 0]
+  behaviours += [("uniform random", None, expert)] + [(n, 0.0, p) for n, p in others]
+  names = dimension_names(env.observation_layout)
+  reference = None
   all_returns, all_scores = [], []
   print(f"{args.task}: demonstrator {path} (held-out log p at offset 1: "
         f"{file.metadata['training']['heldout_log_likelihood'][0]:.2f})")
-  for i, (name, noise) in enumerate(behaviours):
-    obs, returns = rollout(env, expert, noise, jax.random.PRNGKey(i), args.episodes)
+  for i, (name, noise, agent) in enumerate(behaviours):
+    obs, returns = rollout(env, agent, noise, jax.random.PRNGKey(i), args.episodes)
     log_d = np.asarray(score(jnp.asarray(obs)))  # [K, T]
     per_episode = log_d.mean(axis=1)
     all_returns += list(returns)
     all_scores += list(per_episode)
     q = np.percentile(log_d, [5, 50, 95])
+    flat = obs.reshape(-1, obs.shape[-1])
+    if reference is None:
+      reference = flat.mean(axis=0), flat.std(axis=0) + 1e-6
+    # How far this behaviour's mean observation sits from the noiseless expert's.
+    shift = (flat.mean(axis=0) - reference[0]) / reference[1]
+    far = np.argsort(-np.abs(shift))[:3]
     print(f"  {name:22s} return {returns.mean():7.1f}  log pD per transition: mean "
-          f"{log_d.mean():9.2f}  p5/p50/p95 {q[0]:9.2f} {q[1]:8.2f} {q[2]:8.2f}")
+          f"{log_d.mean():9.2f}  p5/p50/p95 {q[0]:9.2f} {q[1]:8.2f} {q[2]:8.2f}  furthest "
+          "from the expert: " + ", ".join(f"{names[d]} {shift[d]:+.1f} sd" for d in far))
     if writer:
       writer.write(kind="form_reward_landscape", task=args.task, method="form",
                    behaviour=name, noise=noise, episodes=args.episodes,
                    task_return=float(returns.mean()), log_pd_mean=float(log_d.mean()),
                    log_pd_percentiles={"p5": q[0], "p50": q[1], "p95": q[2]},
+                   shift_from_expert={names[d]: float(shift[d]) for d in far},
                    demonstrator_sha256=file.metadata["sha256"])
   rho = stats.spearmanr(all_returns, all_scores).statistic
   print(f"  rank correlation of episode return and mean log pD over all episodes: {rho:.2f}")

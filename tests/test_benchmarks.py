@@ -25,3 +25,13 @@ def test_train_throughput_env_only_runs_over_the_loops_devices():
   # Each timed call is fed the previous output: every leaf (zero-size ones too) must come back
   # with the sharding the executable was compiled for.
   exe(end, key).obs.block_until_ready()
+
+
+def test_form_reward_landscape_names_each_observation_dimension():
+  """Its posture report names dimensions by the task's observation layout, in order."""
+  bench = load_script("form_reward_landscape", folder="benchmarks")
+  assert bench.dimension_names({"orientations": 2, "height": 1, "velocity": 2}) == [
+      "orientations[0]", "orientations[1]", "height", "velocity[0]", "velocity[1]"]
+  import tasks
+  layout = tasks.make("cheetah_run").observation_layout
+  assert len(bench.dimension_names(layout)) == sum(layout.values())
