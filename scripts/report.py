@@ -504,6 +504,42 @@ def population_table(records: list[dict]) -> str:
   return "\n".join(lines)
 
 
+def scaling_table(records: list[dict]) -> str:
+  """`kind: scaling` (benchmarks/scaling.py): steps/s on N devices of one host and the
+  efficiency against N x one device of the same host, per task and mode."""
+  rows = [r for r in records if r.get("kind") == "scaling"]
+  if not rows:
+    return ("No scaling results yet (`benchmarks/scaling.py`; measured on the GPU machines "
+            "only).")
+  per_device = lambda r: (r["total_envs"] // r["devices"], r["members"] // r["devices"]
+                          if r["mode"] == "population" else r["members"])
+  key = lambda r, n: (r["task"], r["mode"], r["device"], *per_device(r),
+                      r["settings"]["updates_per_iteration"], n)
+  newest = _newest(rows, lambda r: key(r, r["devices"]))
+  lines = ["Scaling over the devices of one host (`benchmarks/scaling.py`): total env steps per "
+           "second of the whole training iteration (and of env-only stepping) on N devices; "
+           "efficiency = steps/s on N devices / (N x steps/s on one device of the same host, "
+           "same amounts per device). weak: one run, its environments, learner batch and "
+           "replay per device fixed; population: members per device fixed, each member's "
+           "environments split over the devices:", "",
+           "| task | mode | device | envs / device | members | N | iteration steps/s | "
+           "efficiency | env-only steps/s | efficiency | collection | peak memory |",
+           "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+  ordered = sorted(newest.values(), key=lambda r: (_order(r["task"]), r["mode"], r["device"],
+                                                   r["devices"]))
+  for r in ordered:
+    one = newest.get(key(r, 1))
+    n = r["devices"]
+    eff = lambda field: f"{r[field] / (n * one[field]):.2f}" if one else "-"
+    memory = r.get("peak_memory_bytes")
+    lines.append(f"| {r['task']} | {r['mode']} | `{r['device']}` | "
+                 f"{r['total_envs'] // n} | {r['members']} | {n} | {_k(r['sps'])} | "
+                 f"{eff('sps')} | {_k(r['env_sps'])} | {eff('env_sps')} | "
+                 f"{r['collect_s']:.2f} s | "
+                 f"{'-' if memory is None else f'{memory / 2**30:.1f} GiB'} |")
+  return "\n".join(lines)
+
+
 def form_table(records: list[dict], expert_returns: dict[str, float] | None = None,
                demonstration_returns: dict[str, float] | None = None) -> str:
   """FORM's results: one row per task and configuration, over its seeds. Each seed's return is
@@ -614,7 +650,7 @@ def readme_tables(records: list[dict]) -> dict[str, str]:
   return {"form": form_table(records), "demonstrators": effect_model_table(records),
           "experts": experts_table(records), "learning_summary": learning_summary(records),
           "parity_summary": parity_summary(records),
-          "throughput_summary": throughput_summary(records)}
+          "throughput_summary": throughput_summary(records), "scaling": scaling_table(records)}
 
 
 def notes_tables(records: list[dict]) -> dict[str, str]:

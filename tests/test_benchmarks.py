@@ -1,7 +1,10 @@
 """The benchmark scripts' own logic (their timings are taken on the GPU, never in tests)."""
 
+import json
+
 import jax
 import numpy as np
+import pytest
 from conftest import load_script
 
 from mjx_form.rl.train import TrainConfig, Trainer
@@ -35,3 +38,37 @@ def test_form_reward_landscape_names_each_observation_dimension():
   import tasks
   layout = tasks.make("cheetah_run").observation_layout
   assert len(bench.dimension_names(layout)) == sum(layout.values())
+
+
+def test_scaling_measures_weak_scaling_and_builds_populations_over_the_devices(tmp_path, capsys):
+  """benchmarks/scaling.py on the 2 forced host devices, tiny sizes: weak scaling measured (one
+  record, amounts per device scaled, each phase printed as it ends); the population it would
+  measure (the same `measure`) has its members per device, each member's envs on both."""
+  bench = load_script("scaling", folder="benchmarks")
+  out = tmp_path / "scaling.jsonl"
+  sizes = ["--envs_per_device", "2", "--members_per_device", "2", "--envs_per_member", "2",
+           "--unroll_length", "5", "--batch_size", "2", "--replay_capacity", "4",
+           "--updates_per_iteration", "1", "--network_width", "16"]
+  assert bench.main(["--tasks", "reacher_easy", "--devices", "2", "--modes", "weak", *sizes,
+                     "--repeats", "1", "--out", str(out)]) == 0
+  printed = capsys.readouterr().out
+  assert "reacher_easy weak on 2 device(s): env only" in printed
+  assert "reacher_easy weak on 2 device(s): iteration" in printed
+  weak, = [json.loads(line) for line in open(out)]
+  assert (weak["kind"], weak["mode"], weak["devices"], weak["members"]) == ("scaling", "weak", 2, 1)
+  assert weak["total_envs"] == 4 and weak["settings"]["batch_size"] == 4
+  assert weak["settings"]["replay_capacity"] == 8
+  assert weak["sps"] > 0 and weak["env_sps"] > 0 and 0 < weak["collect_s"] < 60
+  args = bench.main.__globals__["argparse"].Namespace(
+      physics="fast", envs_per_device=2, members_per_device=2, envs_per_member=2,
+      unroll_length=5, batch_size=2, replay_capacity=4, updates_per_iteration=1,
+      network_width=16)
+  population = bench.trainer_for("population", "reacher_easy", 2, args)
+  assert population.members == 4 and population.config.num_envs == 2
+  assert population.mesh.devices.size == 2 and population.config.batch_size == 2
+  one = bench.trainer_for("weak", "reacher_easy", 1, args)
+  assert one.mesh.devices.size == 1 and one.config.num_envs == 2
+  # A device count the host lacks is refused before anything runs.
+  with pytest.raises(SystemExit):
+    bench.main(["--tasks", "reacher_easy", "--devices", "3", "--out", str(out)])
+  assert "has 2 device(s)" in capsys.readouterr().err

@@ -127,6 +127,22 @@ def test_population_table_gives_the_speed_up_over_one_member():
   assert "| 1 | 50k | 1.00x | 1.00 s | 0.40 s | 0.60 s | 6.00 | 1.0 GiB |" in rows[0], rows
 
 
+def test_scaling_table_gives_the_efficiency_against_one_device():
+  assert report.scaling_table([]).startswith("No scaling")
+
+  def record(devices, sps, env_sps, mode="weak", device="gpu:H x8"):
+    return {"kind": "scaling", "task": "humanoid_run", "mode": mode, "device": device,
+            "devices": devices, "members": 1, "total_envs": 2048 * devices, "sps": sps,
+            "env_sps": env_sps, "collect_s": 1.5, "peak_memory_bytes": 2**31,
+            "settings": {"updates_per_iteration": 128}}
+  table = report.scaling_table([record(1, 20_000, 500_000), record(8, 144_000, 3_600_000),
+                                record(8, 100_000, 1e6, device="gpu:other x8")])
+  rows = [line for line in table.splitlines() if line.startswith("| humanoid_run")]
+  assert "| 8 | 144k | 0.90 | 3.60M | 0.90 | 1.50 s | 2.0 GiB |" in rows[1], rows
+  assert "| 1 | 20k | 1.00 | 500k | 1.00 |" in rows[0], rows
+  assert "| 8 | 100k | - | 1.00M | - |" in rows[2], rows  # no one-device row on that host
+
+
 def test_demonstrator_tables_show_the_held_out_likelihood():
   assert report.effect_model_table([]) == "No demonstrator results yet."
   base = {"kind": "effect_model", "task": "walker_walk", "method": "form", "device": "gpu:X",
