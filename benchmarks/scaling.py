@@ -12,8 +12,9 @@ Modes (`--modes`):
 Each measurement is the best of `--repeats` calls after a warm-up (compile times apart) and is
 printed as it ends, so a run cut off by a time limit still says what it measured; each writes
 a `kind: scaling` record (devices, mode, total env steps/s of the iteration and of env-only
-stepping, the iteration's collection time, peak memory of the busiest device so far in this
-process: run one device count per process for a clean peak). Efficiency (steps/s on N devices
+stepping, peak memory of the busiest device so far in this process: run one device count per
+process for a clean peak). The iteration's split into collection and updates on one device:
+benchmarks/train_throughput.py. Efficiency (steps/s on N devices
 over N x one device's) is computed where the table is made (scripts/report.py).
 
   python benchmarks/scaling.py --tasks humanoid_run cheetah_run --devices 1 2 4 8
@@ -39,7 +40,7 @@ from mjx_form import mesh as mesh_lib  # noqa: E402
 from mjx_form.files import results  # noqa: E402
 from mjx_form.rl.train import Trainer, TrainConfig  # noqa: E402
 from mjx_form.sim.physics import DEFAULT_PHYSICS, PHYSICS_MODES  # noqa: E402
-from train_throughput import env_only_fn, time_collect, time_iterations  # noqa: E402
+from train_throughput import env_only_fn, time_iterations  # noqa: E402
 
 MODES = ("weak", "population")
 
@@ -69,20 +70,19 @@ def measure(trainer: Trainer, mode: str, args, writer, key) -> dict:
                                                 config.num_envs * members, args.repeats)
   print(f"{label}: env only {env_sps:,.0f} steps/s (compile {env_compile_s:.0f}s)", flush=True)
   state = trainer.init(trainer.keys())
-  collect_s, _ = time_collect(trainer, state, args.repeats)
   iteration_s, compile_s, _ = time_iterations(trainer, state, args.repeats)
   record = {"mode": mode, "devices": devices, "members": members,
             "num_envs": config.num_envs, "total_envs": config.num_envs * members,
             "sps": per_iteration / iteration_s, "env_sps": env_sps,
-            "iteration_s": iteration_s, "collect_s": collect_s,
+            "iteration_s": iteration_s,
             "peak_memory_bytes": results.peak_memory_bytes(), "compile_s": compile_s,
             "env_compile_s": env_compile_s}
   settings = {**config.to_dict(), "repeats": args.repeats}
   writer.write(kind="scaling", task=config.task, method="expert", physics=config.physics,
                settings=settings, **record)
   memory = record["peak_memory_bytes"]
-  print(f"{label}: iteration {record['sps']:,.0f} steps/s ({iteration_s:.3f} s, collection "
-        f"{collect_s:.3f} s), {record['total_envs']} envs in {members} member(s), peak memory "
+  print(f"{label}: iteration {record['sps']:,.0f} steps/s ({iteration_s:.3f} s), "
+        f"{record['total_envs']} envs in {members} member(s), peak memory "
         f"{'n/a' if memory is None else f'{memory / 2**30:.1f} GiB'} (compile {compile_s:.0f}s)",
         flush=True)
   return record

@@ -523,7 +523,7 @@ def scaling_table(records: list[dict]) -> str:
            "replay per device fixed; population: members per device fixed, each member's "
            "environments split over the devices:", "",
            "| task | mode | device | envs / device | members | N | iteration steps/s | "
-           "efficiency | env-only steps/s | efficiency | collection | peak memory |",
+           "efficiency | env-only steps/s | efficiency | iteration | peak memory |",
            "|---|---|---|---|---|---|---|---|---|---|---|---|"]
   ordered = sorted(newest.values(), key=lambda r: (_order(r["task"]), r["mode"], r["device"],
                                                    r["devices"]))
@@ -535,7 +535,7 @@ def scaling_table(records: list[dict]) -> str:
     lines.append(f"| {r['task']} | {r['mode']} | `{r['device']}` | "
                  f"{r['total_envs'] // n} | {r['members']} | {n} | {_k(r['sps'])} | "
                  f"{eff('sps')} | {_k(r['env_sps'])} | {eff('env_sps')} | "
-                 f"{r['collect_s']:.2f} s | "
+                 f"{r['iteration_s']:.2f} s | "
                  f"{'-' if memory is None else f'{memory / 2**30:.1f} GiB'} |")
   return "\n".join(lines)
 

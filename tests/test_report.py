@@ -133,7 +133,7 @@ def test_scaling_table_gives_the_efficiency_against_one_device():
   def record(devices, sps, env_sps, mode="weak", device="gpu:H x8"):
     return {"kind": "scaling", "task": "humanoid_run", "mode": mode, "device": device,
             "devices": devices, "members": 1, "total_envs": 2048 * devices, "sps": sps,
-            "env_sps": env_sps, "collect_s": 1.5, "peak_memory_bytes": 2**31,
+            "env_sps": env_sps, "iteration_s": 1.5, "peak_memory_bytes": 2**31,
             "settings": {"updates_per_iteration": 128}}
   table = report.scaling_table([record(1, 20_000, 500_000), record(8, 144_000, 3_600_000),
                                 record(8, 100_000, 1e6, device="gpu:other x8")])
