@@ -101,7 +101,7 @@ def main(argv=None) -> int:
   except ValueError as e:
     parser.error(str(e))
   writer = results.ResultWriter(args.results) if args.results else None
-  behaviours = [(f"expert + noise 0", 0.0, expert)]  # first: the reference posture
+  behaviours = [("expert + noise 0", 0.0, expert)]  # first: the reference posture
   behaviours += [(f"expert + noise {s}", float(s), expert) for s in args.noise.split(",")
                  if float(s) != 0]
   behaviours += [("uniform random", None, expert)] + [(n, 0.0, p) for n, p in others]

@@ -1,5 +1,6 @@
 """The benchmark scripts' own logic (their timings are taken on the GPU, never in tests)."""
 
+import argparse
 import json
 
 import jax
@@ -59,7 +60,7 @@ def test_scaling_measures_weak_scaling_and_builds_populations_over_the_devices(t
   assert weak["total_envs"] == 4 and weak["settings"]["batch_size"] == 4
   assert weak["settings"]["replay_capacity"] == 8
   assert weak["sps"] > 0 and weak["env_sps"] > 0 and 0 < weak["iteration_s"] < 60
-  args = bench.main.__globals__["argparse"].Namespace(
+  args = argparse.Namespace(
       physics="fast", envs_per_device=2, members_per_device=2, envs_per_member=2,
       unroll_length=5, batch_size=2, replay_capacity=4, updates_per_iteration=1,
       network_width=16)

@@ -22,6 +22,8 @@ def test_a_grid_is_every_combination_of_seeds_and_values():
       {"target_update_period": 200, "standardise_reward": True})
   assert overrides[4:] == overrides[:4]
   assert grid.expand((3,), {}) == ((3,), ({},))
+  # A member's values split into the learner's and the reward source's.
+  assert grid.split(overrides[1]) == ({"target_update_period": 25}, {"standardise_reward": True})
 
 
 def test_members_are_named_by_their_seed_and_settings():

@@ -39,12 +39,22 @@ SOURCE = {"standardise_reward": bool}
 NAMES = (*LEARNER, *SOURCE)
 
 
+def _kind(name: str) -> type:
+  return LEARNER[name][1] if name in LEARNER else SOURCE[name]
+
+
+def split(values: dict) -> tuple[dict, dict]:
+  """(the LEARNER settings of `values`, the reward source's)."""
+  return ({k: v for k, v in values.items() if k in LEARNER},
+          {k: v for k, v in values.items() if k not in LEARNER})
+
+
 def parse_value(name: str, text: str):
   """One grid value from the command line, as its setting's type."""
   if name not in NAMES:
     raise ValueError(f"--grid: {name!r} cannot differ between members (it can: "
                      f"{', '.join(NAMES)})")
-  kind = LEARNER[name][1] if name in LEARNER else SOURCE[name]
+  kind = _kind(name)
   if kind is bool:
     if text.lower() not in ("0", "1", "true", "false"):
       raise ValueError(f"--grid {name}: expected 0/1 or true/false, got {text!r}")
@@ -111,7 +121,7 @@ def arrays(values: list[dict], names) -> dict[str, Any]:
   """The members' values of `names` as [P] arrays (int32 for integer settings, float32 else)."""
   out = {}
   for name in names:
-    kind = LEARNER[name][1] if name in LEARNER else SOURCE[name]
+    kind = _kind(name)
     dtype = jnp.int32 if kind is int else jnp.bool_ if kind is bool else jnp.float32
     out[name] = jnp.asarray([v[name] for v in values], dtype)
   return out

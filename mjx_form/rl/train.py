@@ -141,13 +141,15 @@ class Trainer:
   program; `overrides` give members their own values of some settings (mjx_form.rl.grid).
   Each member has its own environments, replay, networks, optimiser and dual states,
   normaliser, reward-source state and random stream, and computes what a single run with its
-  seed and settings computes: the learner, normaliser, replay and source are `vmap`ped over the member axis,
-  and the members' environments share one batch, so the auto-reset's `lax.cond` stays one
-  branch taken for all (a `vmap` of it would run every reset at every step).
+  seed and settings computes: the learner, normaliser, replay and source are `vmap`ped over
+  the member axis, and the members' environments share one batch, so the auto-reset's
+  `lax.cond` stays one branch taken for all (a `vmap` of it would run every reset at every
+  step).
   """
 
   def __init__(self, config: TrainConfig, mesh=None, reward_source=None,
-               seeds: tuple[int, ...] | None = None, overrides: tuple[dict, ...] | None = None):
+               seeds: tuple[int, ...] | None = None,
+               overrides: tuple[dict, ...] | None = None):
     """`reward_source` overrides the source named by `config.reward_source` (see
     mjx_form.rl.reward_sources for the interface); `seeds`: the members' seeds (default:
     `config.seed` alone); `overrides`: each member's own values of settings that may differ
@@ -212,13 +214,16 @@ class Trainer:
 
   def member_config(self, i: int) -> TrainConfig:
     """Member i's settings (its seed and overrides applied; the source's are `member_source`)."""
-    learner_values = {k: v for k, v in self.overrides[i].items() if k in grid.LEARNER}
+    learner_values, _ = grid.split(self.overrides[i])
     return dataclasses.replace(self.config, seed=self.seeds[i],
                                learner=grid.learner_config(self.config.learner, learner_values))
 
   def member_source(self, i: int):
     """Member i's reward source (its overrides of the source's settings applied)."""
-    values = {k: v for k, v in self.overrides[i].items() if k not in grid.LEARNER}
+    return self._source_with(grid.split(self.overrides[i])[1])
+
+  def _source_with(self, values: dict):
+    """The reward source with `values` (Python, or a member's traced ones) for its settings."""
     return self.source.specialise(values) if values else self.source
 
   def keys(self, offset: int = 0) -> jax.Array:
@@ -366,17 +371,15 @@ class Trainer:
   def _learn(self, learner, source, norm, buffer, settings: dict, keys: jax.Array):
     """One learner update of every member; keys [P, 2]. Returns (learner, source, metrics)."""
     cfg = self.config
-    learner_values = {k: v for k, v in settings.items() if k in grid.LEARNER}
-    source_values = {k: v for k, v in settings.items() if k not in grid.LEARNER}
+    learner_values, source_values = grid.split(settings)
     sample_key, source_key, update_key = jnp.moveaxis(
         jax.vmap(lambda k: jax.random.split(k, 3))(keys), 1, 0)  # [3, P, 2]
     batch = jax.vmap(lambda b, k: replay.sample(b, k, cfg.batch_size))(buffer, sample_key)
     batch = jax.lax.with_sharding_constraint(batch, self._member_batch)  # [P, B, ...]
     # Settings members may override come in as each member's entry of a [P] array.
-    own_source = lambda values: self.source.specialise(values) if values else self.source
-    source, source_metrics = jax.vmap(lambda s, b, k, v: own_source(v).update(s, b, k))(
+    source, source_metrics = jax.vmap(lambda s, b, k, v: self._source_with(v).update(s, b, k))(
         source, batch, source_key, source_values)
-    rewards, reward_metrics = jax.vmap(lambda s, b, v: own_source(v).relabel(s, b))(
+    rewards, reward_metrics = jax.vmap(lambda s, b, v: self._source_with(v).relabel(s, b))(
         source, batch, source_values)
     def update(learner, norm, batch, rewards, key, values):
       config = grid.learner_config(cfg.learner, values)
