@@ -152,6 +152,10 @@ def parse_args(argv=None) -> argparse.Namespace:
                      help="MPO's penalty on sampled actions outside [-1, 1] (multi-objective "
                           "MPO, epsilon 1e-3; on by default in Acme, not stated in the paper): "
                           "keeps the policy's mean from drifting out of the action bounds")
+  train.add_argument("--clip_critic_actions", action="store_true",
+                     help="the critic sees clip(a, -1, 1), the action the environment applies "
+                          "(Acme's control-suite MPO); by default tanh of the unclipped sample, "
+                          "as the paper")
   train.add_argument("--eval_envs", type=int, default=defaults.eval_envs)
   train.add_argument("--lockstep_episodes", action="store_true",
                      help="start every environment's first episode together (as runs before "
@@ -246,7 +250,7 @@ def train_config(args: argparse.Namespace) -> TrainConfig:
               else LearnerConfig().target_update_period)
   learner = dataclasses.replace(
       LearnerConfig(), num_action_samples=args.num_action_samples,
-      target_update_period=period,
+      target_update_period=period, clip_critic_actions=args.clip_critic_actions,
       mpo=dataclasses.replace(LearnerConfig().mpo, action_penalty=args.action_penalty))
   seed = args.seeds[0] if args.seeds else args.seed
   return TrainConfig(task=args.task, physics=args.physics,

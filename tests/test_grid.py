@@ -39,11 +39,14 @@ def test_values_are_parsed_as_their_setting_and_checked():
   assert grid.parse_value("epsilon_mean", "5e-3") == 0.005
   assert grid.parse_value("standardise_reward", "true") is True
   assert grid.parse_value("standardise_reward", "0") is False
+  assert grid.parse_value("clip_critic_actions", "1") is True  # a learner bool
+  assert grid.parse_value("clip_critic_actions", "false") is False
   for name, text, message in (("target_update_period", "2.5", "expected int"),
                               ("target_update_period", "0", "must be positive"),
                               ("discount", "1.5", r"\(0, 1\]"),
                               ("retrace_lambda", "-0.1", r"\[0, 1\]"),
                               ("standardise_reward", "yes", "0/1"),
+                              ("clip_critic_actions", "2", "0/1"),
                               ("num_envs", "8", "cannot differ")):
     with pytest.raises(ValueError, match=message):
       grid.parse_value(name, text)
@@ -65,3 +68,5 @@ def test_a_member_learner_config_takes_its_values_nested_or_traced():
                        ["target_update_period", "learning_rate"])
   assert arrays["target_update_period"].dtype == jnp.int32
   assert arrays["learning_rate"].dtype == jnp.float32 and arrays["learning_rate"].shape == (2,)
+  assert grid.arrays([{"clip_critic_actions": True}, {"clip_critic_actions": False}],
+                     ["clip_critic_actions"])["clip_critic_actions"].dtype == jnp.bool_

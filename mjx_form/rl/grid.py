@@ -32,6 +32,7 @@ LEARNER = {
     "epsilon": (("mpo", "epsilon"), float),
     "epsilon_mean": (("mpo", "epsilon_mean"), float),
     "epsilon_scale": (("mpo", "epsilon_scale"), float),
+    "clip_critic_actions": (("clip_critic_actions",), bool),
 }
 # name -> type: settings a reward source lists in its `variable_settings` (FORM's
 # standardise_reward); the source's `specialise(values)` gives a member's source.
@@ -73,7 +74,8 @@ def check_value(name: str, value) -> None:
     raise ValueError(f"discount must be in (0, 1], got {value}")
   if name == "retrace_lambda" and not 0.0 <= value <= 1.0:
     raise ValueError(f"retrace_lambda must be in [0, 1], got {value}")
-  if name in LEARNER and name not in ("discount", "retrace_lambda") and not value > 0:
+  if (name in LEARNER and _kind(name) is not bool and name not in ("discount", "retrace_lambda")
+      and not value > 0):
     raise ValueError(f"{name} must be positive, got {value}")
 
 

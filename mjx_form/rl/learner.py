@@ -33,6 +33,10 @@ class LearnerConfig:
   learning_rate: float = 1e-4
   dual_learning_rate: float = 1e-3
   max_grad_norm: float = 40.0  # Acme's MPO clips gradients at 40 (not stated in the paper)
+  # The critic sees clip(a, -1, 1), the action the environment applies, as Acme's control-suite
+  # MPO does (`ClipToSpec`); off: the paper's critic sees tanh of the unclipped sample, so two
+  # actions the environment cannot tell apart get different values.
+  clip_critic_actions: bool = False
   mpo: mpo.MPOConfig = mpo.MPOConfig()
 
 
@@ -87,19 +91,21 @@ def losses(networks: Networks, config: LearnerConfig, online: tuple, state: Lear
   """
   policy_params, critic_params, duals = online
   actions = batch["action"]
+  # The critic's view of an action (a Python or a member's traced bool: see grid.py).
+  seen = lambda a: jnp.where(config.clip_critic_actions, jnp.clip(a, -1.0, 1.0), a)
   target_pi = networks.policy.apply(state.target_policy, obs)  # [B, T+1, A]
   sampled = target_pi.sample(key, (config.num_action_samples,))  # [N, B, T+1, A]
-  q_sampled = networks.critic.apply(state.target_critic, obs, sampled)  # [N, B, T+1]
+  q_sampled = networks.critic.apply(state.target_critic, obs, seen(sampled))  # [N, B, T+1]
   v = jnp.mean(q_sampled, axis=0)  # [B, T+1]
 
   obs_t = obs[:, :-1]
-  q_taken_target = networks.critic.apply(state.target_critic, obs_t, actions)  # [B, T]
+  q_taken_target = networks.critic.apply(state.target_critic, obs_t, seen(actions))  # [B, T]
   log_rhos = (jax.tree.map(lambda x: x[:, :-1], target_pi).log_prob(actions)
               - batch["behaviour_log_prob"])
   targets = jax.vmap(retrace.retrace_targets, in_axes=(0, 0, 0, 0, 0, None, None))(
       q_taken_target, v[:, 1:], rewards, config.discount * batch["discount"], log_rhos,
       config.retrace_lambda, _retrace_unroll())
-  q_online = networks.critic.apply(critic_params, obs_t, actions)  # [B, T]
+  q_online = networks.critic.apply(critic_params, obs_t, seen(actions))  # [B, T]
   critic_loss = 0.5 * jnp.mean(jnp.square(q_online - targets))
 
   online_pi = networks.policy.apply(policy_params, obs_t)  # [B, T, A]

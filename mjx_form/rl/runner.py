@@ -44,7 +44,8 @@ from mjx_form.rl.train import TrainConfig, Trainer, iterations_for
 RESUMABLE = ("total_env_steps", "log_every", "eval_every", "checkpoint_every")
 # Settings added since checkpoints were first written, with the value that does what runs did
 # before them: a checkpoint whose config lacks one resumes only with that value.
-ADDED_SETTINGS = {"learner.mpo.action_penalty": False, "learner.mpo.epsilon_penalty": 1e-3}
+ADDED_SETTINGS = {"learner.mpo.action_penalty": False, "learner.mpo.epsilon_penalty": 1e-3,
+                  "learner.clip_critic_actions": False}
 
 
 # Columns that not every row has (evaluation rows; devices that report memory).
