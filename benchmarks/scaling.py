@@ -23,6 +23,7 @@ over N x one device's) is computed where the table is made (scripts/report.py).
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import os
 import sys
 
@@ -38,6 +39,7 @@ import jax  # noqa: E402
 import tasks  # noqa: E402
 from mjx_form import mesh as mesh_lib  # noqa: E402
 from mjx_form.files import results  # noqa: E402
+from mjx_form.rl.learner import LearnerConfig  # noqa: E402
 from mjx_form.rl.train import Trainer, TrainConfig  # noqa: E402
 from mjx_form.sim.physics import DEFAULT_PHYSICS, PHYSICS_MODES  # noqa: E402
 from train_throughput import env_only_fn, time_iterations  # noqa: E402
@@ -55,7 +57,10 @@ def trainer_for(mode: str, task: str, devices: int, args) -> Trainer:
                        unroll_length=args.unroll_length, batch_size=args.batch_size * scale,
                        replay_capacity=args.replay_capacity * scale,
                        updates_per_iteration=args.updates_per_iteration,
-                       network_width=args.network_width, eval_envs=devices)
+                       network_width=args.network_width, eval_envs=devices,
+                       learner=dataclasses.replace(
+                           LearnerConfig(), num_action_samples=args.num_action_samples,
+                           target_update_period=args.target_update_period))
   members = args.members_per_device * devices if mode == "population" else 1
   return Trainer(config, mesh, seeds=tuple(range(members)))
 
@@ -109,6 +114,11 @@ def main(argv=None) -> int:
   parser.add_argument("--updates_per_iteration", type=int,
                       default=defaults.updates_per_iteration)
   parser.add_argument("--network_width", type=int, default=defaults.network_width)
+  parser.add_argument("--num_action_samples", type=int,
+                      default=defaults.learner.num_action_samples,
+                      help="actions per state the target critic evaluates in an update")
+  parser.add_argument("--target_update_period", type=int,
+                      default=defaults.learner.target_update_period)
   parser.add_argument("--repeats", type=int, default=3)
   parser.add_argument("--out", default=common.default_results_path("scaling"))
   args = parser.parse_args(argv)

@@ -44,12 +44,20 @@ def test_form_reward_landscape_names_each_observation_dimension():
 def test_scaling_measures_weak_scaling_and_builds_populations_over_the_devices(tmp_path, capsys):
   """benchmarks/scaling.py on the 2 forced host devices, tiny sizes: weak scaling measured (one
   record, amounts per device scaled, each phase printed as it ends); the population it would
-  measure (the same `measure`) has its members per device, each member's envs on both."""
+  measure (the same `measure`) has its members per device, each member's envs on both. The
+  sizes are test_train's CONFIG on two devices, whose programs the persistent cache holds."""
+  from test_train import CONFIG
   bench = load_script("scaling", folder="benchmarks")
   out = tmp_path / "scaling.jsonl"
   sizes = ["--envs_per_device", "2", "--members_per_device", "2", "--envs_per_member", "2",
-           "--unroll_length", "5", "--batch_size", "2", "--replay_capacity", "4",
-           "--updates_per_iteration", "1", "--network_width", "16"]
+           "--unroll_length", "10", "--batch_size", "2", "--replay_capacity", "6",
+           "--updates_per_iteration", "2", "--network_width", "32", "--num_action_samples", "4",
+           "--target_update_period", "3"]
+  args = argparse.Namespace(
+      physics="fast", envs_per_device=2, members_per_device=2, envs_per_member=2,
+      unroll_length=10, batch_size=2, replay_capacity=6, updates_per_iteration=2,
+      network_width=32, num_action_samples=4, target_update_period=3)
+  assert bench.trainer_for("weak", "reacher_easy", 2, args).config == CONFIG
   assert bench.main(["--tasks", "reacher_easy", "--devices", "2", "--modes", "weak", *sizes,
                      "--repeats", "1", "--out", str(out)]) == 0
   printed = capsys.readouterr().out
@@ -58,12 +66,8 @@ def test_scaling_measures_weak_scaling_and_builds_populations_over_the_devices(t
   weak, = [json.loads(line) for line in open(out)]
   assert (weak["kind"], weak["mode"], weak["devices"], weak["members"]) == ("scaling", "weak", 2, 1)
   assert weak["total_envs"] == 4 and weak["settings"]["batch_size"] == 4
-  assert weak["settings"]["replay_capacity"] == 8
+  assert weak["settings"]["replay_capacity"] == 12
   assert weak["sps"] > 0 and weak["env_sps"] > 0 and 0 < weak["iteration_s"] < 60
-  args = argparse.Namespace(
-      physics="fast", envs_per_device=2, members_per_device=2, envs_per_member=2,
-      unroll_length=5, batch_size=2, replay_capacity=4, updates_per_iteration=1,
-      network_width=16)
   population = bench.trainer_for("population", "reacher_easy", 2, args)
   assert population.members == 4 and population.config.num_envs == 2
   assert population.mesh.devices.size == 2 and population.config.batch_size == 2
