@@ -77,3 +77,29 @@ def test_scaling_measures_weak_scaling_and_builds_populations_over_the_devices(t
   with pytest.raises(SystemExit):
     bench.main(["--tasks", "reacher_easy", "--devices", "3", "--out", str(out)])
   assert "has 2 device(s)" in capsys.readouterr().err
+
+
+def test_dm_control_transfer_runs_the_expert_in_dm_control(tmp_path):
+  """benchmarks/dm_control_transfer.py, 2 short episodes of reacher_easy: a record with the
+  dm_control return (reacher's reward is in [0, 1] per step); observations flattened in
+  dm_control's own order; a task whose declared layout differs from dm_control's is refused."""
+  bench = load_script("dm_control_transfer", folder="benchmarks")
+  out = tmp_path / "transfer.jsonl"
+  args = ["--tasks", "reacher_easy", "--episodes", "2", "--steps", "20", "--out", str(out)]
+  assert bench.main(args) == 0
+  record, = [json.loads(line) for line in open(out)]
+  assert record["kind"] == "expert_transfer" and record["episodes"] == 2
+  assert 0 <= record["dm_control_return"] <= 20 and "mjx_return" not in record  # short: no MJX
+  from mjx_form.sim import parity
+  env = parity.load_dm_control_env("reacher_easy", 0)
+  ts = env.reset()
+  np.testing.assert_array_equal(
+      bench.flat_observations([ts], bench.dm_control_layout(env))[0],
+      parity.flat_observation(ts.observation).astype(np.float32))
+  import tasks
+  from mjx_form.files import experts
+  task = tasks.make("reacher_easy")
+  expert = experts.load_expert(tasks.bundled_expert("reacher_easy"), task)
+  swapped = dict(reversed(list(task.observation_layout.items())))
+  with pytest.raises(bench.LayoutError, match="dm_control observes"):
+    bench.dm_control_returns("reacher_easy", expert, swapped, task.action_size, 1, 0, 1)
