@@ -263,13 +263,33 @@ def _run_label(path: str, task: str) -> str:
   return f"{name[:10]}{' ' + suffix if suffix else ''}"
 
 
+def _member(record: dict) -> str:
+  """The settings a population's members may differ in besides the seed (mjx_form/rl/grid.py):
+  with the result file, task and seed it names one run."""
+  settings = record.get("settings", {})
+  return json.dumps([settings.get("learner"),
+                     settings.get("reward", {}).get("standardise_reward")], sort_keys=True)
+
+
+def _learner_note(record: dict, with_period: bool = True) -> str:
+  """A run's learner settings that differ from the paper's, as a label suffix: e.g. ' (T 25,
+  critic clips actions)'; '' for the paper's."""
+  learner = record.get("settings", {}).get("learner", {})
+  notes = []
+  if with_period and learner.get("target_update_period", 200) != 200:
+    notes.append(f"T {learner['target_update_period']}")
+  if learner.get("clip_critic_actions"):
+    notes.append("critic clips actions")
+  return f" ({', '.join(notes)})" if notes else ""
+
+
 def _expert_runs(records: list[dict]) -> dict[tuple, list[dict]]:
-  """{(result file, task, seed): its learning-curve records} of the expert runs (task reward;
-  records before FORM existed carry method "expert" or none)."""
+  """{(result file, task, seed, member settings): its learning-curve records} of the expert
+  runs (task reward; records before FORM existed carry method "expert" or none)."""
   runs: dict[tuple, list[dict]] = {}
   for r in records:
     if r.get("kind") == "learning_curve" and r.get("method", "expert") == "expert":
-      runs.setdefault((r["_file"], r["task"], r["seed"]), []).append(r)
+      runs.setdefault((r["_file"], r["task"], r["seed"], _member(r)), []).append(r)
   return runs
 
 
@@ -279,7 +299,7 @@ def learning_summary(records: list[dict], threshold: float = 800.0) -> str:
   runs = _expert_runs(records)
   if not runs:
     return "No learning results yet."
-  tasks = sorted({task for _, task, _ in runs}, key=_order)
+  tasks = sorted({key[1] for key in runs}, key=_order)
   lines = [f"Expert runs (`--method expert`) per task; the full table, one row per run with its "
            f"settings, is in `benchmarks/NOTES.md`. Evaluation: mean task return of "
            f"{next(iter(runs.values()))[0]['settings']['eval_episodes']} episodes with the "
@@ -288,8 +308,8 @@ def learning_summary(records: list[dict], threshold: float = 800.0) -> str:
            f"| task | runs | highest evaluation (env steps, run) | first evaluation >= "
            f"{threshold:.0f}, fastest run: wall clock (env steps, run) |", "|---|---|---|---|"]
   for task in tasks:
-    curves = [sorted(c, key=lambda r: r["env_steps"]) for (_, t, _), c in runs.items()
-              if t == task]
+    curves = [sorted(c, key=lambda r: r["env_steps"]) for key, c in runs.items()
+              if key[1] == task]
     best = max((r for c in curves for r in c), key=lambda r: r["eval_return"])
     reached = [next((r for r in c if r["eval_return"] >= threshold), None) for c in curves]
     reached = [r for r in reached if r is not None]
@@ -321,8 +341,8 @@ def learning_table(records: list[dict], threshold: float = 800.0) -> str:
            "first episodes | action penalty | env steps | wall clock | start-up | final eval | "
            f"best eval | first eval >= {threshold:.0f}: wall clock (env steps) | result file |",
            "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
-  for (_, task, _), curve in sorted(runs.items(),
-                                    key=lambda kv: (_order(kv[0][1]), kv[1][0]["num_envs"])):
+  for (_, task, _, _), curve in sorted(runs.items(), key=lambda kv: (
+      _order(kv[0][1]), kv[1][0]["num_envs"], kv[0][0], kv[0][2], kv[0][3])):
     curve = sorted(curve, key=lambda r: r["env_steps"])
     last, best = curve[-1], max(curve, key=lambda r: r["eval_return"])
     reached = next((r for r in curve if r["eval_return"] >= threshold), None)
@@ -335,7 +355,7 @@ def learning_table(records: list[dict], threshold: float = 800.0) -> str:
                  f"{last['env_steps'] / 1e6:.1f}M | {_duration(last['wall_s'])} | "
                  f"{_startup(curve[0])} | "
                  f"{last['eval_return']:.1f} | {best['eval_return']:.1f} | {first} | "
-                 f"{_run_label(last['_file'], task)} |")
+                 f"{_run_label(last['_file'], task)}{_learner_note(last)} |")
   return "\n".join(lines)
 
 
@@ -384,25 +404,35 @@ def _shipped_experts(folder: str = EXPERTS) -> list[tuple[dict, str]]:
 
 def experts_table(records: list[dict] = (), folder: str = EXPERTS) -> str:
   """One row per shipped expert file, from its metadata, with its newest evaluation on the CPU
-  (`kind: expert_eval` records of the same policy checksum) where there is one."""
+  (`kind: expert_eval` records of the same policy checksum) and in dm_control (`kind:
+  expert_transfer`, full episodes) where there are."""
   rows = _shipped_experts(folder)
   if not rows:
     return "No shipped experts yet."
   cpu = _newest([r for r in records if r.get("kind") == "expert_eval"
                  and r["device"].startswith("cpu") and not r.get("stochastic")],
                 lambda r: r["policy_sha256"])
+  transfer = _newest([r for r in records if r.get("kind") == "expert_transfer"
+                      and "mjx_return" in r], lambda r: r["policy_sha256"])
   lines = ["Expert policies shipped in `tasks/experts/` (`scripts/make_demos.py --task <name>` "
            "records demonstrations from them). Return: mean of the evaluation episodes at export "
            "(policy mean action), on the device it was trained on; CPU: the same policy on the "
-           "CPU (float32 physics, `kind: expert_eval` records), mean over its episodes:", "",
-           "| task | file | return | CPU (episodes) | paper's expert | env steps | envs | "
-           "updates / iteration | physics | sha256 |", "|---|---|---|---|---|---|---|---|---|---|"]
+           "CPU (float32 physics, `kind: expert_eval` records), mean over its episodes; dm_control: "
+           "the same policy in dm_control's own environment against as many MJX episodes on the "
+           "CPU (`benchmarks/dm_control_transfer.py`, `kind: expert_transfer`), and their ratio:",
+           "", "| task | file | return | CPU (episodes) | dm_control / MJX (episodes) | ratio | "
+           "paper's expert | env steps | envs | updates / iteration | physics | sha256 |",
+           "|---|---|---|---|---|---|---|---|---|---|---|---|"]
   for meta, name in rows:
     config = meta.get("train_config", {})
     paper = PAPER_EXPERT.get(meta["task"])
     on_cpu = cpu.get(meta["sha256"])
     cpu_text = f"{on_cpu['mean_return']:.1f} ({on_cpu['episodes']})" if on_cpu else "-"
+    moved = transfer.get(meta["sha256"])
+    moved_text = (f"{moved['dm_control_return']:.1f} / {moved['mjx_return']:.1f} "
+                  f"({moved['episodes']}) | {moved['ratio']:.3f}" if moved else "- | -")
     lines.append(f"| {meta['task']} | `{name}` | {meta['eval_return']:.1f} | {cpu_text} | "
+                 f"{moved_text} | "
                  f"{'-' if paper is None else f'{paper:.1f}'} | {meta['env_steps'] / 1e6:.1f}M | "
                  f"{config.get('num_envs', '-')} | {config.get('updates_per_iteration', '-')} | "
                  f"{meta.get('physics', '-')} | `{meta['sha256'][:12]}` |")
@@ -431,7 +461,8 @@ def _form_variant(record: dict) -> str:
   """How a FORM run used its reward, and its learner's target period: e.g. `raw, T 200`."""
   settings = record.get("settings", {})
   reward = "standardised" if settings.get("reward", {}).get("standardise_reward") else "raw"
-  return f"{reward}, T {settings.get('learner', {}).get('target_update_period', '-')}"
+  return (f"{reward}, T {settings.get('learner', {}).get('target_update_period', '-')}"
+          f"{', critic clips actions' if _learner_note(record, with_period=False) else ''}")
 
 
 def form_runs_table(records: list[dict]) -> str:
@@ -443,9 +474,9 @@ def form_runs_table(records: list[dict]) -> str:
     if r.get("method") != "form":
       continue
     if r.get("kind") == "learning_curve" and r.get("eval_return") is not None:
-      runs.setdefault((r["_file"], r["task"], r["seed"]), []).append(r)
+      runs.setdefault((r["_file"], r["task"], r["seed"], _member(r)), []).append(r)
     elif r.get("kind") == "final_return" and r.get("policy") == "final":
-      finals[(r["_file"], r["task"], r["seed"])] = r["final_return"]
+      finals[(r["_file"], r["task"], r["seed"], _member(r))] = r["final_return"]
   if not runs:
     return "No FORM learning runs yet."
   lines = ["FORM learning runs, one row per run and seed (periodic evaluations: mean task "
@@ -456,7 +487,7 @@ def form_runs_table(records: list[dict]) -> str:
            "clock | last eval | best eval | fresh eval | log pD at the end | result file |",
            "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
   for key, curve in sorted(runs.items(), key=lambda kv: (_order(kv[0][1]), kv[0][0],
-                                                         kv[0][2])):
+                                                         kv[0][2], kv[0][3])):
     curve = sorted(curve, key=lambda r: r["env_steps"])
     last, best = curve[-1], max(curve, key=lambda r: r["eval_return"])
     fresh = finals.get(key)

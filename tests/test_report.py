@@ -96,14 +96,21 @@ def _curve_point(steps, value, **fields):
 
 def test_form_runs_table_has_one_row_per_run_and_seed():
   assert report.form_runs_table([]).startswith("No FORM learning runs")
+  settings = _curve_point(0, 0)["settings"]
+  clipped = dict(settings, learner={"target_update_period": 25, "clip_critic_actions": True})
   records = [_curve_point(1e6, 100.0), _curve_point(3e6, 300.0), _curve_point(2e6, 350.0),
              _curve_point(1e6, 50.0, seed=1),
-             dict(_final_return(1, 77.0, task="walker_walk"), _file="d/2026-12-01_x.jsonl"),
-             dict(_curve_point(1e6, 999.0), method="expert")]
+             dict(_final_return(1, 77.0, task="walker_walk", settings=settings),
+                  _file="d/2026-12-01_x.jsonl"),
+             dict(_curve_point(1e6, 999.0), method="expert"),
+             # a population member of seed 0 with its own (grid) setting: a run of its own
+             _curve_point(1e6, 120.0, settings=clipped)]
   table = report.form_runs_table(records)
   rows = [line for line in table.splitlines() if line.startswith("| walker_walk")]
   # seed 0: last eval 300 at 3M, best 350, no fresh evaluation; seed 1: its final_return.
   assert rows == [
+      "| walker_walk | `gpu:X` | standardised, T 25, critic clips actions | 512 | 128 | 0 | 1.0M | "
+      "100 s | 120.0 | 120.0 | - | 1.2 | 2026-12-01 |",
       "| walker_walk | `gpu:X` | standardised, T 25 | 512 | 128 | 0 | 3.0M | 300 s | 300.0 | "
       "350.0 | - | 3.0 | 2026-12-01 |",
       "| walker_walk | `gpu:X` | standardised, T 25 | 512 | 128 | 1 | 1.0M | 100 s | 50.0 | "
