@@ -47,10 +47,11 @@ def dm_control_layout(dm_env) -> dict[str, int]:
   return {name: int(np.prod(spec.shape)) for name, spec in dm_env.observation_spec().items()}
 
 
-def flat_observations(time_steps, layout: dict[str, int]) -> np.ndarray:
-  """[K, D] float32: each time step's observation dict flattened in `layout`'s order."""
-  return np.stack([np.concatenate([np.asarray(ts.observation[name], np.float32).ravel()
-                                   for name in layout]) for ts in time_steps])
+def flat_observations(time_steps) -> np.ndarray:
+  """[K, D] float32: each time step's observation dict flattened in dm_control's order (the
+  task's layout, checked by `dm_control_returns`)."""
+  return np.stack([parity.flat_observation(ts.observation) for ts in time_steps]
+                  ).astype(np.float32)
 
 
 def mean_action_fn(expert: experts.Expert, action_size: int):
@@ -71,7 +72,7 @@ def dm_control_returns(task: str, expert: experts.Expert, layout: dict[str, int]
   time_steps = [env.reset() for env in envs]
   returns = np.zeros(episodes)
   for _ in range(steps):
-    actions = np.asarray(act(flat_observations(time_steps, layout)), np.float64)
+    actions = np.asarray(act(flat_observations(time_steps)), np.float64)
     time_steps = [env.step(a) for env, a in zip(envs, actions)]
     returns += [ts.reward or 0.0 for ts in time_steps]
   return returns

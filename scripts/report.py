@@ -271,16 +271,16 @@ def _member(record: dict) -> str:
                      settings.get("reward", {}).get("standardise_reward")], sort_keys=True)
 
 
-def _learner_note(record: dict, with_period: bool = True) -> str:
-  """A run's learner settings that differ from the paper's, as a label suffix: e.g. ' (T 25,
-  critic clips actions)'; '' for the paper's."""
+def _learner_notes(record: dict, with_period: bool = True) -> list[str]:
+  """A run's learner settings that differ from the paper's: e.g. ['T 25', 'critic clips
+  actions']; [] for the paper's."""
   learner = record.get("settings", {}).get("learner", {})
   notes = []
   if with_period and learner.get("target_update_period", 200) != 200:
     notes.append(f"T {learner['target_update_period']}")
   if learner.get("clip_critic_actions"):
     notes.append("critic clips actions")
-  return f" ({', '.join(notes)})" if notes else ""
+  return notes
 
 
 def _expert_runs(records: list[dict]) -> dict[tuple, list[dict]]:
@@ -349,13 +349,14 @@ def learning_table(records: list[dict], threshold: float = 800.0) -> str:
     first = (f"{_duration(reached['wall_s'])} ({reached['env_steps'] / 1e6:.1f}M)" if reached
              else "not reached")
     settings = last["settings"]
+    notes = ", ".join(_learner_notes(last))
     lines.append(f"| {task} | `{last['device']}` | {_matmuls(last)} | {last['num_envs']} | "
                  f"{settings['updates_per_iteration']} ({settings['replay_ratio']:g}) | "
                  f"{_episodes(last)} | {_action_penalty(last)} | "
                  f"{last['env_steps'] / 1e6:.1f}M | {_duration(last['wall_s'])} | "
                  f"{_startup(curve[0])} | "
                  f"{last['eval_return']:.1f} | {best['eval_return']:.1f} | {first} | "
-                 f"{_run_label(last['_file'], task)}{_learner_note(last)} |")
+                 f"{_run_label(last['_file'], task)}{f' ({notes})' if notes else ''} |")
   return "\n".join(lines)
 
 
@@ -461,8 +462,8 @@ def _form_variant(record: dict) -> str:
   """How a FORM run used its reward, and its learner's target period: e.g. `raw, T 200`."""
   settings = record.get("settings", {})
   reward = "standardised" if settings.get("reward", {}).get("standardise_reward") else "raw"
-  return (f"{reward}, T {settings.get('learner', {}).get('target_update_period', '-')}"
-          f"{', critic clips actions' if _learner_note(record, with_period=False) else ''}")
+  period = settings.get("learner", {}).get("target_update_period", "-")
+  return ", ".join([reward, f"T {period}", *_learner_notes(record, with_period=False)])
 
 
 def form_runs_table(records: list[dict]) -> str:

@@ -94,7 +94,7 @@ def test_dm_control_transfer_runs_the_expert_in_dm_control(tmp_path):
   env = parity.load_dm_control_env("reacher_easy", 0)
   ts = env.reset()
   np.testing.assert_array_equal(
-      bench.flat_observations([ts], bench.dm_control_layout(env))[0],
+      bench.flat_observations([ts, ts])[1],
       parity.flat_observation(ts.observation).astype(np.float32))
   import tasks
   from mjx_form.files import experts
