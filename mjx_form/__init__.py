@@ -6,4 +6,5 @@
   files/      what runs read and write: demonstrations, policies, effect models, checkpoints,
               result records
   cpu.py, mesh.py   XLA settings for the CPU; the device mesh
+  paper.py    the paper's Table 1 returns (comparison only)
 """

@@ -103,3 +103,24 @@ def test_dm_control_transfer_runs_the_expert_in_dm_control(tmp_path):
   swapped = dict(reversed(list(task.observation_layout.items())))
   with pytest.raises(bench.LayoutError, match="dm_control observes"):
     bench.dm_control_returns("reacher_easy", expert, swapped, task.action_size, 1, 0, 1)
+
+
+def test_expert_eval_summarises_returns_and_refuses_another_tasks_policy(tmp_path, capsys):
+  """benchmarks/expert_eval.py: mean, sd and standard error as numpy computes them, the bar at
+  0.95x the paper's expert; a policy of another task is refused by name, with nothing written."""
+  bench = load_script("expert_eval", folder="benchmarks")
+  returns = np.array([900.0, 950.0, 980.0, 10.0])
+  numbers = bench.summary(returns, "reacher_easy")
+  assert numbers["mean_return"] == pytest.approx(710.0)
+  assert numbers["std_return"] == pytest.approx(np.std(returns))
+  assert numbers["stderr_return"] == pytest.approx(np.std(returns, ddof=1) / 2.0)
+  assert numbers["min_return"] == 10.0 and numbers["episodes"] == 4
+  assert numbers["paper_expert_return"] == 974.6 and numbers["reaches_bar"] is False
+  assert bench.summary(np.array([926.0]), "reacher_easy")["reaches_bar"] is True  # 925.87
+  assert bench.summary(np.array([925.8]), "reacher_easy")["reaches_bar"] is False
+  out = tmp_path / "eval.jsonl"
+  import tasks
+  args = ["--tasks", "reacher_hard", "--policy", tasks.bundled_expert("cheetah_run"),
+          "--episodes", "2", "--out", str(out)]
+  assert bench.main(args) == 2
+  assert "cheetah_run" in capsys.readouterr().err and not out.exists()

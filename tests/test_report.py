@@ -249,3 +249,27 @@ def test_learning_rows_show_the_action_penalty():
   assert sum("| staggered | 0.001 | 1.0M |" in row for row in rows) == 1
   assert sum("| staggered | - | 1.0M |" in row for row in rows) == 2
   assert "| staggered | 0.001 | 1.0M | 60 s | - | 900.0 | 900.0 | 60 s (1.0M) |" in table
+
+
+def test_experts_table_judges_the_bar_on_the_evaluation_of_most_episodes():
+  """Of a shipped expert's fresh evaluations the one of most episodes is shown and judged
+  against 0.95x the paper's expert (reacher_easy: 925.87); stochastic ones are not used."""
+  rows = report._shipped_experts(report.EXPERTS)
+  meta = next(m for m, _ in rows if m["task"] == "reacher_easy")
+
+  def evaluation(episodes, mean, time, **extra):
+    return dict(kind="expert_eval", task="reacher_easy", policy_sha256=meta["sha256"],
+                episodes=episodes, mean_return=mean, stderr_return=1.0, device="gpu:H200",
+                time=time, **extra)
+
+  def row(records):
+    line, = [l for l in report.experts_table(records).splitlines() if "`reacher_easy.npz`" in l]
+    return line
+
+  few = evaluation(16, 990.0, "2026-11-23T02")
+  many = evaluation(1000, 925.0, "2026-11-23T01")
+  assert "990.0 +- 1.0 (16, gpu)" in row([few]) and "| met |" in row([few])
+  line = row([few, many, evaluation(4000, 999.0, "2026-11-23T03", stochastic=True)])
+  assert "925.0 +- 1.0 (1000, gpu)" in line and "below (925.9)" in line
+  assert "926.0" in row([many, evaluation(1000, 926.0, "2026-11-23T04")])  # newest of a tie
+  assert row([]).startswith("| reacher_easy | `reacher_easy.npz` | 922.0 | - | - | - | 974.6 | - |")

@@ -1,0 +1,103 @@
+"""A fresh evaluation of expert policies over many episodes.
+
+The return stored in an expert file is the best of its training evaluations (32 episodes): the
+maximum of noisy estimates, biased upwards. This script evaluates each policy afresh, with its
+mean action (clipped to [-1, 1]) over `--episodes` full episodes (default 1000, the number of
+demonstrations FORM records), and appends one `kind: expert_eval` record per task: mean,
+standard deviation, standard error, min and max return, the paper's expert return and
+whether the mean reaches the experts issue's bar (0.95x, `mjx_form.paper`).
+
+  python benchmarks/expert_eval.py                              # every shipped expert
+  python benchmarks/expert_eval.py --tasks walker_walk --policy runs/ww/seed0/best_policy.npz
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import common  # noqa: E402  (puts the repository on sys.path)
+from mjx_form.cpu import configure_cpu_xla  # noqa: E402
+
+configure_cpu_xla()
+
+import jax  # noqa: E402
+import numpy as np  # noqa: E402
+
+import tasks  # noqa: E402
+from mjx_form import paper as paper_lib  # noqa: E402
+from mjx_form.files import experts  # noqa: E402
+
+
+
+def summary(returns: np.ndarray, task: str) -> dict:
+  """The record's numbers for `returns` [K] of `task`."""
+  paper = paper_lib.EXPERT.get(task)
+  mean = float(returns.mean())
+  return {"episodes": int(returns.size), "mean_return": mean,
+          "std_return": float(returns.std()),
+          "stderr_return": float(returns.std(ddof=1) / np.sqrt(returns.size))
+          if returns.size > 1 else float("nan"),
+          "min_return": float(returns.min()), "max_return": float(returns.max()),
+          "paper_expert_return": paper,
+          "reaches_bar": None if paper is None else bool(mean >= paper_lib.EXPERT_BAR * paper)}
+
+
+def main(argv=None) -> int:
+  parser = argparse.ArgumentParser(description=__doc__,
+                                   formatter_class=argparse.RawDescriptionHelpFormatter)
+  parser.add_argument("--tasks", nargs="*", default=None, choices=tasks.TASKS, metavar="TASK",
+                      help="default: every task with a shipped expert")
+  parser.add_argument("--policy", default=None, help="one task's policy file instead of the "
+                      "shipped expert (with a single --tasks)")
+  parser.add_argument("--episodes", type=int, default=1000)
+  parser.add_argument("--chunk", type=int, default=1000, help="episodes run at once")
+  parser.add_argument("--seed", type=int, default=0)
+  parser.add_argument("--out", default=None, help="default: benchmarks/results/<date>_"
+                      "expert_eval_<device>.jsonl")
+  args = parser.parse_args(argv)
+  names = args.tasks if args.tasks is not None else list(tasks.bundled_experts())
+  if args.episodes <= 0 or args.chunk <= 0:
+    parser.error("--episodes and --chunk must be positive")
+  if args.policy is not None and len(names) != 1:
+    parser.error("--policy needs exactly one --tasks")
+  out = args.out or common.default_results_path(f"expert_eval_{jax.default_backend()}")
+  writer = common.ResultWriter(out)
+  for task in names:
+    try:
+      path = args.policy or tasks.bundled_expert(task)
+      expert = experts.load_expert(path, tasks.make(task))
+    except (ValueError, KeyError) as e:
+      print(f"error: {e}", file=sys.stderr)
+      return 2
+    # The physics the expert was trained in (the shipped ones: fast).
+    env = tasks.make(task, physics=expert.metadata.get("physics", "fast"))
+    start = time.perf_counter()
+    _, _, returns = experts.record_demonstrations(
+        env, expert, jax.random.PRNGKey(args.seed), args.episodes, args.chunk,
+        print_fn=lambda line: None)
+    seconds = time.perf_counter() - start
+    numbers = summary(returns, task)
+    writer.write(kind="expert_eval", task=task, physics=env.physics,
+                 policy_file=args.policy or os.path.basename(path),
+                 policy_sha256=expert.metadata["sha256"],
+                 policy_env_steps=expert.metadata.get("env_steps"),
+                 export_return=expert.metadata.get("eval_return"), stochastic=False,
+                 seed=args.seed, seconds=seconds, **numbers)
+    paper = numbers["paper_expert_return"]
+    bar = ("" if paper is None else f"; {paper_lib.EXPERT_BAR}x paper "
+           f"{paper_lib.EXPERT_BAR * paper:.1f}: "
+           f"{'reached' if numbers['reaches_bar'] else 'NOT reached'}")
+    print(f"{task}: {numbers['mean_return']:.1f} +- {numbers['stderr_return']:.1f} (s.e.) over "
+          f"{numbers['episodes']} episodes, min {numbers['min_return']:.1f} (at export "
+          f"{expert.metadata.get('eval_return', float('nan')):.1f}{bar}) [{seconds:.0f}s]",
+          flush=True)
+  print(f"results appended to {out}")
+  return 0
+
+
+if __name__ == "__main__":
+  sys.exit(main())
