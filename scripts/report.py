@@ -283,32 +283,47 @@ def _expert_runs(records: list[dict]) -> dict[tuple, list[dict]]:
   return runs
 
 
+def _fastest_to(curves: list[list[dict]], threshold: float, task: str) -> str:
+  """Wall clock (env steps, run) of the fastest of `curves` to a first evaluation at or above
+  `threshold`, or "not reached"."""
+  reached = [next((r for r in c if r["eval_return"] >= threshold), None) for c in curves]
+  reached = [r for r in reached if r is not None]
+  if not reached:
+    return "not reached"
+  fastest = min(reached, key=lambda r: r["wall_s"])
+  return (f"{_duration(fastest['wall_s'])} ({fastest['env_steps'] / 1e6:.1f}M, "
+          f"{_run_label(fastest['_file'], task)})")
+
+
 def learning_summary(records: list[dict], threshold: float = 800.0) -> str:
   """One row per task: how many expert runs, the highest evaluation of any of them, and the
-  fastest run to the first evaluation at or above `threshold`."""
+  fastest run to a first evaluation at or above `threshold` and at or above the experts bar
+  (0.95x the paper's expert: the time to expert)."""
   runs = _expert_runs(records)
   if not runs:
     return "No learning results yet."
-  tasks = sorted({key[1] for key in runs}, key=_order)
   lines = [f"Expert runs (`--method expert`) per task; the full table, one row per run with its "
            f"settings, is in `benchmarks/NOTES.md`. Evaluation: mean task return of "
            f"{next(iter(runs.values()))[0]['settings']['eval_episodes']} episodes with the "
            f"policy's mean action; wall clock includes start-up (compiling, or loading from "
-           f"JAX's persistent compilation cache):", "",
+           f"JAX's persistent compilation cache). Time to expert: the fastest run to a first "
+           f"evaluation at or above {paper.EXPERT_BAR}x the paper's expert return:", "",
            f"| task | runs | highest evaluation (env steps, run) | first evaluation >= "
-           f"{threshold:.0f}, fastest run: wall clock (env steps, run) |", "|---|---|---|---|"]
-  for task in tasks:
+           f"{threshold:.0f}, fastest run: wall clock (env steps, run) | {paper.EXPERT_BAR}x "
+           f"paper's expert | time to expert: wall clock (env steps, run) |",
+           "|---|---|---|---|---|---|"]
+  for task in TASK_ORDER:
     curves = [sorted(c, key=lambda r: r["env_steps"]) for key, c in runs.items()
               if key[1] == task]
+    bar = paper.EXPERT_BAR * PAPER_EXPERT[task]
+    if not curves:
+      lines.append(f"| {task} | 0 | - | - | {bar:.1f} | no runs yet |")
+      continue
     best = max((r for c in curves for r in c), key=lambda r: r["eval_return"])
-    reached = [next((r for r in c if r["eval_return"] >= threshold), None) for c in curves]
-    reached = [r for r in reached if r is not None]
-    fastest = min(reached, key=lambda r: r["wall_s"]) if reached else None
-    first = (f"{_duration(fastest['wall_s'])} ({fastest['env_steps'] / 1e6:.1f}M, "
-             f"{_run_label(fastest['_file'], task)})" if fastest else "not reached")
     lines.append(f"| {task} | {len(curves)} | {best['eval_return']:.1f} "
                  f"({best['env_steps'] / 1e6:.1f}M, {_run_label(best['_file'], task)}) | "
-                 f"{first} |")
+                 f"{_fastest_to(curves, threshold, task)} | {bar:.1f} | "
+                 f"{_fastest_to(curves, bar, task)} |")
   return "\n".join(lines)
 
 

@@ -178,6 +178,12 @@ def test_learning_tables_show_expert_runs_only():
               eval_return=990.0)
   summary = report.learning_summary([*curve, fast, form])
   assert "| walker_walk | 2 | 850.0 (2.0M, a) | 90 s (1.0M, b) |" in summary, summary
+  assert "| 934.0 | not reached |" in summary  # walker_walk's bar: 0.95 x 983.2
+  assert "| humanoid_run | 0 | - | - | 699.8 | no runs yet |" in summary
+  expert = [dict(base, method="expert", _file="d.jsonl", env_steps=s, wall_s=w, eval_return=v)
+            for s, w, v in ((4e6, 400.0, 933.9), (5e6, 500.0, 934.1))]
+  summary = report.learning_summary([*curve, fast, form, *expert])
+  assert "| 934.0 | 500 s (5.0M, d) |" in summary, summary
   assert "990.0" not in report.learning_table([*curve, fast, form])
 
 
