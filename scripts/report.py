@@ -484,11 +484,16 @@ def _demonstration_returns(folder: str = DEMONSTRATORS) -> dict[str, float]:
 
 
 def _form_variant(record: dict) -> str:
-  """How a FORM run used its reward, and its learner's target period: e.g. `raw, T 200`."""
+  """How a FORM run used its reward, its learner's target period and its effect models'
+  regularisers: e.g. `raw, T 200, ar 1, L2 0.1`."""
   settings = record.get("settings", {})
   reward = "standardised" if settings.get("reward", {}).get("standardise_reward") else "raw"
   period = settings.get("learner", {}).get("target_update_period", "-")
-  return ", ".join([reward, f"T {period}", *_learner_notes(record, with_period=False)])
+  model = settings.get("reward", {}).get("effect_model", {})
+  regularisers = ([f"ar {model['beta_ar']:g}, L2 {model['l2']:g}"]
+                  if "beta_ar" in model and "l2" in model else [])
+  return ", ".join([reward, f"T {period}", *regularisers,
+                    *_learner_notes(record, with_period=False)])
 
 
 def form_runs_table(records: list[dict]) -> str:
@@ -509,7 +514,7 @@ def form_runs_table(records: list[dict]) -> str:
            "return of the run's `--eval_envs` episodes; fresh: the final policy over "
            "`--final_eval_envs` episodes, `-` where the run was stopped by `--max_seconds` "
            "before it). Wall clock includes start-up (demonstrations, compiling):", "",
-           "| task | device | reward, T | envs | updates / iteration | seed | env steps | wall "
+           "| task | device | reward, T, effect models | envs | updates / iteration | seed | env steps | wall "
            "clock | last eval | best eval | fresh eval | log pD at the end | result file |",
            "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
   for key, curve in sorted(runs.items(), key=lambda kv: (_order(kv[0][1]), kv[0][0],
@@ -627,9 +632,10 @@ def form_table(records: list[dict], expert_returns: dict[str, float] | None = No
            "shipped expert), else the shipped expert's return at export; fraction = FORM / "
            "expert; the paper's fraction is its FORM return over its expert's. Reward: `raw` = "
            "log pD - log pI as the paper, `standardised` = `--reward_scale standardised` (the "
-           "default); T = the learner's target period (the paper's is 200; the default 25):",
+           "default); T = the learner's target period (the paper's is 200; the default 25); ar, L2: "
+           "the effect models' beta_ar and L2 weight:",
            "",
-           "| task | device | physics | envs | reward, T | seeds | episodes / seed | env steps "
+           "| task | device | physics | envs | reward, T, effect models | seeds | episodes / seed | env steps "
            "| wall clock (mean) | FORM return | best policy | expert | fraction | paper's "
            "fraction |",
            "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]

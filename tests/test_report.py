@@ -75,6 +75,13 @@ def test_form_table_averages_the_final_policy_over_seeds():
   table = report.form_table(records + [_final_return(0, 400.0, settings=variant)],
                             expert_returns={"cheetah_run": 875.0}, demonstration_returns={})
   assert "| 512 | standardised, T 25 | 1 | 256 | 20.0M | 10.0 min | 400.0 |" in table, table
+  # So are other effect-model regularisers (a demonstrator of another beta_ar or L2).
+  models = [_final_return(0, v, settings={"reward": {"effect_model": {"beta_ar": a, "l2": l2}}})
+            for v, a, l2 in ((410.0, 1.0, 0.1), (420.0, 0.01, 1.0))]
+  table = report.form_table(models, expert_returns={"cheetah_run": 875.0},
+                            demonstration_returns={})
+  assert "| raw, T -, ar 1, L2 0.1 | 1 | 256 | 20.0M | 10.0 min | 410.0 |" in table, table
+  assert "| raw, T -, ar 0.01, L2 1 | 1 | 256 | 20.0M | 10.0 min | 420.0 |" in table, table
   unknown = report.form_table([_final_return(0, 500.0)], expert_returns={},
                               demonstration_returns={})
   assert "| 500.0 | - | - | - | 0.89 |" in unknown
