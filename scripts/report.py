@@ -257,8 +257,9 @@ def _member(record: dict) -> str:
   """The settings a population's members may differ in besides the seed (mjx_form/rl/grid.py):
   with the result file, task and seed it names one run."""
   settings = record.get("settings", {})
-  return json.dumps([settings.get("learner"),
-                     settings.get("reward", {}).get("standardise_reward")], sort_keys=True)
+  reward = settings.get("reward", {})
+  return json.dumps([settings.get("learner"), reward.get("standardise_reward"),
+                     reward.get("reward_clip", 0.0)], sort_keys=True)
 
 
 def _learner_notes(record: dict, with_period: bool = True) -> list[str]:
@@ -488,6 +489,8 @@ def _form_variant(record: dict) -> str:
   regularisers: e.g. `raw, T 200, ar 1, L2 0.1`."""
   settings = record.get("settings", {})
   reward = "standardised" if settings.get("reward", {}).get("standardise_reward") else "raw"
+  if settings.get("reward", {}).get("reward_clip", 0.0) > 0:
+    reward += f" clipped at {settings['reward']['reward_clip']:g} sd"
   period = settings.get("learner", {}).get("target_update_period", "-")
   model = settings.get("reward", {}).get("effect_model", {})
   regularisers = ([f"ar {model['beta_ar']:g}, L2 {model['l2']:g}"]

@@ -47,7 +47,7 @@ from mjx_form.sim.wrappers import AutoReset  # noqa: E402
 METHODS = ("form", "expert", "random")
 # Options that only --method form reads (a user who gives one to another method is told so).
 FORM_ONLY = ("expert", "demos", "demo_episodes", "save_demos", "demonstrator",
-             "train_demonstrator", "beta_ar", "effect_l2", "reward_scale", "preset")
+             "train_demonstrator", "beta_ar", "effect_l2", "reward_scale", "reward_clip", "preset")
 
 DEFAULT_COMPILATION_CACHE = os.path.join(
     os.environ.get("XDG_CACHE_HOME", os.path.expanduser("~/.cache")), "mjx_form", "jax")
@@ -115,7 +115,7 @@ def parse_args(argv=None) -> argparse.Namespace:
                            "population is every combination of the seeds and the values, each "
                            "member in <run_dir>/seed<s>_<name><value>/; the values replace "
                            "--NAME. Settings that may differ: " + ", ".join(grid.NAMES)
-                           + " (standardise_reward: 0/1, --method form)")
+                           + " (standardise_reward: 0/1, reward_clip: --method form)")
   parser.add_argument("--list", action="store_true", help="print the task names and exit")
   parser.add_argument("--method", default="form", choices=METHODS,
                       help="form: imitation from observations (default); expert: MPO on the "
@@ -204,6 +204,11 @@ def parse_args(argv=None) -> argparse.Namespace:
                     help="standardised: the learner gets the FORM reward standardised by its "
                          "running mean and sd (mjx_form/imitation/form.py); raw: log pD - log pI "
                          "as the paper (default: --preset's)")
+  form.add_argument("--reward_clip", type=float, default=None,
+                    help="bound the FORM reward's tail: clip it to this many running standard "
+                         "deviations around its running mean, in the learner's reward and in "
+                         "its statistics (mjx_form/imitation/form.py); 0: off (default: "
+                         "--preset's, 0)")
   steps = demonstrator_lib.DemonstratorTraining()
   form.add_argument("--demonstrator_steps", type=int, default=steps.max_steps,
                     help="most gradient steps of demonstrator training (it stops earlier when "
@@ -269,6 +274,10 @@ def form_run_settings(args: argparse.Namespace) -> dict:
   chosen = settings.run_settings(args.task, args.preset or "default")
   if args.reward_scale is not None:
     chosen["standardise_reward"] = args.reward_scale == "standardised"
+  if args.reward_clip is not None:
+    if not args.reward_clip >= 0:
+      raise ValueError(f"--reward_clip must be >= 0 (0: off), got {args.reward_clip}")
+    chosen["reward_clip"] = args.reward_clip
   if args.target_update_period is not None:
     chosen["target_update_period"] = args.target_update_period
   return chosen
@@ -291,7 +300,8 @@ def form_source(args: argparse.Namespace, run_dir: str, results_path: str, print
   return pipeline.prepare(tasks.make(args.task, physics=args.physics), config, explicit,
                           artefacts, run_dir, resume=args.resume, physics=args.physics,
                           seed=args.seed, results_path=results_path,
-                          standardise_reward=form_run_settings(args)["standardise_reward"],
+                          reward={k: v for k, v in form_run_settings(args).items()
+                                  if k in ("standardise_reward", "reward_clip")},
                           print_fn=print_fn)
 
 

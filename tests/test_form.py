@@ -126,6 +126,58 @@ def test_standardised_reward_uses_the_running_statistics_of_the_raw_reward():
     plain.specialise({"beta_ar": 0.1})
 
 
+def test_reward_clip_bounds_the_tail_in_the_reward_and_in_its_statistics():
+  """With reward_clip c, each batch's raw rewards are folded into the EMA statistics clipped to
+  [m - c s, m + c s] of the statistics before it (the first batch unclipped), and the learner's
+  reward is clipped the same way (standardised: to [-c, c]); numpy reference, winsorised EMA."""
+  c = 1.0
+  raw_source = FormReward(EFFECT, _demonstrator(0))
+  clipped = FormReward(EFFECT, _demonstrator(0), reward_clip=c)
+  both = FormReward(EFFECT, _demonstrator(0), standardise_reward=True, reward_clip=c)
+  assert clipped.settings()["reward_clip"] == c and raw_source.settings()["reward_clip"] == 0.0
+  state = clipped.init(jax.random.PRNGKey(1), D, 2)
+  update = jax.jit(clipped.update)
+  rng, decay = np.random.default_rng(4), EFFECT.normalizer_decay
+  mean, var, count, folded_any = 0.0, 1.0, 0, False
+  for i in range(4):
+    obs = jnp.asarray(rng.normal(size=(3, 6, D)) * (1 + i), jnp.float32)
+    discount = jnp.asarray(rng.random((3, 5)) > 0.2, jnp.float32)
+    batch = {"observation": obs, "discount": discount}
+    state, _ = update(state, batch, jax.random.PRNGKey(10 + i))
+    raw, valid = (np.asarray(a, np.float64) for a in clipped.raw_rewards(state, batch))
+    x = raw[valid > 0]
+    if count > 0:
+      lo, hi = mean - c * np.sqrt(var), mean + c * np.sqrt(var)
+      folded_any |= bool(np.any((x < lo) | (x > hi)))
+      x = np.clip(x, lo, hi)
+    count += 1
+    rate = (1 - decay) / (1 - decay ** count)
+    delta = x.mean() - mean
+    var = (1 - rate) * var + rate * x.var() + rate * (1 - rate) * delta ** 2
+    mean += rate * delta
+  assert folded_any  # the reference did clip: the check below can fail
+  np.testing.assert_allclose(state.reward.mean[0], mean, rtol=1e-4)
+  np.testing.assert_allclose(state.reward.var[0], var, rtol=1e-4)
+  lo, hi, sd = mean - c * np.sqrt(var), mean + c * np.sqrt(var), np.sqrt(var + 1e-6)
+  valid = valid > 0
+  rewards, _ = clipped.relabel(state, batch)
+  np.testing.assert_allclose(rewards, np.where(valid, np.clip(raw, lo, hi), 0.0), rtol=1e-4,
+                             atol=1e-4)
+  standardised, _ = both.relabel(state, batch)
+  np.testing.assert_allclose(standardised,
+                             np.where(valid, (np.clip(raw, lo, hi) - mean) / sd, 0.0),
+                             rtol=1e-4, atol=1e-4)
+  assert np.max(np.abs(np.asarray(standardised))) <= c + 1e-4
+  assert np.any(np.abs(np.asarray(raw_source.relabel(state, batch)[0]) - rewards) > 1e-3)
+  # A member's traced value gives what its own source gives; 0 is off.
+  members = jax.vmap(lambda v: raw_source.specialise({"reward_clip": v}).relabel(
+      state, batch)[0])(jnp.array([0.0, c]))
+  np.testing.assert_allclose(members[0], raw_source.relabel(state, batch)[0], rtol=1e-6)
+  np.testing.assert_allclose(members[1], rewards, rtol=1e-6, atol=1e-6)
+  with pytest.raises(ValueError, match="reward_clip"):
+    FormReward(EFFECT, _demonstrator(0), reward_clip=-1.0)
+
+
 def test_imitation_requires_unrolls_that_end_with_the_episodes():
   with pytest.raises(ValueError, match="must divide the episode length"):
     TrainConfig(task="reacher_easy", reward_source="form", unroll_length=64).check(1)
@@ -264,13 +316,15 @@ def test_form_command_line_runs_every_stage(tmp_path, capsys):
   # --preset paper gives the paper's raw reward and target period, to the reward source (its
   # arithmetic: the test above) and the learner; single flags override a preset.
   args = cli.parse_args(_readme_args(tmp_path / "paper", "--preset", "paper",
-                                     "--demo_episodes", "1"))
+                                     "--demo_episodes", "1", "--reward_clip", "3"))
   source = cli.form_source(args, str(tmp_path / "paper"), None, print)
   assert not source.standardise_reward and source.settings()["standardise_reward"] is False
+  assert source.settings()["reward_clip"] == 3.0  # --reward_clip reaches the source
   assert cli.train_config(args).learner.target_update_period == 200
   args = cli.parse_args(_readme_args(tmp_path / "mixed", "--preset", "paper", "--reward_scale",
                                      "standardised", "--target_update_period", "50"))
-  assert cli.form_run_settings(args) == {"standardise_reward": True, "target_update_period": 50}
+  assert cli.form_run_settings(args) == {"standardise_reward": True, "reward_clip": 0.0,
+                                         "target_update_period": 50}
   assert cli.train_config(cli.parse_args(["--method", "expert"])).learner.target_update_period == 200
   assert records[1]["learner_preset"] == "custom"
   assert [r["policy"] for r in records[2:]] == ["final", "best"]
@@ -295,6 +349,7 @@ def test_form_command_line_runs_every_stage(tmp_path, capsys):
        "trained with beta_ar="),
       (["--demos", str(other_demos)], "demonstrations are for cheetah_run"),
       (["--expert", str(tmp_path / "missing.npz")], "no such policy file"),
+      (["--reward_clip", "-1"], "--reward_clip must be >= 0"),
   ]
   for extra, message in refusals:
     target = tmp_path / "refused"

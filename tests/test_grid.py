@@ -41,12 +41,14 @@ def test_values_are_parsed_as_their_setting_and_checked():
   assert grid.parse_value("standardise_reward", "0") is False
   assert grid.parse_value("clip_critic_actions", "1") is True  # a learner bool
   assert grid.parse_value("clip_critic_actions", "false") is False
+  assert grid.parse_value("reward_clip", "3") == 3.0 and grid.parse_value("reward_clip", "0") == 0
   for name, text, message in (("target_update_period", "2.5", "expected int"),
                               ("target_update_period", "0", "must be positive"),
                               ("discount", "1.5", r"\(0, 1\]"),
                               ("retrace_lambda", "-0.1", r"\[0, 1\]"),
                               ("standardise_reward", "yes", "0/1"),
                               ("clip_critic_actions", "2", "0/1"),
+                              ("reward_clip", "-1", ">= 0"),
                               ("num_envs", "8", "cannot differ")):
     with pytest.raises(ValueError, match=message):
       grid.parse_value(name, text)

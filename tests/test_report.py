@@ -82,6 +82,11 @@ def test_form_table_averages_the_final_policy_over_seeds():
                             demonstration_returns={})
   assert "| raw, T -, ar 1, L2 0.1 | 1 | 256 | 20.0M | 10.0 min | 410.0 |" in table, table
   assert "| raw, T -, ar 0.01, L2 1 | 1 | 256 | 20.0M | 10.0 min | 420.0 |" in table, table
+  clip = _final_return(0, 430.0, settings={"reward": {"standardise_reward": True,
+                                                      "reward_clip": 3.0}})
+  table = report.form_table([clip], expert_returns={"cheetah_run": 875.0},
+                            demonstration_returns={})
+  assert "| standardised clipped at 3 sd, T - | 1 |" in table, table
   unknown = report.form_table([_final_return(0, 500.0)], expert_returns={},
                               demonstration_returns={})
   assert "| 500.0 | - | - | - | 0.89 |" in unknown

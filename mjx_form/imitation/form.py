@@ -22,6 +22,14 @@ the critic's targets near the scale its learning rate was set for: raw FORM rewa
 per step where the imitator strays from the demonstrations (benchmarks/NOTES.md). The raw r is
 what the logs report either way.
 
+With `reward_clip` c > 0 the reward's tail is bounded: the learner's reward is clipped to
+c running standard deviations around the running mean (the standardised reward to [-c, c]),
+and the statistics fold in the raw reward clipped the same way (winsorised; the first batch,
+which sets them, is not clipped). A single transition far off the demonstrations (cheetah's
+tumbles score log pD below -400 where the batch's median is ~-25, benchmarks/NOTES.md) then
+weighs as c sd and does not inflate the scale of the others. 0 (the default, as the paper):
+no clipping.
+
 The source never sees the task reward (`needs_task_reward = False`: it is not even stored).
 """
 
@@ -56,15 +64,21 @@ class FormReward:
 
   name = "form"
   needs_task_reward = False
-  variable_settings = ("standardise_reward",)  # may differ between a population's members
+  # may differ between a population's members
+  variable_settings = ("standardise_reward", "reward_clip")
 
   def __init__(self, config: em.EffectModelConfig, demonstrator: Demonstrator,
-               demonstrator_sha256: str = "", standardise_reward: bool = False):
+               demonstrator_sha256: str = "", standardise_reward: bool = False,
+               reward_clip: float = 0.0):
     """`demonstrator_sha256` identifies the demonstrator file (kept with checkpoints, so a run
-    resumes only with the same one); `standardise_reward`: see the module docstring."""
+    resumes only with the same one); `standardise_reward`, `reward_clip` (in running standard
+    deviations, 0: off): see the module docstring."""
     config.check()
+    if not reward_clip >= 0:
+      raise ValueError(f"reward_clip must be >= 0 (0: off), got {reward_clip}")
     self.config = config
     self.standardise_reward = bool(standardise_reward)
+    self.reward_clip = float(reward_clip)
     self.demonstrator = demonstrator
     self.demonstrator_sha256 = demonstrator_sha256
     self.observation_size = int(demonstrator.normalizer.mean.shape[-1])
@@ -97,14 +111,21 @@ class FormReward:
     metrics = {f"imitator_{k}": v for k, v in metrics.items()}
     state = state._replace(imitator=imitator)
     raw, valid = self.raw_rewards(state, batch)
-    reward = normalizer.update(state.reward, raw[..., None], self.config.normalizer_decay,
+    folded = jnp.where(state.reward.count > 0, self.clip_tail(state.reward, raw), raw)
+    reward = normalizer.update(state.reward, folded[..., None], self.config.normalizer_decay,
                                mask=valid)
     return state._replace(reward=reward), metrics
 
   def settings(self) -> dict:
     return {"effect_model": dataclasses.asdict(self.config),
             "demonstrator_sha256": self.demonstrator_sha256,
-            "standardise_reward": self.standardise_reward}
+            "standardise_reward": self.standardise_reward, "reward_clip": self.reward_clip}
+
+  def clip_tail(self, stats: normalizer.NormalizerState, raw: jax.Array) -> jax.Array:
+    """`raw` rewards clipped to `reward_clip` sd of `stats` around its mean (unchanged at 0)."""
+    width = self.reward_clip * jnp.sqrt(stats.var[0])
+    clipped = jnp.clip(raw, stats.mean[0] - width, stats.mean[0] + width)
+    return jnp.where(self.reward_clip > 0, clipped, raw)
 
   def log_probs(self, state: FormState, observation: jax.Array) -> tuple[jax.Array, jax.Array]:
     """Raw-space log pD and log pI of each transition of observation [B, T+1, D]: [B, T] each."""
@@ -122,8 +143,9 @@ class FormReward:
   def relabel(self, state: FormState, batch: dict) -> tuple[jax.Array, dict]:
     log_d, log_i = self.log_probs(state, batch["observation"])
     raw, valid = log_d - log_i, batch["discount"] > 0
+    bounded = self.clip_tail(state.reward, raw)
     given = jnp.where(self.standardise_reward,
-                      normalizer.normalize(state.reward, raw[..., None])[..., 0], raw)
+                      normalizer.normalize(state.reward, bounded[..., None])[..., 0], bounded)
     rewards = jnp.where(valid, given, 0.0)
     count = jnp.maximum(jnp.sum(valid), 1)
     mean = lambda v: jnp.sum(jnp.where(valid, v, 0.0)) / count

@@ -101,21 +101,23 @@ def _load(path: str, env) -> effect_models.EffectModelFile:
 
 def prepare(env, config: em.EffectModelConfig, explicit: dict, artefacts: Artefacts,
             run_dir: str, *, resume: bool, physics: str, seed: int, results_path: str | None,
-            standardise_reward: bool = False,
+            reward: dict | None = None,
             print_fn: Callable[[str], None] = print) -> FormReward:
   """Stages 1-2: the FORM reward source of this run, its demonstrator kept in `run_dir`.
 
   `config`: the effect-model settings asked for; `explicit`: those of them the user set (a
-  ready demonstrator must agree with them); `standardise_reward`: see mjx_form.imitation.form.
+  ready demonstrator must agree with them); `reward`: the FormReward's reward settings
+  (`standardise_reward`, `reward_clip`: see mjx_form.imitation.form).
   """
   runner.check_run_dir(run_dir, resume, also=(DEMONSTRATOR_FILE,))
+  reward = reward or {}
   kept = os.path.join(run_dir, DEMONSTRATOR_FILE)
   if resume:
     if not os.path.exists(kept):
       raise PipelineError(f"--resume: {run_dir} holds no {DEMONSTRATOR_FILE}")
     file = _load(kept, env)
     return FormReward(*demonstrator_from_file(file, kept, explicit), file.metadata["sha256"],
-                      standardise_reward)
+                      **reward)
 
   path, file = artefacts.demonstrator, None
   shipped = tasks.bundled_demonstrator(env.name)
@@ -141,7 +143,7 @@ def prepare(env, config: em.EffectModelConfig, explicit: dict, artefacts: Artefa
     file = train_demonstrator(env, config, demos_obs, demos_info, artefacts.training, physics,
                               seed, results_path, print_fn, kept)
     return FormReward(*demonstrator_from_file(file, kept, explicit), file.metadata["sha256"],
-                      standardise_reward)
+                      **reward)
 
   if file is None or path != shipped:  # (the shipped one is read already)
     file = _load(path, env)
@@ -157,8 +159,7 @@ def prepare(env, config: em.EffectModelConfig, explicit: dict, artefacts: Artefa
              + " ".join(f"{v:.2f}" for v in np.asarray(fit)))
   os.makedirs(run_dir, exist_ok=True)
   shutil.copyfile(path, kept)
-  return FormReward(config, demonstrator, file.metadata["sha256"],
-                      standardise_reward)
+  return FormReward(config, demonstrator, file.metadata["sha256"], **reward)
 
 
 def demonstrator_from_file(file: effect_models.EffectModelFile, path: str,

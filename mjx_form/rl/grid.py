@@ -35,8 +35,8 @@ LEARNER = {
     "clip_critic_actions": (("clip_critic_actions",), bool),
 }
 # name -> type: settings a reward source lists in its `variable_settings` (FORM's
-# standardise_reward); the source's `specialise(values)` gives a member's source.
-SOURCE = {"standardise_reward": bool}
+# standardise_reward and reward_clip); the source's `specialise(values)` gives a member's source.
+SOURCE = {"standardise_reward": bool, "reward_clip": float}
 NAMES = (*LEARNER, *SOURCE)
 
 
@@ -74,6 +74,8 @@ def check_value(name: str, value) -> None:
     raise ValueError(f"discount must be in (0, 1], got {value}")
   if name == "retrace_lambda" and not 0.0 <= value <= 1.0:
     raise ValueError(f"retrace_lambda must be in [0, 1], got {value}")
+  if name == "reward_clip" and not value >= 0.0:
+    raise ValueError(f"reward_clip must be >= 0 (0: off), got {value}")
   if (name in LEARNER and _kind(name) is not bool and name not in ("discount", "retrace_lambda")
       and not value > 0):
     raise ValueError(f"{name} must be positive, got {value}")
