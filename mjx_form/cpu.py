@@ -17,3 +17,16 @@ def configure_cpu_xla(extra_flags: str = "") -> None:
     if name not in flags:
       flags = f"{flags} {flag}".strip()
   os.environ["XLA_FLAGS"] = flags
+
+
+def run_once_compiler_options() -> dict:
+  """XLA options for a program that runs once (a run's init, a parity check's batched step).
+
+  On the CPU: backend optimisation level 0. Measured on the 2-core CPU: a small run's init
+  compiles in 6 s instead of 12, quadruped's float64 parity step in 42 s instead of 56, with
+  the same results; a program run once gains nothing from the optimisation. Elsewhere: none
+  (GPU programs keep XLA's defaults).
+  """
+  import jax  # (this module is imported before JAX starts; by the time this runs, it has)
+
+  return {"xla_backend_optimization_level": 0} if jax.default_backend() == "cpu" else {}

@@ -41,6 +41,7 @@ import jax
 import jax.numpy as jnp
 
 import tasks
+from mjx_form import cpu
 from mjx_form import mesh as mesh_lib
 from mjx_form.rl import learner as learner_lib
 from mjx_form.rl import grid, normalizer, replay
@@ -197,7 +198,8 @@ class Trainer:
     self.abstract_state = jax.tree.map(  # shapes, dtypes, shardings
         lambda a, s: jax.ShapeDtypeStruct(a.shape, a.dtype, sharding=s), abstract,
         self.state_sharding)
-    self.init = jax.jit(self._init, out_shardings=self.state_sharding)
+    self.init = jax.jit(self._init, out_shardings=self.state_sharding,
+                        compiler_options=cpu.run_once_compiler_options())
     self.iteration = jax.jit(self._iteration, donate_argnums=0,
                              out_shardings=(self.state_sharding, self._replicated))
     self.evaluate = jax.jit(self._evaluate, static_argnames="num_envs",
