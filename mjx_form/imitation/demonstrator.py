@@ -130,7 +130,8 @@ def train(observations: np.ndarray, config: em.EffectModelConfig,
     warm = time.perf_counter() - warm_start
     rate = (steps - warm_steps) / warm if warm > 0 and steps > warm_steps else float("nan")
     left = f"  {(training.max_steps - steps) / rate:.0f}s left at most" if rate > 0 else ""
-    print_fn(f"demonstrator step {steps:,}  {rate:,.0f} steps/s  train log p "
+    shown = f"{rate:,.0f}" if rate > 0 else "-"  # the first chunk compiles: not timed
+    print_fn(f"demonstrator step {steps:,}  {shown} steps/s  train log p "
              f"{float(metrics['log_prob']):.2f}  held-out log p by offset "
              + " ".join(f"{v:.2f}" for v in heldout)
              + ("  (best)" if improved else f"  (best at {best_step:,})") + left)

@@ -303,11 +303,17 @@ def _final_evaluation(trainer: Trainer, state, best_paths: list[str], rows: list
                     settings=_record_settings(trainer, i, total_env_steps))
 
 
+def _rate(steps_per_s: float) -> str:
+  """Steps/s as progress lines show it; '-' before there is a timed iteration (the first one
+  compiles and is not counted)."""
+  return f"{steps_per_s:,.0f}" if np.isfinite(steps_per_s) else "-"
+
+
 def _progress_line(row: dict, total_iterations: int, steps_per_iteration: int) -> str:
   """One line per logged iteration: steps, speed, time left, returns and learner state."""
   left = (total_iterations - row["iteration"]) * steps_per_iteration / row["steps_per_s"]
   line = (f"iter {row['iteration']}/{total_iterations}  steps {row['env_steps']:,}  "
-          f"{row['wall_s']:.0f}s  {row['steps_per_s']:,.0f} steps/s"
+          f"{row['wall_s']:.0f}s  {_rate(row['steps_per_s'])} steps/s"
           + (f"  ~{left:.0f}s left" if np.isfinite(left) else "")
           + f"  train return {_show(row['train_return'])}"
           + (f"  eval {row['eval_return']:.1f}" if "eval_return" in row else ""))
