@@ -516,10 +516,13 @@ def form_runs_table(records: list[dict]) -> str:
   lines = ["FORM learning runs, one row per run and seed (periodic evaluations: mean task "
            "return of the run's `--eval_envs` episodes; fresh: the final policy over "
            "`--final_eval_envs` episodes, `-` where the run was stopped by `--max_seconds` "
-           "before it). Wall clock includes start-up (demonstrations, compiling):", "",
-           "| task | device | reward, T, effect models | envs | updates / iteration | seed | env steps | wall "
-           "clock | last eval | best eval | fresh eval | log pD at the end | result file |",
-           "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+           "before it; learner updates: MPO/Retrace updates per member at the last evaluation, "
+           "the paper's Figure 1 shows an agent after 5M). Wall clock includes start-up "
+           "(demonstrations, compiling):", "",
+           "| task | device | reward, T, effect models | envs | updates / iteration | seed | "
+           "env steps | learner updates | wall clock | last eval | best eval | fresh eval | "
+           "log pD at the end | result file |",
+           "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
   for key, curve in sorted(runs.items(), key=lambda kv: (_order(kv[0][1]), kv[0][0],
                                                          kv[0][2], kv[0][3])):
     curve = sorted(curve, key=lambda r: r["env_steps"])
@@ -527,7 +530,8 @@ def form_runs_table(records: list[dict]) -> str:
     fresh = finals.get(key)
     lines.append(f"| {key[1]} | `{last['device']}` | {_form_variant(last)} | "
                  f"{last['num_envs']} | {last['settings']['updates_per_iteration']} | "
-                 f"{key[2]} | {last['env_steps'] / 1e6:.1f}M | {_duration(last['wall_s'])} | "
+                 f"{key[2]} | {last['env_steps'] / 1e6:.1f}M | {last['updates']:,} | "
+                 f"{_duration(last['wall_s'])} | "
                  f"{last['eval_return']:.1f} | {best['eval_return']:.1f} | "
                  f"{'-' if fresh is None else f'{fresh:.1f}'} | "
                  f"{last['demonstrator_log_prob']:.1f} | {_run_label(key[0], key[1])} |")

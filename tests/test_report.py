@@ -100,7 +100,8 @@ def test_form_table_averages_the_final_policy_over_seeds():
 
 def _curve_point(steps, value, **fields):
   return {"kind": "learning_curve", "task": "walker_walk", "method": "form", "seed": 0,
-          "num_envs": 512, "env_steps": steps, "wall_s": steps / 1e4, "eval_return": value,
+          "num_envs": 512, "env_steps": steps, "updates": int(steps // 400),
+          "wall_s": steps / 1e4, "eval_return": value,
           "demonstrator_log_prob": value / 100, "device": "gpu:X", "_file": "d/2026-12-01_x.jsonl",
           "settings": {"updates_per_iteration": 128, "reward": {"standardise_reward": True},
                        "learner": {"target_update_period": 25}}, **fields}
@@ -120,13 +121,14 @@ def test_form_runs_table_has_one_row_per_run_and_seed():
   table = report.form_runs_table(records)
   rows = [line for line in table.splitlines() if line.startswith("| walker_walk")]
   # seed 0: last eval 300 at 3M, best 350, no fresh evaluation; seed 1: its final_return.
+  # (learner updates: those of the last evaluation)
   assert rows == [
       "| walker_walk | `gpu:X` | standardised, T 25, critic clips actions | 512 | 128 | 0 | 1.0M | "
-      "100 s | 120.0 | 120.0 | - | 1.2 | 2026-12-01 |",
-      "| walker_walk | `gpu:X` | standardised, T 25 | 512 | 128 | 0 | 3.0M | 300 s | 300.0 | "
-      "350.0 | - | 3.0 | 2026-12-01 |",
-      "| walker_walk | `gpu:X` | standardised, T 25 | 512 | 128 | 1 | 1.0M | 100 s | 50.0 | "
-      "50.0 | 77.0 | 0.5 | 2026-12-01 |"], table
+      "2,500 | 100 s | 120.0 | 120.0 | - | 1.2 | 2026-12-01 |",
+      "| walker_walk | `gpu:X` | standardised, T 25 | 512 | 128 | 0 | 3.0M | 7,500 | 300 s | "
+      "300.0 | 350.0 | - | 3.0 | 2026-12-01 |",
+      "| walker_walk | `gpu:X` | standardised, T 25 | 512 | 128 | 1 | 1.0M | 2,500 | 100 s | "
+      "50.0 | 50.0 | 77.0 | 0.5 | 2026-12-01 |"], table
 
 
 def test_population_table_gives_the_speed_up_over_one_member():
