@@ -15,6 +15,27 @@ if ROOT not in sys.path:
 from mjx_form.files.results import ResultWriter, device_name, versions  # noqa: E402,F401
 
 
+def add_expert_arguments(parser) -> None:
+  """`--tasks` and `--policy`, as the scripts that run expert policies take them."""
+  import tasks  # (here, not at import: the scripts set XLA's flags before JAX starts)
+
+  parser.add_argument("--tasks", nargs="*", default=None, choices=tasks.TASKS, metavar="TASK",
+                      help="default: every task with a shipped expert")
+  parser.add_argument("--policy", default=None, help="one task's policy file instead of the "
+                      "shipped expert (with a single --tasks)")
+
+
+def expert_tasks(parser, args) -> list[str]:
+  """The tasks `add_expert_arguments` chose (every task with a shipped expert by default);
+  exits through `parser.error` when `--policy` comes with other than one task."""
+  import tasks
+
+  names = args.tasks if args.tasks is not None else list(tasks.bundled_experts())
+  if args.policy is not None and len(names) != 1:
+    parser.error("--policy needs exactly one --tasks")
+  return names
+
+
 def default_results_path(what: str) -> str:
   day = datetime.date.today().isoformat()
   return os.path.join(RESULTS_DIR, f"{day}_{what}.jsonl")

@@ -81,10 +81,7 @@ def dm_control_returns(task: str, expert: experts.Expert, layout: dict[str, int]
 def main(argv=None) -> int:
   parser = argparse.ArgumentParser(description=__doc__,
                                    formatter_class=argparse.RawDescriptionHelpFormatter)
-  parser.add_argument("--tasks", nargs="*", default=None, choices=tasks.TASKS, metavar="TASK",
-                      help="default: every task with a shipped expert")
-  parser.add_argument("--policy", default=None, help="one task's policy file instead of the "
-                      "shipped expert (with a single --tasks)")
+  common.add_expert_arguments(parser)
   parser.add_argument("--episodes", type=int, default=16)
   parser.add_argument("--seed", type=int, default=0)
   parser.add_argument("--steps", type=int, default=env_lib.EPISODE_LENGTH,
@@ -92,11 +89,9 @@ def main(argv=None) -> int:
                            "is skipped)")
   parser.add_argument("--out", default=common.default_results_path("dm_control_transfer_cpu"))
   args = parser.parse_args(argv)
-  names = args.tasks if args.tasks is not None else list(tasks.bundled_experts())
+  names = common.expert_tasks(parser, args)
   if args.episodes <= 0 or not 0 < args.steps <= env_lib.EPISODE_LENGTH:
     parser.error(f"--episodes must be positive and --steps in 1..{env_lib.EPISODE_LENGTH}")
-  if args.policy is not None and len(names) != 1:
-    parser.error("--policy needs exactly one --tasks")
   writer = common.ResultWriter(args.out)
   for task in names:
     try:

@@ -32,7 +32,6 @@ from mjx_form import paper as paper_lib  # noqa: E402
 from mjx_form.files import experts  # noqa: E402
 
 
-
 def summary(returns: np.ndarray, task: str) -> dict:
   """The record's numbers for `returns` [K] of `task`."""
   paper = paper_lib.EXPERT.get(task)
@@ -49,21 +48,16 @@ def summary(returns: np.ndarray, task: str) -> dict:
 def main(argv=None) -> int:
   parser = argparse.ArgumentParser(description=__doc__,
                                    formatter_class=argparse.RawDescriptionHelpFormatter)
-  parser.add_argument("--tasks", nargs="*", default=None, choices=tasks.TASKS, metavar="TASK",
-                      help="default: every task with a shipped expert")
-  parser.add_argument("--policy", default=None, help="one task's policy file instead of the "
-                      "shipped expert (with a single --tasks)")
+  common.add_expert_arguments(parser)
   parser.add_argument("--episodes", type=int, default=1000)
   parser.add_argument("--chunk", type=int, default=1000, help="episodes run at once")
   parser.add_argument("--seed", type=int, default=0)
   parser.add_argument("--out", default=None, help="default: benchmarks/results/<date>_"
                       "expert_eval_<device>.jsonl")
   args = parser.parse_args(argv)
-  names = args.tasks if args.tasks is not None else list(tasks.bundled_experts())
+  names = common.expert_tasks(parser, args)
   if args.episodes <= 0 or args.chunk <= 0:
     parser.error("--episodes and --chunk must be positive")
-  if args.policy is not None and len(names) != 1:
-    parser.error("--policy needs exactly one --tasks")
   out = args.out or common.default_results_path(f"expert_eval_{jax.default_backend()}")
   writer = common.ResultWriter(out)
   for task in names:
