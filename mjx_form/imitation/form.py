@@ -43,7 +43,7 @@ import jax
 import jax.numpy as jnp
 
 from mjx_form.imitation import effect_model as em
-from mjx_form.rl import normalizer
+from mjx_form.rl import grid, normalizer
 
 
 class Demonstrator(NamedTuple):
@@ -74,8 +74,7 @@ class FormReward:
     resumes only with the same one); `standardise_reward`, `reward_clip` (in running standard
     deviations, 0: off): see the module docstring."""
     config.check()
-    if not reward_clip >= 0:
-      raise ValueError(f"reward_clip must be >= 0 (0: off), got {reward_clip}")
+    grid.check_value("reward_clip", reward_clip)
     self.config = config
     self.standardise_reward = bool(standardise_reward)
     self.reward_clip = float(reward_clip)
