@@ -610,13 +610,15 @@ def scaling_table(records: list[dict]) -> str:
 
 
 def form_table(records: list[dict], expert_returns: dict[str, float] | None = None,
-               demonstration_returns: dict[str, float] | None = None) -> str:
+               demonstration_returns: dict[str, float] | None = None,
+               best_per_task: bool = False) -> str:
   """FORM's results: one row per task and configuration, over its seeds. Each seed's return is
   its newest `kind: final_return` record of the final policy (a fresh evaluation after
   training). The expert's return it is compared with: the mean return of the demonstrations
   its demonstrator was trained on (`demonstration_returns`, by the demonstrator's sha256;
   default: the shipped demonstrators'), else `expert_returns` (default: the shipped experts'
-  returns at export)."""
+  returns at export). With `best_per_task`, one row per task: the configuration with the
+  highest mean return among those run with 2 seeds or more (else the best single seed)."""
   rows = [r for r in records if r.get("kind") == "final_return" and r.get("method") == "form"]
   if not rows:
     return ("No FORM results yet: a run with `--final_eval_envs` > 0 writes `kind: "
@@ -631,7 +633,17 @@ def form_table(records: list[dict], expert_returns: dict[str, float] | None = No
   groups: dict[tuple, dict[str, list[dict]]] = {}
   for key, r in newest.items():
     groups.setdefault(key[:7], {}).setdefault(r["policy"], []).append(r)
-  lines = ["FORM (`--method form`): return of the final policy in a fresh evaluation after "
+  groups = {key: g for key, g in groups.items() if g.get("final")}
+  configurations = {task: sum(key[0] == task for key in groups) for task, *_ in groups}
+  if best_per_task:
+    rank = lambda key: (len(groups[key]["final"]) >= 2,
+                        _mean_std([r["final_return"] for r in groups[key]["final"]])[0])
+    groups = {key: groups[key] for key in (max((k for k in groups if k[0] == task), key=rank)
+                                           for task in configurations)}
+  caption = ("FORM (`--method form`), per task the configuration with the highest mean return "
+             "among those run with 2 seeds or more (all of them: `benchmarks/NOTES.md`): "
+             if best_per_task else "FORM (`--method form`): ")
+  lines = [caption + "return of the final policy in a fresh evaluation after "
            "training (`--final_eval_envs` episodes per seed, policy mean action), mean +- "
            "standard deviation over seeds (each seed: its mean over the episodes); best: the "
            "same for the policy of each run's best periodic evaluation. Expert: the mean return "
@@ -640,17 +652,17 @@ def form_table(records: list[dict], expert_returns: dict[str, float] | None = No
            "expert; the paper's fraction is its FORM return over its expert's. Reward: `raw` = "
            "log pD - log pI as the paper, `standardised` = `--reward_scale standardised` (the "
            "default); T = the learner's target period (the paper's is 200; the default 25); ar, L2: "
-           "the effect models' beta_ar and L2 weight:",
+           "the effect models' beta_ar and L2 weight" + (
+               "; configurations: how many the task has" if best_per_task else "") + ":",
            "",
            "| task | device | physics | envs | reward, T, effect models | seeds | episodes / seed | env steps "
            "| wall clock (mean) | FORM return | best policy | expert | fraction | paper's "
-           "fraction |",
-           "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+           "fraction |" + (" configurations |" if best_per_task else ""),
+           "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"
+           + ("---|" if best_per_task else "")]
   for key in sorted(groups, key=lambda k: (_order(k[0]), k[2], k[3], str(k))):
     task, physics, num_envs, env_steps, _, device, variant = key
-    final, best = groups[key].get("final", []), groups[key].get("best", [])
-    if not final:
-      continue
+    final, best = groups[key]["final"], groups[key].get("best", [])
     mean, std = _mean_std([r["final_return"] for r in final])
     best_text = (f"{_mean_std([r['final_return'] for r in best])[0]:.1f}" if best else "-")
     wall = _mean_std([r["wall_s"] for r in final])[0]
@@ -666,7 +678,8 @@ def form_table(records: list[dict], expert_returns: dict[str, float] | None = No
     lines.append(f"| {task} | `{device}` | {physics} | {num_envs} | {variant} | {len(final)} | "
                  f"{'/'.join(str(e) for e in episodes)} | {env_steps / 1e6:.1f}M | "
                  f"{_duration(wall)} | {mean:.1f}{spread} | {best_text} | "
-                 f"{'-' if expert is None else f'{expert:.1f}'} | {fraction} | {paper} |")
+                 f"{'-' if expert is None else f'{expert:.1f}'} | {fraction} | {paper} |"
+                 + (f" {configurations[task]} |" if best_per_task else ""))
   return "\n".join(lines)
 
 
@@ -717,7 +730,7 @@ def effect_model_table(records: list[dict], best_per_task: bool = True) -> str:
 
 # The generated tables of each file: {marker name: table}.
 def readme_tables(records: list[dict]) -> dict[str, str]:
-  return {"form": form_table(records), "demonstrators": effect_model_table(records),
+  return {"form": form_table(records, best_per_task=True), "demonstrators": effect_model_table(records),
           "experts": experts_table(records), "learning_summary": learning_summary(records),
           "parity_summary": parity_summary(records),
           "throughput_summary": throughput_summary(records), "scaling": scaling_table(records)}
@@ -728,7 +741,8 @@ def notes_tables(records: list[dict]) -> dict[str, str]:
           "throughput": throughput_table(records), "learning": learning_table(records),
           "train_throughput": train_throughput_table(records),
           "effect_models": effect_model_table(records, best_per_task=False),
-          "form_runs": form_runs_table(records), "populations": population_table(records)}
+          "form": form_table(records), "form_runs": form_runs_table(records),
+          "populations": population_table(records)}
 
 
 TABLES = {README: readme_tables, NOTES: notes_tables}

@@ -98,6 +98,20 @@ def test_form_table_averages_the_final_policy_over_seeds():
   assert "| 875.0 +- 25.0 | - | 1000.0 | 0.88 | 0.89 |" in table, table
 
 
+def test_form_table_per_task_keeps_the_best_configuration_of_two_seeds_or_more():
+  records = [_final_return(0, 800.0), _final_return(1, 700.0),  # 512 envs: 750 over 2 seeds
+             _final_return(0, 900.0, num_envs=64),  # higher, but one seed
+             _final_return(0, 760.0, num_envs=256), _final_return(1, 780.0, num_envs=256),
+             _final_return(0, 500.0, task="walker_walk")]  # a task with one seed only
+  table = report.form_table(records, expert_returns={"cheetah_run": 875.0, "walker_walk": 1.0},
+                            demonstration_returns={}, best_per_task=True)
+  rows = [line for line in table.splitlines() if line.startswith("| ")][1:]  # past the header
+  assert [row.split(" | ")[:4] for row in rows] == [
+      ["| cheetah_run", "`gpu:X`", "fast", "256"], ["| walker_walk", "`gpu:X`", "fast", "512"]]
+  assert rows[0].endswith("| 770.0 +- 10.0 | - | 875.0 | 0.88 | 0.89 | 3 |"), rows
+  assert rows[1].endswith("| 1 |"), rows
+
+
 def _curve_point(steps, value, **fields):
   return {"kind": "learning_curve", "task": "walker_walk", "method": "form", "seed": 0,
           "num_envs": 512, "env_steps": steps, "updates": int(steps // 400),
