@@ -5,9 +5,10 @@ Records episodes of the shipped expert with growing action noise (its mean actio
 N(0, sigma^2), clipped), of uniform random actions and of any `--policy` file (e.g. a FORM
 run's imitator, its mean action), and scores every transition with the demonstrator's
 log pD(x_{t+1} | x_t) (raw observation space, FORM's reward term). Prints, per behaviour, the
-task return, the distribution of log pD and the observation dimensions furthest from the
-noiseless expert's (in its standard deviations: where a policy's posture differs), and the rank
-correlation between an episode's task return and its mean log pD over all episodes; appends
+task return, the distribution of log pD, the rank correlation of an episode's return and its
+mean log pD within the behaviour (does the reward prefer its better episodes?) and the
+observation dimensions furthest from the noiseless expert's (in its standard deviations: where
+a policy's posture differs), and the same rank correlation over all episodes; appends
 `kind: form_reward_landscape` records.
 
   python benchmarks/form_reward_landscape.py --task cheetah_run --episodes 8 \\
@@ -117,6 +118,7 @@ def main(argv=None) -> int:
     all_returns += list(returns)
     all_scores += list(per_episode)
     q = np.percentile(log_d, [5, 50, 95])
+    within = float(stats.spearmanr(returns, per_episode).statistic)  # nan if returns are equal
     flat = obs.reshape(-1, obs.shape[-1])
     if reference is None:
       reference = flat.mean(axis=0), flat.std(axis=0) + 1e-6
@@ -124,13 +126,15 @@ def main(argv=None) -> int:
     shift = (flat.mean(axis=0) - reference[0]) / reference[1]
     far = np.argsort(-np.abs(shift))[:3]
     print(f"  {name:22s} return {returns.mean():7.1f}  log pD per transition: mean "
-          f"{log_d.mean():9.2f}  p5/p50/p95 {q[0]:9.2f} {q[1]:8.2f} {q[2]:8.2f}  furthest "
+          f"{log_d.mean():9.2f}  p5/p50/p95 {q[0]:9.2f} {q[1]:8.2f} {q[2]:8.2f}  "
+          f"rank corr. with return {within:5.2f}  furthest "
           "from the expert: " + ", ".join(f"{names[d]} {shift[d]:+.1f} sd" for d in far))
     if writer:
       writer.write(kind="form_reward_landscape", task=args.task, method="form",
                    behaviour=name, noise=noise, episodes=args.episodes,
                    task_return=float(returns.mean()), log_pd_mean=float(log_d.mean()),
                    log_pd_percentiles={"p5": q[0], "p50": q[1], "p95": q[2]},
+                   spearman_return_log_pd=None if np.isnan(within) else within,
                    shift_from_expert={names[d]: float(shift[d]) for d in far},
                    demonstrator_sha256=file.metadata["sha256"])
   rho = stats.spearmanr(all_returns, all_scores).statistic
