@@ -4,7 +4,27 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from mjx_form.rl.networks import make_networks
+from mjx_form.rl.networks import TiledCritic, make_networks
+
+
+def test_critic_equals_dense_layers_on_the_concatenation():
+  """The split first layer has nn.Dense's parameters (names, shapes, initial values) and
+  computes what nn.Dense on the concatenation computes, for one or N actions per state."""
+  networks = make_networks(action_size=3, width=32)
+  obs = jax.random.normal(jax.random.PRNGKey(0), (4, 5, 7))  # [B, T, D]
+  actions = 2 * jax.random.normal(jax.random.PRNGKey(1), (6, 4, 5, 3))  # [N, B, T, A]
+  params = networks.critic.init(jax.random.PRNGKey(2), obs[:1, 0], actions[0, :1, 0])
+  reference = TiledCritic(32, (32,) * 3)  # nn.Dense on the tiled concatenation
+  ref_params = reference.init(jax.random.PRNGKey(2), obs[:1, 0], actions[0, :1, 0])
+  assert jax.tree.structure(params) == jax.tree.structure(ref_params)
+  for a, b in zip(jax.tree.leaves(params), jax.tree.leaves(ref_params)):
+    np.testing.assert_array_equal(a, b)
+  # Trained-looking parameters: a nonzero first-layer bias, so its single addition is checked.
+  params = jax.tree.map(lambda p: p + 0.1 * jax.random.normal(jax.random.PRNGKey(3), p.shape),
+                        params)
+  for o, a in ((obs, actions), (obs, actions[0])):
+    np.testing.assert_allclose(networks.critic.apply(params, o, a), reference.apply(params, o, a),
+                               rtol=1e-5, atol=1e-5)
 
 
 def test_critic_broadcasts_one_state_over_sampled_actions():

@@ -4,6 +4,8 @@ Encoder: linear 256, optional LayerNorm, tanh, then optional hidden layers of 25
 Policy:  encoder (LayerNorm, one hidden layer) -> diagonal Gaussian, scale softplus + 1e-4.
 Critic:  encoder (LayerNorm, one hidden layer) of the observation, concatenated with
          tanh(action) -> linear 256, LayerNorm, tanh -> 3 layers of 256 with ELU -> scalar.
+         The linear layer on the concatenation runs split (`ConcatDense`), so that with N
+         sampled actions per state the observation's half is computed once, not N times.
 Policy and critic are independent (no shared parameters). Observations enter standardised.
 """
 
@@ -53,11 +55,28 @@ class GaussianPolicy(nn.Module):
     return DiagonalGaussian(mean, scale_from_raw(raw_scale, self.min_scale))
 
 
+class ConcatDense(nn.Module):
+  """nn.Dense of concat([x, y], -1), its kernel [X + Y, F] applied in two parts:
+  x @ kernel[:X] + y @ kernel[X:] + bias. `x`'s batch shape may be a suffix of `y`'s (one x
+  for N y's): x's part is then computed once and broadcast. Same parameters, names and
+  initialisation as nn.Dense on the concatenation."""
+
+  features: int
+
+  @nn.compact
+  def __call__(self, x: jax.Array, y: jax.Array) -> jax.Array:  # [..., X], [..., Y] -> [..., F]
+    kernel = self.param("kernel", nn.initializers.lecun_normal(),
+                        (x.shape[-1] + y.shape[-1], self.features))
+    bias = self.param("bias", nn.initializers.zeros_init(), (self.features,))
+    return (x @ kernel[:x.shape[-1]] + bias) + y @ kernel[x.shape[-1]:]
+
+
 class Critic(nn.Module):
   """(observation [..., D], action [..., A]) -> Q [...].
 
   The observation's batch shape may be a suffix of the action's: Q of N sampled actions per
-  state takes obs [B, D] with actions [N, B, A], and the encoder runs once per state, not N times.
+  state takes obs [B, D] with actions [N, B, A]; the encoder, and the observation's half of the
+  first layer after it, run once per state, not N times.
   """
 
   width: int = 256
@@ -66,9 +85,28 @@ class Critic(nn.Module):
   @nn.compact
   def __call__(self, obs: jax.Array, action: jax.Array) -> jax.Array:
     encoded = Encoder(self.width)(obs)  # [..., width], batch shape of obs
+    # Explicit names keep the parameter tree of nn.Dense layers on the concatenation.
+    h = ConcatDense(self.width, name="Dense_0")(encoded, jnp.tanh(action))  # [..., width]
+    h = jnp.tanh(nn.LayerNorm()(h))
+    for i, size in enumerate(self.layers):
+      h = nn.elu(nn.Dense(size, name=f"Dense_{i + 1}")(h))
+    return nn.Dense(1, name=f"Dense_{len(self.layers) + 1}")(h)[..., 0]
+
+
+class TiledCritic(nn.Module):
+  """Critic's function written plainly, nn.Dense layers on the concatenation with the encoding
+  tiled over the sampled actions (same parameters as Critic). Not used in training: the
+  reference of the tests and of `benchmarks/update_speed.py`'s `tiled_critic` variant."""
+
+  width: int = 256
+  layers: Sequence[int] = (256, 256, 256)
+
+  @nn.compact
+  def __call__(self, obs: jax.Array, action: jax.Array) -> jax.Array:
+    encoded = Encoder(self.width)(obs)
     encoded = jnp.broadcast_to(encoded, action.shape[:-1] + encoded.shape[-1:])
-    h = jnp.concatenate([encoded, jnp.tanh(action)], axis=-1)
-    h = jnp.tanh(nn.LayerNorm()(nn.Dense(self.width)(h)))
+    h = nn.Dense(self.width)(jnp.concatenate([encoded, jnp.tanh(action)], axis=-1))
+    h = jnp.tanh(nn.LayerNorm()(h))
     for size in self.layers:
       h = nn.elu(nn.Dense(size)(h))
     return nn.Dense(1)(h)[..., 0]
