@@ -8,7 +8,7 @@ best of `--repeats` calls after a warm-up call. Variants, each compiled on its o
   - samples_1:   one sampled action per state instead of 20 (what the sampled critic costs);
   - highest:     float32 matmuls at 'highest' precision (the default lets the GPU use TF32);
   - tiled_critic: the critic as nn.Dense on the concatenation tiled over the 20 sampled
-                 actions (`TiledCritic`, same function), against the split first layer of
+                 actions (`Critic(tiled=True)`, same function), against the split first layer of
                  `Critic` that computes the observation's half once per state;
   - retrace_*:   the Retrace targets of one batch alone, as a loop and unrolled (the learner
                  unrolls it).
@@ -38,7 +38,7 @@ import jax.numpy as jnp  # noqa: E402
 
 import tasks  # noqa: E402
 from mjx_form.rl import learner, normalizer, retrace  # noqa: E402
-from mjx_form.rl.networks import Networks, TiledCritic, make_networks  # noqa: E402
+from mjx_form.rl.networks import Critic, Networks, make_networks  # noqa: E402
 
 VARIANTS = ("base", "samples_1", "highest", "tiled_critic")
 
@@ -109,7 +109,7 @@ def main(argv=None) -> int:
         config = dataclasses.replace(config, num_action_samples=1)
       networks = make_networks(action_size)
       if variant == "tiled_critic":
-        networks = Networks(networks.policy, TiledCritic())
+        networks = Networks(networks.policy, Critic(tiled=True))
       state = learner.init(networks, config, key, obs_size, action_size)
       # Targets start as the online parameters; donation needs a buffer per leaf.
       state = jax.tree.map(lambda x: jnp.array(x, copy=True), state)

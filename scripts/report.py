@@ -730,9 +730,9 @@ def effect_model_table(records: list[dict], best_per_task: bool = True) -> str:
 
 # The generated tables of each file: {marker name: table}.
 def readme_tables(records: list[dict]) -> dict[str, str]:
-  return {"form": form_table(records, best_per_task=True), "demonstrators": effect_model_table(records),
-          "experts": experts_table(records), "learning_summary": learning_summary(records),
-          "parity_summary": parity_summary(records),
+  return {"form": form_table(records, best_per_task=True),
+          "demonstrators": effect_model_table(records), "experts": experts_table(records),
+          "learning_summary": learning_summary(records), "parity_summary": parity_summary(records),
           "throughput_summary": throughput_summary(records), "scaling": scaling_table(records)}
 
 

@@ -4,7 +4,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from mjx_form.rl.networks import TiledCritic, make_networks
+from mjx_form.rl.networks import Critic, make_networks
 
 
 def test_critic_equals_dense_layers_on_the_concatenation():
@@ -14,7 +14,7 @@ def test_critic_equals_dense_layers_on_the_concatenation():
   obs = jax.random.normal(jax.random.PRNGKey(0), (4, 5, 7))  # [B, T, D]
   actions = 2 * jax.random.normal(jax.random.PRNGKey(1), (6, 4, 5, 3))  # [N, B, T, A]
   params = networks.critic.init(jax.random.PRNGKey(2), obs[:1, 0], actions[0, :1, 0])
-  reference = TiledCritic(32, (32,) * 3)  # nn.Dense on the tiled concatenation
+  reference = Critic(32, (32,) * 3, tiled=True)  # nn.Dense on the tiled concatenation
   ref_params = reference.init(jax.random.PRNGKey(2), obs[:1, 0], actions[0, :1, 0])
   assert jax.tree.structure(params) == jax.tree.structure(ref_params)
   for a, b in zip(jax.tree.leaves(params), jax.tree.leaves(ref_params)):

@@ -76,40 +76,29 @@ class Critic(nn.Module):
 
   The observation's batch shape may be a suffix of the action's: Q of N sampled actions per
   state takes obs [B, D] with actions [N, B, A]; the encoder, and the observation's half of the
-  first layer after it, run once per state, not N times.
+  first layer after it, run once per state, not N times. `tiled=True` computes the same
+  function plainly, nn.Dense on the concatenation with the encoding tiled over the actions
+  (same parameters): the reference of the tests and of `benchmarks/update_speed.py`.
   """
 
   width: int = 256
   layers: Sequence[int] = (256, 256, 256)
+  tiled: bool = False
 
   @nn.compact
   def __call__(self, obs: jax.Array, action: jax.Array) -> jax.Array:
     encoded = Encoder(self.width)(obs)  # [..., width], batch shape of obs
-    # Explicit names keep the parameter tree of nn.Dense layers on the concatenation.
-    h = ConcatDense(self.width, name="Dense_0")(encoded, jnp.tanh(action))  # [..., width]
+    # Explicit names: both forms have the parameter tree of nn.Dense layers.
+    if self.tiled:
+      encoded = jnp.broadcast_to(encoded, action.shape[:-1] + encoded.shape[-1:])
+      h = nn.Dense(self.width, name="Dense_0")(
+          jnp.concatenate([encoded, jnp.tanh(action)], axis=-1))
+    else:
+      h = ConcatDense(self.width, name="Dense_0")(encoded, jnp.tanh(action))  # [..., width]
     h = jnp.tanh(nn.LayerNorm()(h))
     for i, size in enumerate(self.layers):
       h = nn.elu(nn.Dense(size, name=f"Dense_{i + 1}")(h))
     return nn.Dense(1, name=f"Dense_{len(self.layers) + 1}")(h)[..., 0]
-
-
-class TiledCritic(nn.Module):
-  """Critic's function written plainly, nn.Dense layers on the concatenation with the encoding
-  tiled over the sampled actions (same parameters as Critic). Not used in training: the
-  reference of the tests and of `benchmarks/update_speed.py`'s `tiled_critic` variant."""
-
-  width: int = 256
-  layers: Sequence[int] = (256, 256, 256)
-
-  @nn.compact
-  def __call__(self, obs: jax.Array, action: jax.Array) -> jax.Array:
-    encoded = Encoder(self.width)(obs)
-    encoded = jnp.broadcast_to(encoded, action.shape[:-1] + encoded.shape[-1:])
-    h = nn.Dense(self.width)(jnp.concatenate([encoded, jnp.tanh(action)], axis=-1))
-    h = jnp.tanh(nn.LayerNorm()(h))
-    for size in self.layers:
-      h = nn.elu(nn.Dense(size)(h))
-    return nn.Dense(1)(h)[..., 0]
 
 
 @dataclasses.dataclass(frozen=True)
