@@ -6,7 +6,8 @@ N(0, sigma^2), clipped), of uniform random actions and of any `--policy` file (e
 run's imitator, its mean action), and scores every transition with the demonstrator's
 log pD(x_{t+1} | x_t) (raw observation space, FORM's reward term). Prints, per behaviour, the
 task return, the distribution of log pD, the rank correlation of an episode's return and its
-mean log pD within the behaviour (does the reward prefer its better episodes?) and the
+mean log pD within the behaviour (does the reward prefer its better episodes?), the share of
+the policy's mean outside [-1, 1] and its median scale (not for random actions), the
 observation dimensions furthest from the noiseless expert's (in its standard deviations: where
 a policy's posture differs), and the same rank correlation over all episodes; appends
 `kind: form_reward_landscape` records.
@@ -43,8 +44,9 @@ from mjx_form.sim import env as env_lib  # noqa: E402
 
 
 def rollout(env, agent, noise, key, episodes):
-  """Observations [K, T+1, D] and returns [K]: `agent`'s (a loaded policy file's) mean action
-  plus N(0, noise^2) (clipped), or uniform random actions where `noise` is None."""
+  """Observations [K, T+1, D], returns [K], and the policy's mean and scale [T, K, A] at the
+  states visited: `agent`'s (a loaded policy file's) mean action plus N(0, noise^2) (clipped),
+  or uniform random actions where `noise` is None."""
   policy = make_networks(env.action_size, agent.metadata["network_width"]).policy
 
   @jax.jit
@@ -53,17 +55,18 @@ def rollout(env, agent, noise, key, episodes):
     states = jax.vmap(env.reset)(jax.random.split(reset_key, episodes))
 
     def step(states, key):
+      pi = policy.apply(agent.params, normalizer.normalize(agent.normalizer, states.obs))
       if noise is None:
         action = jax.random.uniform(key, (episodes, env.action_size), minval=-1, maxval=1)
       else:
-        mean = policy.apply(agent.params, normalizer.normalize(agent.normalizer, states.obs))
-        action = mean.mode() + noise * jax.random.normal(key, mean.mode().shape)
+        action = pi.mode() + noise * jax.random.normal(key, pi.mode().shape)
       nxt = jax.vmap(env.step)(states, jnp.clip(action, -1.0, 1.0))
-      return nxt, (states.obs, nxt.reward)
+      return nxt, (states.obs, nxt.reward, pi.mode(), pi.scale)
 
-    final, (obs, rewards) = jax.lax.scan(step, states,
-                                         jax.random.split(key, env_lib.EPISODE_LENGTH))
-    return jnp.swapaxes(jnp.concatenate([obs, final.obs[None]]), 0, 1), rewards.sum(0)
+    final, (obs, rewards, means, scales) = jax.lax.scan(
+        step, states, jax.random.split(key, env_lib.EPISODE_LENGTH))
+    return (jnp.swapaxes(jnp.concatenate([obs, final.obs[None]]), 0, 1), rewards.sum(0),
+            means, scales)
 
   return jax.device_get(run(key))
 
@@ -112,7 +115,12 @@ def main(argv=None) -> int:
   print(f"{args.task}: demonstrator {path} (held-out log p at offset 1: "
         f"{file.metadata['training']['heldout_log_likelihood'][0]:.2f})")
   for i, (name, noise, agent) in enumerate(behaviours):
-    obs, returns = rollout(env, agent, noise, jax.random.PRNGKey(i), args.episodes)
+    obs, returns, means, scales = rollout(env, agent, noise, jax.random.PRNGKey(i),
+                                          args.episodes)
+    # The policy's mean beyond the action bounds (what the environment clips), and its scale.
+    policy_stats = {} if noise is None else {
+        "mean_out_of_bounds": float(np.mean(np.abs(means) > 1.0)),
+        "policy_scale_median": float(np.median(scales))}
     log_d = np.asarray(score(jnp.asarray(obs)))  # [K, T]
     per_episode = log_d.mean(axis=1)
     all_returns += list(returns)
@@ -127,15 +135,17 @@ def main(argv=None) -> int:
     far = np.argsort(-np.abs(shift))[:3]
     print(f"  {name:22s} return {returns.mean():7.1f}  log pD per transition: mean "
           f"{log_d.mean():9.2f}  p5/p50/p95 {q[0]:9.2f} {q[1]:8.2f} {q[2]:8.2f}  "
-          f"rank corr. with return {within:5.2f}  furthest "
-          "from the expert: " + ", ".join(f"{names[d]} {shift[d]:+.1f} sd" for d in far))
+          f"rank corr. with return {within:5.2f}  "
+          + "".join(f"{k.replace('_', ' ')} {v:.2f}  " for k, v in policy_stats.items())
+          + "furthest from the expert: "
+          + ", ".join(f"{names[d]} {shift[d]:+.1f} sd" for d in far))
     if writer:
       writer.write(kind="form_reward_landscape", task=args.task, method="form",
                    behaviour=name, noise=noise, episodes=args.episodes,
                    task_return=float(returns.mean()), log_pd_mean=float(log_d.mean()),
                    log_pd_percentiles={"p5": q[0], "p50": q[1], "p95": q[2]},
                    spearman_return_log_pd=None if np.isnan(within) else within,
-                   shift_from_expert={names[d]: float(shift[d]) for d in far},
+                   shift_from_expert={names[d]: float(shift[d]) for d in far}, **policy_stats,
                    demonstrator_sha256=file.metadata["sha256"])
   rho = stats.spearmanr(all_returns, all_scores).statistic
   print(f"  rank correlation of episode return and mean log pD over all episodes: {rho:.2f}")
