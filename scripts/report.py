@@ -540,36 +540,40 @@ def form_runs_table(records: list[dict]) -> str:
 
 def population_table(records: list[dict]) -> str:
   """`kind: population_throughput`: P runs in one program against one run, per task, device
-  and environments per member."""
+  and environments per member; the speed-up against P = 1 of the same result file (one
+  invocation of the benchmark, one version of the code)."""
   rows = [r for r in records if r.get("kind") == "population_throughput"]
   if not rows:
     return "No population throughput results yet."
-  newest = _newest(rows, lambda r: (r["task"], r["device"], r["num_envs"], r["members"],
-                                    r["settings"]["updates_per_iteration"]))
+  key = lambda r, p: (r.get("_file", ""), r["task"], r["device"], r["num_envs"], p,
+                      r["settings"]["updates_per_iteration"])
+  newest = _newest(rows, lambda r: key(r, r["members"]))
   lines = ["Populations (`Trainer(..., seeds=range(P))`, `benchmarks/train_throughput.py "
            "--members`): total env steps per second of the whole training iteration over all "
-           "P members, its speed-up over P = 1 on the same device, and the iteration's split "
-           "into collection (all members' environments and policies) and updates (each member's "
-           "`updates_per_iteration` MPO/Retrace updates, side by side); peak device memory of "
-           "the process (each member's replay of 10,000 unrolls included):", "",
+           "P members, its speed-up over P = 1 measured in the same result file, and the "
+           "iteration's split into collection (all members' environments and policies) and "
+           "updates (each member's `updates_per_iteration` MPO/Retrace updates, side by side); "
+           "peak device memory of the process (each member's replay of 10,000 unrolls "
+           "included):", "",
            "| task | device | envs / member | updates / iteration | P | total steps/s | "
            "speed-up over P = 1 | iteration | collection | updates | ms / update / member | "
-           "peak memory |",
-           "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+           "peak memory | result file |",
+           "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
   ordered = sorted(newest.values(), key=lambda r: (_order(r["task"]), r["device"],
-                                                   r["num_envs"], r["members"]))
+                                                   r["num_envs"], r.get("_file", ""),
+                                                   r["members"]))
   for r in ordered:
-    one = newest.get((r["task"], r["device"], r["num_envs"], 1,
-                      r["settings"]["updates_per_iteration"]))
+    one = newest.get(key(r, 1))
     speedup = f"{r['sps'] / one['sps']:.2f}x" if one else "-"
     updates_s = r["iteration_s"] - r["collect_s"]
     per_member = r["update_ms"] / r["members"]  # update_ms: all members' update, side by side
     memory = r.get("peak_memory_bytes")
+    label = _run_label(r["_file"], "population_throughput") if "_file" in r else "-"
     lines.append(f"| {r['task']} | `{r['device']}` | {r['num_envs']} | "
                  f"{r['settings']['updates_per_iteration']} | {r['members']} | {_k(r['sps'])} | "
                  f"{speedup} | {r['iteration_s']:.2f} s | {r['collect_s']:.2f} s | "
                  f"{updates_s:.2f} s | {per_member:.2f} | "
-                 f"{'-' if memory is None else f'{memory / 2**30:.1f} GiB'} |")
+                 f"{'-' if memory is None else f'{memory / 2**30:.1f} GiB'} | {label} |")
   return "\n".join(lines)
 
 

@@ -237,6 +237,20 @@ def test_training_never_sees_the_task_reward(form_trainer, monkeypatch):
   assert np.isfinite(metrics[-1]["form_reward"][0]) and metrics[-1]["imitator_log_prob"][0] != 0
 
 
+def test_form_run_settings_take_the_task_entry_then_the_preset_then_the_flags():
+  """cheetah_run's measured reward clip (settings.PER_TASK_RUN) is its default; an untuned
+  task keeps DEFAULT_RUN's; --preset paper replaces both; a flag overrides either."""
+  cli = load_script("run")
+  def chosen(*argv):
+    return cli.form_run_settings(cli.parse_args(["--method", "form", *argv]))
+  assert chosen("--task", "cheetah_run") == {"standardise_reward": True, "reward_clip": 3.0,
+                                             "target_update_period": 25}
+  assert chosen("--task", "walker_walk")["reward_clip"] == 0.0
+  assert chosen("--task", "cheetah_run", "--reward_clip", "0")["reward_clip"] == 0.0
+  assert chosen("--task", "cheetah_run", "--preset", "paper") == {
+      "standardise_reward": False, "reward_clip": 0.0, "target_update_period": 200}
+
+
 def _readme_args(run_dir, *extra):
   """The README's main command, shortened to one iteration, in `run_dir`."""
   argv = run_commands()[0]

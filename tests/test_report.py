@@ -145,21 +145,27 @@ def test_form_runs_table_has_one_row_per_run_and_seed():
       "50.0 | 50.0 | 77.0 | 0.5 | 2026-12-01 |"], table
 
 
-def test_population_table_gives_the_speed_up_over_one_member():
+def test_population_table_gives_the_speed_up_over_one_member_of_the_same_file():
   assert report.population_table([]).startswith("No population")
 
-  def record(members, sps, iteration_s, collect_s):
+  def record(members, sps, iteration_s, collect_s, file="2026-12-01_population_throughput.jsonl"):
     return {"kind": "population_throughput", "task": "cheetah_run", "device": "gpu:X",
             "num_envs": 512, "members": members, "sps": sps, "iteration_s": iteration_s,
             "collect_s": collect_s, "update_ms": 1e3 * (iteration_s - collect_s) / 100,
             "peak_memory_bytes": 2**30 * members,
-            "settings": {"updates_per_iteration": 100}}
-  table = report.population_table([record(1, 50_000, 1.0, 0.4), record(8, 200_000, 2.0, 0.8)])
+            "settings": {"updates_per_iteration": 100}, "_file": file}
+  later = "2026-12-02_population_throughput_faster.jsonl"
+  table = report.population_table([record(1, 50_000, 1.0, 0.4), record(8, 200_000, 2.0, 0.8),
+                                   record(1, 40_000, 1.0, 0.4, later),
+                                   record(4, 100_000, 2.0, 0.8, later)])
   rows = [line for line in table.splitlines() if line.startswith("| cheetah_run")]
   # P = 8: 4.00x; updates 1.2 s over 100 updates and 8 members = 1.50 ms each.
   assert rows[1] == ("| cheetah_run | `gpu:X` | 512 | 100 | 8 | 200k | 4.00x | 2.00 s | 0.80 s | "
-                     "1.20 s | 1.50 | 8.0 GiB |"), rows
+                     "1.20 s | 1.50 | 8.0 GiB | 2026-12-01 |"), rows
   assert "| 1 | 50k | 1.00x | 1.00 s | 0.40 s | 0.60 s | 6.00 | 1.0 GiB |" in rows[0], rows
+  # The later file's P = 4 is against its own P = 1 (40k), not the other file's (50k).
+  assert rows[3].startswith("| cheetah_run | `gpu:X` | 512 | 100 | 4 | 100k | 2.50x |"), rows
+  assert rows[3].endswith("| 2026-12-02 faster |"), rows
 
 
 def test_scaling_table_gives_the_efficiency_against_one_device():
