@@ -207,9 +207,9 @@ def parse_args(argv=None) -> argparse.Namespace:
   form.add_argument("--reward_clip", type=float, default=None,
                     help="bound the FORM reward's tail: clip it to this many running standard "
                          "deviations around its running mean, in the learner's reward and in "
-                         "its statistics (mjx_form/imitation/form.py); 0: off (default: the "
-                         "task's entry in mjx_form/imitation/settings.py: 3 for cheetah_run, "
-                         "else 0; --preset paper: 0)")
+                         "its statistics (mjx_form/imitation/form.py); 0: off, else > 1 "
+                         "(default: the task's entry in mjx_form/imitation/settings.py: 3 for "
+                         "cheetah_run, else 0; --preset paper: 0)")
   steps = demonstrator_lib.DemonstratorTraining()
   form.add_argument("--demonstrator_steps", type=int, default=steps.max_steps,
                     help="most gradient steps of demonstrator training (it stops earlier when "
@@ -276,8 +276,10 @@ def form_run_settings(args: argparse.Namespace) -> dict:
   if args.reward_scale is not None:
     chosen["standardise_reward"] = args.reward_scale == "standardised"
   if args.reward_clip is not None:
-    if not args.reward_clip >= 0:
-      raise ValueError(f"--reward_clip must be >= 0 (0: off), got {args.reward_clip}")
+    try:
+      grid.check_value("reward_clip", args.reward_clip)
+    except ValueError as e:
+      raise ValueError(f"--{e}") from None
     chosen["reward_clip"] = args.reward_clip
   if args.target_update_period is not None:
     chosen["target_update_period"] = args.target_update_period

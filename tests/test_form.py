@@ -131,7 +131,7 @@ def test_reward_clip_bounds_the_tail_in_the_reward_and_in_its_statistics():
   """With reward_clip c, each batch's raw rewards are folded into the EMA statistics clipped to
   [m - c s, m + c s] of the statistics before it (the first batch unclipped), and the learner's
   reward is clipped the same way (standardised: to [-c, c]); numpy reference, winsorised EMA."""
-  c = 1.0
+  c = 1.5
   raw_source = FormReward(EFFECT, _demonstrator(0))
   clipped = FormReward(EFFECT, _demonstrator(0), reward_clip=c)
   both = FormReward(EFFECT, _demonstrator(0), standardise_reward=True, reward_clip=c)
@@ -164,6 +164,18 @@ def test_reward_clip_bounds_the_tail_in_the_reward_and_in_its_statistics():
   rewards, _ = clipped.relabel(state, batch)
   np.testing.assert_allclose(rewards, np.where(valid, np.clip(raw, lo, hi), 0.0), rtol=1e-4,
                              atol=1e-4)
+  # The share of clipped transitions, on a batch of which only some are outside the bounds.
+  for scale in (1.0, 2.0, 3.0):
+    mild = {"observation": jnp.asarray(rng.normal(size=(8, 6, D)) * scale, jnp.float32),
+            "discount": jnp.ones((8, 5))}
+    raw_mild = np.asarray(clipped.raw_rewards(state, mild)[0], np.float64)
+    outside = (raw_mild < lo) | (raw_mild > hi)
+    if 0 < outside.mean() < 1:
+      break
+  assert 0 < outside.mean() < 1
+  np.testing.assert_allclose(clipped.relabel(state, mild)[1]["form_reward_clipped"],
+                             outside.mean(), rtol=1e-5)
+  assert raw_source.relabel(state, mild)[1]["form_reward_clipped"] == 0.0
   standardised, _ = both.relabel(state, batch)
   np.testing.assert_allclose(standardised,
                              np.where(valid, (np.clip(raw, lo, hi) - mean) / sd, 0.0),
@@ -175,8 +187,9 @@ def test_reward_clip_bounds_the_tail_in_the_reward_and_in_its_statistics():
       state, batch)[0])(jnp.array([0.0, c]))
   np.testing.assert_allclose(members[0], raw_source.relabel(state, batch)[0], rtol=1e-6)
   np.testing.assert_allclose(members[1], rewards, rtol=1e-6, atol=1e-6)
-  with pytest.raises(ValueError, match="reward_clip"):
-    FormReward(EFFECT, _demonstrator(0), reward_clip=-1.0)
+  for refused in (-1.0, 0.5, 1.0):  # at c <= 1 the clipped statistics' sd collapses
+    with pytest.raises(ValueError, match="reward_clip"):
+      FormReward(EFFECT, _demonstrator(0), reward_clip=refused)
 
 
 def test_imitation_requires_unrolls_that_end_with_the_episodes():
@@ -287,6 +300,7 @@ def test_form_command_line_runs_every_stage(tmp_path, capsys):
   assert all(r["method"] == "form" for r in records)
   assert all(np.isfinite(records[0][k]) for k in ("form_reward", "demonstrator_log_prob",
                                                   "imitator_batch_log_prob", "eval_return"))
+  assert records[0]["form_reward_clipped"] == 0.0  # reacher_easy: no clip by default
   assert records[0]["settings"]["reward"]["demonstrator_sha256"] == shipped.metadata["sha256"]
   # FORM's default run settings (mjx_form/imitation/settings.py): standardised reward, T 25.
   assert records[0]["settings"]["reward"]["standardise_reward"] is True
@@ -365,7 +379,7 @@ def test_form_command_line_runs_every_stage(tmp_path, capsys):
        "trained with beta_ar="),
       (["--demos", str(other_demos)], "demonstrations are for cheetah_run"),
       (["--expert", str(tmp_path / "missing.npz")], "no such policy file"),
-      (["--reward_clip", "-1"], "--reward_clip must be >= 0"),
+      (["--reward_clip", "1"], "--reward_clip must be 0 (off) or > 1"),
   ]
   for extra, message in refusals:
     target = tmp_path / "refused"

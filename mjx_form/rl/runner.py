@@ -318,8 +318,11 @@ def _progress_line(row: dict, total_iterations: int, steps_per_iteration: int) -
           + f"  train return {_show(row['train_return'])}"
           + (f"  eval {row['eval_return']:.1f}" if "eval_return" in row else ""))
   if "form_reward" in row:
-    line += (f"  form reward {row['form_reward']:.2f} (sd {row['form_reward_std']:.2f}; log pD "
-             f"{row['demonstrator_log_prob']:.1f}, log pI {row['imitator_batch_log_prob']:.1f})")
+    clipped = row.get("form_reward_clipped", 0.0)
+    line += (f"  form reward {row['form_reward']:.2f} (sd {row['form_reward_std']:.2f}"
+             + (f", {100 * clipped:.1f}% clipped" if clipped > 0 else "")
+             + f"; log pD {row['demonstrator_log_prob']:.1f}, log pI "
+             f"{row['imitator_batch_log_prob']:.1f})")
   return line + (f"  q {row['q_mean']:.2f}  critic {row['critic_loss']:.3f}  mean out of bounds "
                  f"{row['mean_out_of_bounds']:.2f}")
 
@@ -375,9 +378,10 @@ _CURVE_FIELDS = (
     # (> 1: constraint violated), the policy's mean scale and entropy, the critic
     "temperature", "alpha_mean", "alpha_scale", "kl_mean_rel", "kl_scale_rel",
     "kl_nonparametric_rel", "scale_mean", "entropy", "q_online", "critic_loss",
-    # FORM: the reward and both models' log-likelihoods on the learner's batches
-    "form_reward", "form_reward_std", "demonstrator_log_prob", "imitator_batch_log_prob",
-    "imitator_log_prob")
+    # FORM: the reward, its running sd and clipped share, and both models' log-likelihoods on
+    # the learner's batches
+    "form_reward", "form_reward_std", "form_reward_clipped", "demonstrator_log_prob",
+    "imitator_batch_log_prob", "imitator_log_prob")
 
 
 def _write_curve_point(writer: results.ResultWriter, trainer: Trainer, member: int, row: dict, *,
