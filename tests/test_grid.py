@@ -48,7 +48,8 @@ def test_values_are_parsed_as_their_setting_and_checked():
                               ("retrace_lambda", "-0.1", r"\[0, 1\]"),
                               ("standardise_reward", "yes", "0/1"),
                               ("clip_critic_actions", "2", "0/1"),
-                              ("reward_clip", "-1", "0 \\(off\\) or > 1"),
+                              ("reward_clip", "-1", "0 \\(off\\) or finite and > 1"),
+                              ("reward_clip", "inf", "finite"),
                               ("reward_clip", "1", "collapses"),
                               ("num_envs", "8", "cannot differ")):
     with pytest.raises(ValueError, match=message):

@@ -410,3 +410,15 @@ def test_demonstrations_from_an_exported_expert(tmp_path, capsys):
     demos.load_demonstrations(out, task="cheetah_run")
   assert cli.main(args) == 2  # never overwritten without --overwrite
   assert "exists" in capsys.readouterr().err
+
+
+def test_progress_line_shows_the_form_reward_and_its_clipped_share():
+  row = {"iteration": 10, "env_steps": 1000, "wall_s": 5.0, "steps_per_s": 200.0,
+         "train_return": 1.0, "form_reward": -2.5, "form_reward_std": 4.0,
+         "form_reward_clipped": 0.25, "demonstrator_log_prob": 3.0,
+         "imitator_batch_log_prob": 5.5, "q_mean": 1.0, "critic_loss": 0.1,
+         "mean_out_of_bounds": 0.5}
+  line = runner._progress_line(row, 20, 100)
+  assert "form reward -2.50 (sd 4.00, 25.0% clipped; log pD 3.0, log pI 5.5)" in line, line
+  line = runner._progress_line({**row, "form_reward_clipped": 0.0}, 20, 100)
+  assert "form reward -2.50 (sd 4.00; log pD 3.0" in line and "clipped" not in line, line

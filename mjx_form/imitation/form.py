@@ -27,8 +27,8 @@ c running standard deviations around the running mean (the standardised reward t
 and the statistics fold in the raw reward clipped the same way (winsorised; the first batch,
 which sets them, is not clipped). A single transition far off the demonstrations (cheetah's
 tumbles score log pD below -400 where the batch's median is ~-25, benchmarks/NOTES.md) then
-weighs as c sd and does not inflate the scale of the others. 0 (the default, as the paper):
-no clipping. Folding clipped rewards in biases the sd low, more so for small c: on Gaussian
+weighs as c sd and does not inflate the scale of the others. 0 (as the paper; this class's
+default, and the run's unless `settings.PER_TASK_RUN` says otherwise): no clipping. Folding clipped rewards in biases the sd low, more so for small c: on Gaussian
 rewards the running sd settles at 1.00 / 0.95 / 0.79 of the true one for c = 3 / 2 / 1.5 and
 falls towards 0 for c <= 1, which is therefore refused.
 
@@ -124,9 +124,16 @@ class FormReward:
 
   def clip_tail(self, stats: normalizer.NormalizerState, raw: jax.Array) -> jax.Array:
     """`raw` rewards clipped to `reward_clip` sd of `stats` around its mean (unchanged at 0)."""
+    return jnp.where(self.clipped(stats, raw), jnp.clip(raw, *self._bounds(stats)), raw)
+
+  def clipped(self, stats: normalizer.NormalizerState, raw: jax.Array) -> jax.Array:
+    """Where `clip_tail` bounds `raw` (bool, raw's shape; False everywhere at 0)."""
+    low, high = self._bounds(stats)
+    return (self.reward_clip > 0) & ((raw < low) | (raw > high))
+
+  def _bounds(self, stats: normalizer.NormalizerState) -> tuple[jax.Array, jax.Array]:
     width = self.reward_clip * jnp.sqrt(stats.var[0])
-    clipped = jnp.clip(raw, stats.mean[0] - width, stats.mean[0] + width)
-    return jnp.where(self.reward_clip > 0, clipped, raw)
+    return stats.mean[0] - width, stats.mean[0] + width
 
   def log_probs(self, state: FormState, observation: jax.Array) -> tuple[jax.Array, jax.Array]:
     """Raw-space log pD and log pI of each transition of observation [B, T+1, D]: [B, T] each."""
@@ -154,5 +161,5 @@ class FormReward:
                "imitator_batch_log_prob": mean(log_i),
                "form_reward_std": jnp.sqrt(state.reward.var[0]),
                # share of the batch's transitions whose reward the clip bounded (0 when off)
-               "form_reward_clipped": mean((bounded != raw).astype(jnp.float32))}
+               "form_reward_clipped": mean(self.clipped(state.reward, raw).astype(jnp.float32))}
     return rewards, metrics

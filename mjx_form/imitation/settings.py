@@ -50,8 +50,8 @@ def effect_model_config(task: str, **overrides) -> EffectModelConfig:
 # where a measurement chose it. Measured 2026-11-23 on an H100 (benchmarks/NOTES.md, session 18):
 # it matters where single transitions score far below the rest (cheetah's tumbles: the
 # unclipped reward's running sd ~100 against ~6 clipped); reacher_hard's reward has no such tail
-# (sd 5.5-8.5 either way) and one seed with c = 3 evaluated 547 at 20.5M steps, where unclipped
-# seeds gave 564 and 393. walker_* and reacher_easy imitate without it (sd 4-27).
+# (running sd median 5.8 either way) and one seed with c = 3 evaluated 547 at 20.5M steps, where
+# unclipped seeds gave 564 and 393. walker_* and reacher_easy imitate without it (medians 4-14).
 PAPER_RUN = {"standardise_reward": False, "reward_clip": 0.0, "target_update_period": 200}
 DEFAULT_RUN = {"standardise_reward": True, "reward_clip": 0.0, "target_update_period": 25}
 PER_TASK_RUN: dict[str, dict] = {

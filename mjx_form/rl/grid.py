@@ -74,11 +74,11 @@ def check_value(name: str, value) -> None:
     raise ValueError(f"discount must be in (0, 1], got {value}")
   if name == "retrace_lambda" and not 0.0 <= value <= 1.0:
     raise ValueError(f"retrace_lambda must be in [0, 1], got {value}")
-  if name == "reward_clip" and not (value == 0.0 or value > 1.0):
+  if name == "reward_clip" and not (value == 0.0 or 1.0 < value < float("inf")):
     # The running statistics fold in the clipped rewards: at c <= 1 their sd shrinks towards 0
     # batch after batch (FORM's module docstring).
-    raise ValueError(f"reward_clip must be 0 (off) or > 1 (the clipped statistics' sd "
-                     f"collapses at c <= 1), got {value}")
+    raise ValueError(f"reward_clip must be 0 (off) or finite and > 1 (the clipped "
+                     f"statistics' sd collapses at c <= 1), got {value}")
   if (name in LEARNER and _kind(name) is not bool and name not in ("discount", "retrace_lambda")
       and not value > 0):
     raise ValueError(f"{name} must be positive, got {value}")

@@ -318,7 +318,7 @@ def _progress_line(row: dict, total_iterations: int, steps_per_iteration: int) -
           + f"  train return {_show(row['train_return'])}"
           + (f"  eval {row['eval_return']:.1f}" if "eval_return" in row else ""))
   if "form_reward" in row:
-    clipped = row.get("form_reward_clipped", 0.0)
+    clipped = row["form_reward_clipped"]
     line += (f"  form reward {row['form_reward']:.2f} (sd {row['form_reward_std']:.2f}"
              + (f", {100 * clipped:.1f}% clipped" if clipped > 0 else "")
              + f"; log pD {row['demonstrator_log_prob']:.1f}, log pI "
