@@ -10,6 +10,8 @@ best of `--repeats` calls after a warm-up call. Variants, each compiled on its o
   - tiled_critic: the critic as nn.Dense on the concatenation tiled over the 20 sampled
                  actions (`Critic(tiled=True)`, same function), against the split first layer of
                  `Critic` that computes the observation's half once per state;
+  - bf16_sampled_q: the target critic's Q of the sampled actions in bfloat16
+                 (`LearnerConfig.sampled_q_bfloat16`);
   - retrace_*:   the Retrace targets of one batch alone, as a loop and unrolled (the learner
                  unrolls it).
 Records `kind: update_speed` with `update_ms` (or `retrace_ms`).
@@ -40,7 +42,7 @@ import tasks  # noqa: E402
 from mjx_form.rl import learner, normalizer, retrace  # noqa: E402
 from mjx_form.rl.networks import Critic, Networks, make_networks  # noqa: E402
 
-VARIANTS = ("base", "samples_1", "highest", "tiled_critic")
+VARIANTS = ("base", "samples_1", "highest", "tiled_critic", "bf16_sampled_q")
 
 
 def random_batch(key, batch: int, length: int, obs_size: int, action_size: int):
@@ -107,6 +109,8 @@ def main(argv=None) -> int:
       config = learner.LearnerConfig()
       if variant == "samples_1":
         config = dataclasses.replace(config, num_action_samples=1)
+      if variant == "bf16_sampled_q":
+        config = dataclasses.replace(config, sampled_q_bfloat16=True)
       networks = make_networks(action_size)
       if variant == "tiled_critic":
         networks = Networks(networks.policy, Critic(tiled=True))

@@ -271,6 +271,8 @@ def _learner_notes(record: dict, with_period: bool = True) -> list[str]:
     notes.append(f"T {learner['target_update_period']}")
   if learner.get("clip_critic_actions"):
     notes.append("critic clips actions")
+  if learner.get("sampled_q_bfloat16"):
+    notes.append("sampled Q in bf16")
   return notes
 
 

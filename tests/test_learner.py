@@ -1,4 +1,5 @@
-"""The learner's losses: what the critic sees of an action (`LearnerConfig.clip_critic_actions`)."""
+"""The learner's losses: what the critic sees of an action (`LearnerConfig.clip_critic_actions`)
+and the precision of the sampled actions' Q (`sampled_q_bfloat16`)."""
 
 import dataclasses
 
@@ -6,7 +7,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from mjx_form.rl import learner
+from mjx_form.rl import learner, normalizer
 from mjx_form.rl.networks import make_networks
 
 B, T, D, A = 3, 5, 4, 2
@@ -42,3 +43,34 @@ def test_critic_sees_clipped_actions_only_when_asked():
     assert abs(float(_metrics(off, near)[name] - _metrics(off, far)[name])) > 1e-6, name
   np.testing.assert_allclose(_metrics(on, inside)["q_online"], _metrics(off, inside)["q_online"],
                              rtol=1e-6)
+
+
+def test_sampled_q_in_bfloat16_is_close_to_float32_and_only_when_asked():
+  """`sampled_q_bfloat16` computes the sampled actions' Q with bfloat16 parameters and inputs:
+  within bfloat16's rounding of float32's Q (relative error ~1e-2 of the Q scale), not equal to
+  it; off, it is the critic's float32 Q exactly. The update with it runs and stays finite."""
+  networks = make_networks(A, width=64)
+  params = networks.critic.init(jax.random.PRNGKey(3), jnp.zeros((1, D)), jnp.zeros((1, A)))
+  # Q of a trained critic is far from 0: scale the last layer as Q ~ 50 would.
+  params = jax.tree_util.tree_map_with_path(
+      lambda path, x: x * 50 if "Dense_4" in jax.tree_util.keystr(path) else x, params)
+  obs = jax.random.normal(jax.random.PRNGKey(4), (B, T + 1, D))
+  actions = jax.random.normal(jax.random.PRNGKey(5), (4, B, T + 1, A))
+  exact = networks.critic.apply(params, obs, actions)
+  off = learner.sampled_q(networks, CONFIG, params, obs, actions)
+  on = learner.sampled_q(networks, dataclasses.replace(CONFIG, sampled_q_bfloat16=True), params,
+                         obs, actions)
+  assert on.dtype == jnp.float32 and on.shape == exact.shape == (4, B, T + 1)
+  np.testing.assert_array_equal(off, exact)
+  scale = float(jnp.max(jnp.abs(exact)))
+  error = float(jnp.max(jnp.abs(on - exact)))
+  assert 0 < error < 2e-2 * scale, (error, scale)
+  config = dataclasses.replace(CONFIG, sampled_q_bfloat16=True)
+  state = learner.init(NETWORKS, config, jax.random.PRNGKey(0), D, A)
+  batch = {"observation": obs, "action": jnp.clip(actions[0, :, :-1], -1, 1),
+           "behaviour_log_prob": jnp.zeros((B, T)), "discount": jnp.ones((B, T))}
+  norm = normalizer.init(D)
+  update = jax.jit(lambda s: learner.update(NETWORKS, config, s, norm, batch, jnp.ones((B, T)),
+                                            jax.random.PRNGKey(6)))
+  state, metrics = update(state)
+  assert all(np.isfinite(float(v)) for v in jax.tree.leaves(metrics))
