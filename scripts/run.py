@@ -211,8 +211,8 @@ def parse_args(argv=None) -> argparse.Namespace:
                     help="bound the FORM reward's tail: clip it to this many running standard "
                          "deviations around its running mean, in the learner's reward and in "
                          "its statistics (mjx_form/imitation/form.py); 0: off, else > 1 "
-                         "(default: the task's entry in mjx_form/imitation/settings.py: 3 for "
-                         "cheetah_run, else 0; --preset paper: 0)")
+                         "(default: 3, or the task's entry in mjx_form/imitation/settings.py; "
+                         "--preset paper: 0)")
   steps = demonstrator_lib.DemonstratorTraining()
   form.add_argument("--demonstrator_steps", type=int, default=steps.max_steps,
                     help="most gradient steps of demonstrator training (it stops earlier when "

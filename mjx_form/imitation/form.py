@@ -27,11 +27,11 @@ c running standard deviations around the running mean (the standardised reward t
 and the statistics fold in the raw reward clipped the same way (winsorised; the first batch,
 which sets them, is not clipped). A single transition far off the demonstrations (cheetah's
 tumbles score log pD below -400 where the batch's median is ~-25, benchmarks/NOTES.md) then
-weighs as c sd and does not inflate the scale of the others. 0 (as the paper; this class's
-default, and the run's unless `settings.PER_TASK_RUN` says otherwise): no clipping. Folding
-clipped rewards in biases the sd low, more so for small c: on Gaussian rewards the running sd
-settles at 1.00 / 0.95 / 0.79 of the true one for c = 3 / 2 / 1.5 and falls towards 0 for
-c <= 1, which is therefore refused.
+weighs as c sd and does not inflate the scale of the others. 0 (as the paper, `--preset
+paper`, and this class's default; a run's default is 3, `settings.DEFAULT_RUN`): no clipping.
+Folding clipped rewards in biases the sd low, more so for small c: on Gaussian rewards the
+running sd settles at 1.00 / 0.95 / 0.79 of the true one for c = 3 / 2 / 1.5 and falls towards
+0 for c <= 1, which is therefore refused.
 
 The source never sees the task reward (`needs_task_reward = False`: it is not even stored).
 """

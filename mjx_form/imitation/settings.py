@@ -13,8 +13,6 @@ from __future__ import annotations
 
 import dataclasses
 
-from mjx_form.imitation.effect_model import EffectModelConfig
-
 GRID = (0.01, 0.1, 1.0)  # the paper's search space for beta_ar and l2
 
 # Untuned tasks: the paper's best pair on its two ablated tasks.
@@ -25,13 +23,15 @@ PER_TASK: dict[str, dict[str, float]] = {
     # {0.01, 0.1} x {0.1, 1}, the L2-1 models give the stalled imitators' behaviour a log pD
     # well above random actions' (the L2-0.1 ones: the same as random), and FORM with the
     # (0.01, 1) demonstrator evaluated 265 (3 seeds) at 15.4M steps against 114 with (1, 0.1)
-    # (2 seeds), 242-353 by 35M; with the reward clipped (PER_TASK_RUN below) it imitates.
+    # (2 seeds), 242-353 by 35M; with the reward clipped (DEFAULT_RUN below) it imitates.
     "cheetah_run": {"beta_ar": 0.01, "l2": 1.0},
 }
 
 
 def effect_model_config(task: str, **overrides) -> EffectModelConfig:
   """The effect-model settings of `task`, with `overrides` (e.g. beta_ar=0.1) applied."""
+  # Imported here: the constants of this module load without JAX (scripts/report.py).
+  from mjx_form.imitation.effect_model import EffectModelConfig
   chosen = {**DEFAULT, **PER_TASK.get(task, {})}
   chosen.update({k: v for k, v in overrides.items() if v is not None})
   config = dataclasses.replace(EffectModelConfig(), **chosen)
@@ -46,19 +46,23 @@ def effect_model_config(task: str, **overrides) -> EffectModelConfig:
 # 101 at 7.7M steps; standardised and 25: 486 at 5.9M, then 3 seeds with best policies of
 # 918.7 / 942.7 / 940.6 at 13.4M (the demonstrations: 878.8); walker_stand at 2M steps: 274
 # against 91; cheetah_run fails either way unclipped (~110 against ~70).
-# `reward_clip` (bounding the reward's tail at c running sd, form.py) is off by default and on
-# where a measurement chose it. Measured 2026-11-23 on an H100 (benchmarks/NOTES.md, session 18):
-# it matters where single transitions score far below the rest (cheetah's tumbles: the
-# unclipped reward's running sd ~100 against ~6 clipped); reacher_hard's reward has no such tail
-# (running sd median 5.8 either way) and one seed with c = 3 evaluated 547 at 20.5M steps, where
-# unclipped seeds gave 564 and 393. walker_* and reacher_easy imitate without it (medians 4-14).
+# `reward_clip` (bounding the reward's tail at c running sd, form.py) is 3 for every task: it
+# decides cheetah_run and changes nothing measurable where the reward has no tail. Measured on
+# GPUs (benchmarks/NOTES.md, sessions 18-19), fresh final returns:
+#   cheetah_run (tumbles: the unclipped reward's running sd ~100 against ~6 clipped): seed 0 with
+#     c = 0 / 3 / 10 in one population 231.7 / 823.6 / 292.2 at 19.0M steps; c = 3 over 7 runs
+#     (seeds 0-2) 631.6-836.5, mean 772.6; c = 2 beside c = 3 (seeds 0-2, one population): 802.6 /
+#     818.5 / 745.1 against 631.6 / 778.6 / 810.7, no difference at 3 seeds (medians over training:
+#     2 clips 7-9% of transitions, 3 clips 2-3%; 2 also biases the running sd low, form.py);
+#   walker_walk seed 2 (the seed whose unclipped final policy had fallen to 531) with c = 0 / 3 in
+#     one population: 915.4 / 936.9 at 11.8M steps (3 clipped a median 0.8%);
+#   reacher_hard seed 0 (no tail: running sd median 5.8 either way): c = 3 evaluated 547 at 20.5M
+#     steps, where unclipped seeds gave 564 and 393.
+# reacher_easy and walker_stand were measured unclipped only (their running sd medians 4-14).
 PAPER_RUN = {"standardise_reward": False, "reward_clip": 0.0, "target_update_period": 200}
-DEFAULT_RUN = {"standardise_reward": True, "reward_clip": 0.0, "target_update_period": 25}
-PER_TASK_RUN: dict[str, dict] = {
-    # standardised, T 25: seed 0 with c = 0 / 3 / 10 in one population, fresh 231.7 / 823.6 /
-    # 292.2 at 19.0M steps; seeds 1 and 2 with c = 3: 782.4 and 744.9 at 17.5M (paper: 828).
-    "cheetah_run": {"reward_clip": 3.0},
-}
+DEFAULT_RUN = {"standardise_reward": True, "reward_clip": 3.0, "target_update_period": 25}
+# A task's measured departures from DEFAULT_RUN (none so far).
+PER_TASK_RUN: dict[str, dict] = {}
 PRESETS = ("default", "paper")
 
 
