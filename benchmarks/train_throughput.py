@@ -41,6 +41,7 @@ from env_throughput import ours_fn  # noqa: E402
 from mjx_form import mesh as mesh_lib  # noqa: E402
 from mjx_form.files import results  # noqa: E402
 from mjx_form.sim.physics import DEFAULT_PHYSICS, PHYSICS_MODES  # noqa: E402
+from mjx_form.rl.learner import LearnerConfig  # noqa: E402
 from mjx_form.rl.train import Trainer, TrainConfig  # noqa: E402
 from mjx_form.sim.wrappers import AutoReset  # noqa: E402
 
@@ -118,7 +119,15 @@ def measure(trainer: Trainer, label: str, kind: str, args, writer, key) -> None:
         f"{loop_compile_s:.0f}s)", flush=True)
 
 
-def main(argv=None) -> int:
+def train_config(args, task: str, num_envs: int) -> TrainConfig:
+  """The measured run's settings: the defaults, with the command line's."""
+  return TrainConfig(task=task, physics=args.physics, num_envs=num_envs,
+                     updates_per_iteration=args.updates_per_iteration,
+                     stagger_episodes=not args.lockstep_episodes,
+                     learner=LearnerConfig(sampled_q_bfloat16=args.sampled_q_bfloat16))
+
+
+def parse_args(argv=None) -> argparse.Namespace:
   parser = argparse.ArgumentParser(description=__doc__,
                                    formatter_class=argparse.RawDescriptionHelpFormatter)
   parser.add_argument("--tasks", nargs="*", default=["humanoid_run", "cheetah_run"],
@@ -132,11 +141,17 @@ def main(argv=None) -> int:
                       "phases, whose resets then run in every iteration)")
   parser.add_argument("--members", nargs="*", type=int, default=None,
                       help="population sizes to measure (kind population_throughput)")
+  parser.add_argument("--sampled_q_bfloat16", action="store_true",
+                      help="the learner's Q of the sampled actions in bfloat16 (LearnerConfig)")
   parser.add_argument("--repeats", type=int, default=3)
   parser.add_argument("--skip_env_only", action="store_true",
                       help="skip the env-only rollout (its compile costs ~35 s per size on a GPU)")
   parser.add_argument("--out", default=common.default_results_path("train_throughput"))
-  args = parser.parse_args(argv)
+  return parser.parse_args(argv)
+
+
+def main(argv=None) -> int:
+  args = parse_args(argv)
   writer = common.ResultWriter(args.out)
   key = jax.random.PRNGKey(0)
 
@@ -144,10 +159,7 @@ def main(argv=None) -> int:
   for name in args.tasks:
     for num_envs in args.num_envs:
       for members in args.members or [1]:
-        config = TrainConfig(task=name, physics=args.physics, num_envs=num_envs,
-                             updates_per_iteration=args.updates_per_iteration,
-                             stagger_episodes=not args.lockstep_episodes)
-        trainer = Trainer(config, seeds=tuple(range(members)))
+        trainer = Trainer(train_config(args, name, num_envs), seeds=tuple(range(members)))
         label = f"{name} {num_envs} envs" + (f" x {members} members" if args.members else "")
         measure(trainer, label, kind, args, writer, key)
   print(f"results appended to {args.out}")

@@ -31,6 +31,16 @@ def test_train_throughput_env_only_runs_over_the_loops_devices():
   exe(end, key).obs.block_until_ready()
 
 
+def test_train_throughput_measures_the_learner_settings_it_is_given():
+  """--sampled_q_bfloat16 reaches the measured learner (and its records' settings); without
+  it the learner is the default one."""
+  bench = load_script("train_throughput", folder="benchmarks")
+  plain = bench.train_config(bench.parse_args(["--num_envs", "8"]), "cheetah_run", 8)
+  assert plain == TrainConfig(task="cheetah_run", num_envs=8)
+  bf16 = bench.train_config(bench.parse_args(["--sampled_q_bfloat16"]), "cheetah_run", 8)
+  assert bf16.learner.sampled_q_bfloat16 and bf16.to_dict()["learner"]["sampled_q_bfloat16"]
+
+
 def test_form_reward_landscape_names_each_observation_dimension():
   """Its posture report names dimensions by the task's observation layout, in order."""
   bench = load_script("form_reward_landscape", folder="benchmarks")
