@@ -26,6 +26,7 @@ sys.path.insert(0, ROOT)
 
 from mjx_form.files import effect_models, policy_io  # noqa: E402  (numpy only; no JAX)
 from mjx_form import paper  # noqa: E402  (constants only)
+from mjx_form.imitation import settings as form_settings  # noqa: E402  (constants; no JAX)
 from mjx_form.cpu import CPU_XLA_FLAG  # noqa: E402  (os only)
 
 # = tasks.EXPERTS_DIR (not imported from there: importing tasks starts JAX)
@@ -501,6 +502,17 @@ def _form_variant(record: dict) -> str:
                     *_learner_notes(record, with_period=False)])
 
 
+def _default_form_variant(task: str) -> str:
+  """The `_form_variant` of a FORM run of `task` with every default of
+  mjx_form/imitation/settings.py (what `--method form` runs unless told otherwise)."""
+  run = form_settings.run_settings(task)
+  model = {**form_settings.DEFAULT, **form_settings.PER_TASK.get(task, {})}
+  return _form_variant({"settings": {
+      "reward": {"standardise_reward": run["standardise_reward"],
+                 "reward_clip": run["reward_clip"], "effect_model": model},
+      "learner": {"target_update_period": run["target_update_period"]}}})
+
+
 def form_runs_table(records: list[dict]) -> str:
   """One row per FORM learning run (result file and seed): its settings, where its periodic
   evaluations got, and its fresh final evaluation where it finished."""
@@ -556,11 +568,11 @@ def population_table(records: list[dict]) -> str:
            "iteration's split into collection (all members' environments and policies) and "
            "updates (each member's `updates_per_iteration` MPO/Retrace updates, side by side); "
            "peak device memory of the process (each member's replay of 10,000 unrolls "
-           "included):", "",
-           "| task | device | envs / member | updates / iteration | P | total steps/s | "
+           "included); learner: its settings that differ from the paper's:", "",
+           "| task | device | envs / member | updates / iteration | learner | P | total steps/s | "
            "speed-up over P = 1 | iteration | collection | updates | ms / update / member | "
            "peak memory | result file |",
-           "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+           "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
   ordered = sorted(newest.values(), key=lambda r: (_order(r["task"]), r["device"],
                                                    r["num_envs"], r.get("_file", ""),
                                                    r["members"]))
@@ -571,8 +583,10 @@ def population_table(records: list[dict]) -> str:
     per_member = r["update_ms"] / r["members"]  # update_ms: all members' update, side by side
     memory = r.get("peak_memory_bytes")
     label = _run_label(r["_file"], "population_throughput") if "_file" in r else "-"
+    learner = ", ".join(_learner_notes(r)) or "-"
     lines.append(f"| {r['task']} | `{r['device']}` | {r['num_envs']} | "
-                 f"{r['settings']['updates_per_iteration']} | {r['members']} | {_k(r['sps'])} | "
+                 f"{r['settings']['updates_per_iteration']} | {learner} | {r['members']} | "
+                 f"{_k(r['sps'])} | "
                  f"{speedup} | {r['iteration_s']:.2f} s | {r['collect_s']:.2f} s | "
                  f"{updates_s:.2f} s | {per_member:.2f} | "
                  f"{'-' if memory is None else f'{memory / 2**30:.1f} GiB'} | {label} |")
@@ -623,8 +637,9 @@ def form_table(records: list[dict], expert_returns: dict[str, float] | None = No
   training). The expert's return it is compared with: the mean return of the demonstrations
   its demonstrator was trained on (`demonstration_returns`, by the demonstrator's sha256;
   default: the shipped demonstrators'), else `expert_returns` (default: the shipped experts'
-  returns at export). With `best_per_task`, one row per task: the configuration with the
-  highest mean return among those run with 2 seeds or more (else the best single seed)."""
+  returns at export). With `best_per_task`, one row per task, among its configurations run
+  with 2 seeds or more if it has any: the default one (`_default_form_variant`; the most
+  seeds, then the highest mean), else the one with the highest mean return."""
   rows = [r for r in records if r.get("kind") == "final_return" and r.get("method") == "form"]
   if not rows:
     return ("No FORM results yet: a run with `--final_eval_envs` > 0 writes `kind: "
@@ -642,13 +657,17 @@ def form_table(records: list[dict], expert_returns: dict[str, float] | None = No
   groups = {key: g for key, g in groups.items() if g.get("final")}
   configurations = {task: sum(key[0] == task for key in groups) for task, *_ in groups}
   if best_per_task:
-    rank = lambda key: (len(groups[key]["final"]) >= 2,
-                        _mean_std([r["final_return"] for r in groups[key]["final"]])[0])
+    def rank(key):
+      final = groups[key]["final"]
+      default = key[6] == _default_form_variant(key[0])
+      return (len(final) >= 2, default, len(final) if default else 0,
+              _mean_std([r["final_return"] for r in final])[0])
     groups = {key: groups[key] for key in (max((k for k in groups if k[0] == task), key=rank)
                                            for task in configurations)}
-  caption = ("FORM (`--method form`), per task the configuration with the highest mean return "
-             "among those run with 2 seeds or more (all of them: `benchmarks/NOTES.md`): "
-             if best_per_task else "FORM (`--method form`): ")
+  caption = ("FORM (`--method form`), per task one configuration among those run with 2 seeds "
+             "or more: the default one (`mjx_form/imitation/settings.py`; what `--method form` "
+             "runs) where it has been, else the one with the highest mean return (all of "
+             "them: `benchmarks/NOTES.md`): " if best_per_task else "FORM (`--method form`): ")
   lines = [caption + "return of the final policy in a fresh evaluation after "
            "training (`--final_eval_envs` episodes per seed, policy mean action), mean +- "
            "standard deviation over seeds (each seed: its mean over the episodes); best: the "

@@ -112,6 +112,31 @@ def test_form_table_per_task_keeps_the_best_configuration_of_two_seeds_or_more()
   assert rows[1].endswith("| 1 |"), rows
 
 
+def test_form_table_per_task_prefers_the_default_configuration():
+  """The default FORM settings (mjx_form/imitation/settings.py) run with 2 seeds or more are
+  the task's row even where another configuration scored higher; one seed is not enough."""
+  from mjx_form.imitation import settings
+
+  def default(task):
+    run = settings.run_settings(task)
+    return {"reward": {"standardise_reward": run["standardise_reward"],
+                       "reward_clip": run["reward_clip"],
+                       "effect_model": {**settings.DEFAULT, **settings.PER_TASK.get(task, {})}},
+            "learner": {"target_update_period": run["target_update_period"]}}
+  records = [_final_return(0, 800.0), _final_return(1, 700.0),  # 750 over 2 seeds, not default
+             _final_return(0, 600.0, num_envs=128, settings=default("cheetah_run")),
+             _final_return(1, 650.0, num_envs=128, settings=default("cheetah_run")),
+             _final_return(0, 500.0, task="walker_walk"),
+             _final_return(1, 520.0, task="walker_walk"),
+             _final_return(0, 990.0, task="walker_walk", settings=default("walker_walk"))]
+  table = report.form_table(records, expert_returns={"cheetah_run": 875.0, "walker_walk": 1.0},
+                            demonstration_returns={}, best_per_task=True)
+  rows = [line for line in table.splitlines() if line.startswith("| ")][1:]
+  assert [row.split(" | ")[3] for row in rows] == ["128", "512"], rows
+  assert "| 625.0 +- 25.0 |" in rows[0] and rows[0].endswith("| 2 |"), rows
+  assert "| 510.0 +- 10.0 |" in rows[1] and rows[1].endswith("| 2 |"), rows
+
+
 def _curve_point(steps, value, **fields):
   return {"kind": "learning_curve", "task": "walker_walk", "method": "form", "seed": 0,
           "num_envs": 512, "env_steps": steps, "updates": int(steps // 400),
@@ -148,23 +173,27 @@ def test_form_runs_table_has_one_row_per_run_and_seed():
 def test_population_table_gives_the_speed_up_over_one_member_of_the_same_file():
   assert report.population_table([]).startswith("No population")
 
-  def record(members, sps, iteration_s, collect_s, file="2026-12-01_population_throughput.jsonl"):
+  def record(members, sps, iteration_s, collect_s, file="2026-12-01_population_throughput.jsonl",
+             learner=None):
     return {"kind": "population_throughput", "task": "cheetah_run", "device": "gpu:X",
             "num_envs": 512, "members": members, "sps": sps, "iteration_s": iteration_s,
             "collect_s": collect_s, "update_ms": 1e3 * (iteration_s - collect_s) / 100,
             "peak_memory_bytes": 2**30 * members,
-            "settings": {"updates_per_iteration": 100}, "_file": file}
+            "settings": {"updates_per_iteration": 100, "learner": learner or {}}, "_file": file}
   later = "2026-12-02_population_throughput_faster.jsonl"
+  bf16 = {"target_update_period": 200, "sampled_q_bfloat16": True}
   table = report.population_table([record(1, 50_000, 1.0, 0.4), record(8, 200_000, 2.0, 0.8),
-                                   record(1, 40_000, 1.0, 0.4, later),
-                                   record(4, 100_000, 2.0, 0.8, later)])
+                                   record(1, 40_000, 1.0, 0.4, later, bf16),
+                                   record(4, 100_000, 2.0, 0.8, later, bf16)])
   rows = [line for line in table.splitlines() if line.startswith("| cheetah_run")]
   # P = 8: 4.00x; updates 1.2 s over 100 updates and 8 members = 1.50 ms each.
-  assert rows[1] == ("| cheetah_run | `gpu:X` | 512 | 100 | 8 | 200k | 4.00x | 2.00 s | 0.80 s | "
-                     "1.20 s | 1.50 | 8.0 GiB | 2026-12-01 |"), rows
+  assert rows[1] == ("| cheetah_run | `gpu:X` | 512 | 100 | - | 8 | 200k | 4.00x | 2.00 s | "
+                     "0.80 s | 1.20 s | 1.50 | 8.0 GiB | 2026-12-01 |"), rows
   assert "| 1 | 50k | 1.00x | 1.00 s | 0.40 s | 0.60 s | 6.00 | 1.0 GiB |" in rows[0], rows
-  # The later file's P = 4 is against its own P = 1 (40k), not the other file's (50k).
-  assert rows[3].startswith("| cheetah_run | `gpu:X` | 512 | 100 | 4 | 100k | 2.50x |"), rows
+  # The later file's P = 4 is against its own P = 1 (40k), not the other file's (50k); its
+  # learner's departure from the paper's is named.
+  assert rows[3].startswith("| cheetah_run | `gpu:X` | 512 | 100 | sampled Q in bf16 | 4 | 100k | "
+                            "2.50x |"), rows
   assert rows[3].endswith("| 2026-12-02 faster |"), rows
 
 
