@@ -382,21 +382,23 @@ def train_throughput_table(records: list[dict]) -> str:
     return "No training-loop throughput results yet."
   newest = _newest(rows, lambda r: (r["task"], r["num_envs"], r["device"], _matmuls(r),
                                     r["settings"]["updates_per_iteration"], _episodes(r),
-                                    _xla_flags(r)))
+                                    _xla_flags(r), ", ".join(_learner_notes(r))))
   lines = ["Environment steps per second of one whole training iteration (collect 100-step "
            "unrolls, normaliser, replay insert, MPO/Retrace updates) beside env-only "
            "`AutoReset(task).step` with random actions, in the same process; peak device memory "
-           "of that process (replay of 10,000 unrolls included):", "",
+           "of that process (replay of 10,000 unrolls included); learner: its settings that "
+           "differ from the paper's:", "",
            "| task | device | physics | physics matmuls | envs | updates / iteration | "
-           "first episodes | loop | env only | loop/env | ms / update | peak memory | "
+           "learner | first episodes | loop | env only | loop/env | ms / update | peak memory | "
            "other XLA flags |",
-           "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+           "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
   for r in sorted(newest.values(),
-                  key=lambda r: (_order(r["task"]), r["num_envs"], _matmuls(r), _xla_flags(r))):
+                  key=lambda r: (_order(r["task"]), r["num_envs"], _matmuls(r), _xla_flags(r),
+                                 _learner_notes(r))):
     memory = r.get("peak_memory_bytes")
     lines.append(f"| {r['task']} | `{r['device']}` | {r['physics']} | {_matmuls(r)} | "
                  f"{r['num_envs']} | {r['settings']['updates_per_iteration']} | "
-                 f"{_episodes(r)} | {_k(r['sps'])} | "
+                 f"{', '.join(_learner_notes(r)) or '-'} | {_episodes(r)} | {_k(r['sps'])} | "
                  f"{_k(r['env_sps'])} | {r['ratio_to_env']:.2f} | {r['update_ms']:.1f} | "
                  f"{'-' if memory is None else f'{memory / 2**30:.1f} GiB'} | "
                  f"{_xla_flags(r)} |")
@@ -560,7 +562,7 @@ def population_table(records: list[dict]) -> str:
   if not rows:
     return "No population throughput results yet."
   key = lambda r, p: (r.get("_file", ""), r["task"], r["device"], r["num_envs"], p,
-                      r["settings"]["updates_per_iteration"])
+                      r["settings"]["updates_per_iteration"], ", ".join(_learner_notes(r)))
   newest = _newest(rows, lambda r: key(r, r["members"]))
   lines = ["Populations (`Trainer(..., seeds=range(P))`, `benchmarks/train_throughput.py "
            "--members`): total env steps per second of the whole training iteration over all "
@@ -637,9 +639,11 @@ def form_table(records: list[dict], expert_returns: dict[str, float] | None = No
   training). The expert's return it is compared with: the mean return of the demonstrations
   its demonstrator was trained on (`demonstration_returns`, by the demonstrator's sha256;
   default: the shipped demonstrators'), else `expert_returns` (default: the shipped experts'
-  returns at export). With `best_per_task`, one row per task, among its configurations run
-  with 2 seeds or more if it has any: the default one (`_default_form_variant`; the most
-  seeds, then the highest mean), else the one with the highest mean return."""
+  returns at export). A configuration is one result file's runs of one setting (two runs of a
+  seed in two files are two runs). With `best_per_task`, one row per task, chosen among its
+  configurations run with 2 seeds or more (else among all), then on a GPU (else all): the
+  default settings (`_default_form_variant`) with the most seeds, then the highest mean;
+  without the default settings, the highest mean return."""
   rows = [r for r in records if r.get("kind") == "final_return" and r.get("method") == "form"]
   if not rows:
     return ("No FORM results yet: a run with `--final_eval_envs` > 0 writes `kind: "
@@ -650,24 +654,26 @@ def form_table(records: list[dict], expert_returns: dict[str, float] | None = No
     demonstration_returns = _demonstration_returns()
   newest = _newest(rows, lambda r: (r["task"], r["physics"], r["num_envs"], r["env_steps"],
                                     r.get("learner_preset"), r["device"], _form_variant(r),
-                                    r["seed"], r["policy"]))
+                                    r.get("_file", ""), r["seed"], r["policy"]))
   groups: dict[tuple, dict[str, list[dict]]] = {}
   for key, r in newest.items():
-    groups.setdefault(key[:7], {}).setdefault(r["policy"], []).append(r)
+    groups.setdefault(key[:8], {}).setdefault(r["policy"], []).append(r)
   groups = {key: g for key, g in groups.items() if g.get("final")}
   configurations = {task: sum(key[0] == task for key in groups) for task, *_ in groups}
   if best_per_task:
     def rank(key):
       final = groups[key]["final"]
       default = key[6] == _default_form_variant(key[0])
-      return (len(final) >= 2, default, len(final) if default else 0,
+      return (len(final) >= 2, key[5].startswith("gpu"), default, len(final) if default else 0,
               _mean_std([r["final_return"] for r in final])[0])
     groups = {key: groups[key] for key in (max((k for k in groups if k[0] == task), key=rank)
                                            for task in configurations)}
-  caption = ("FORM (`--method form`), per task one configuration among those run with 2 seeds "
-             "or more: the default one (`mjx_form/imitation/settings.py`; what `--method form` "
-             "runs) where it has been, else the one with the highest mean return (all of "
-             "them: `benchmarks/NOTES.md`): " if best_per_task else "FORM (`--method form`): ")
+  caption = ("FORM (`--method form`), per task one configuration (one result file's runs of "
+             "one setting; all of them: `benchmarks/NOTES.md`), among those run with 2 seeds "
+             "or more on a GPU where there are any: the default settings "
+             "(`mjx_form/imitation/settings.py`, what `--method form` runs) with the most "
+             "seeds, else the highest mean return: "
+             if best_per_task else "FORM (`--method form`): ")
   lines = [caption + "return of the final policy in a fresh evaluation after "
            "training (`--final_eval_envs` episodes per seed, policy mean action), mean +- "
            "standard deviation over seeds (each seed: its mean over the episodes); best: the "
@@ -686,7 +692,7 @@ def form_table(records: list[dict], expert_returns: dict[str, float] | None = No
            "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"
            + ("---|" if best_per_task else "")]
   for key in sorted(groups, key=lambda k: (_order(k[0]), k[2], k[3], str(k))):
-    task, physics, num_envs, env_steps, _, device, variant = key
+    task, physics, num_envs, env_steps, _, device, variant, _ = key
     final, best = groups[key]["final"], groups[key].get("best", [])
     mean, std = _mean_std([r["final_return"] for r in final])
     best_text = (f"{_mean_std([r['final_return'] for r in best])[0]:.1f}" if best else "-")

@@ -198,9 +198,10 @@ def parse_args(argv=None) -> argparse.Namespace:
   form.add_argument("--effect_l2", type=float, default=None,
                     help="effect models' L2 weight (default: per task)")
   form.add_argument("--preset", default=None, choices=settings.PRESETS,
-                    help="the imitation run's reward scale and target period: default "
-                         "(standardised, 25: measured, mjx_form/imitation/settings.py) or "
-                         "paper (raw, 200); --reward_scale and --target_update_period win")
+                    help="the imitation run's reward scale, reward clip and target period: "
+                         "default (standardised, clipped at 3 sd, 25: measured, "
+                         "mjx_form/imitation/settings.py) or paper (raw, unclipped, 200); "
+                         "--reward_scale, --reward_clip and --target_update_period win")
   form.add_argument("--standardise_reward", dest="reward_scale", action="store_const",
                     const="standardised", help=argparse.SUPPRESS)  # before --reward_scale
   form.add_argument("--reward_scale", default=None, choices=("standardised", "raw"),
@@ -275,7 +276,8 @@ def train_config(args: argparse.Namespace) -> TrainConfig:
 
 
 def form_run_settings(args: argparse.Namespace) -> dict:
-  """The FORM run's reward scale and target period: --preset's for the task, then the flags."""
+  """The FORM run's reward scale, reward clip and target period: --preset's for the task, then
+  the flags."""
   chosen = settings.run_settings(args.task, args.preset or "default")
   if args.reward_scale is not None:
     chosen["standardise_reward"] = args.reward_scale == "standardised"

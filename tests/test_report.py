@@ -1,6 +1,7 @@
 """The tables of README.md and benchmarks/NOTES.md are generated from benchmarks/results/ and
 tasks/experts/, never typed by hand."""
 
+import json
 import os
 import subprocess
 import sys
@@ -112,29 +113,70 @@ def test_form_table_per_task_keeps_the_best_configuration_of_two_seeds_or_more()
   assert rows[1].endswith("| 1 |"), rows
 
 
-def test_form_table_per_task_prefers_the_default_configuration():
-  """The default FORM settings (mjx_form/imitation/settings.py) run with 2 seeds or more are
-  the task's row even where another configuration scored higher; one seed is not enough."""
+def _default_settings(task):
+  """A FORM record's settings with every default of mjx_form/imitation/settings.py."""
   from mjx_form.imitation import settings
+  run = settings.run_settings(task)
+  return {"reward": {"standardise_reward": run["standardise_reward"],
+                     "reward_clip": run["reward_clip"],
+                     "effect_model": {**settings.DEFAULT, **settings.PER_TASK.get(task, {})}},
+          "learner": {"target_update_period": run["target_update_period"]}}
 
-  def default(task):
-    run = settings.run_settings(task)
-    return {"reward": {"standardise_reward": run["standardise_reward"],
-                       "reward_clip": run["reward_clip"],
-                       "effect_model": {**settings.DEFAULT, **settings.PER_TASK.get(task, {})}},
-            "learner": {"target_update_period": run["target_update_period"]}}
+
+def test_default_form_variant_is_what_a_default_run_records():
+  assert report._default_form_variant("cheetah_run") == (
+      "standardised clipped at 3 sd, T 25, ar 0.01, L2 1")
+  # a committed record of a run with the defaults (H200, seed 0, 2026-11-23)
+  name = "2026-11-23_learning_curve_h200_cheetah_run_form_std_t25_reward_clip3_single_seed0"
+  record = json.loads(open(os.path.join(report.RESULTS, name + ".jsonl")).readline())
+  assert report._form_variant(record) == report._default_form_variant("cheetah_run")
+
+
+def test_form_table_per_task_prefers_the_default_configuration():
+  """The default FORM settings run with 2 seeds or more on a GPU are the task's row even where
+  another configuration scored higher (of two such, the one of more seeds); one seed, or a CPU
+  run, is not enough; with one seed everywhere the default is still preferred."""
+  default = _default_settings
   records = [_final_return(0, 800.0), _final_return(1, 700.0),  # 750 over 2 seeds, not default
              _final_return(0, 600.0, num_envs=128, settings=default("cheetah_run")),
              _final_return(1, 650.0, num_envs=128, settings=default("cheetah_run")),
+             _final_return(2, 640.0, num_envs=128, settings=default("cheetah_run")),
+             # the default with fewer seeds and a higher mean; the default on the CPU
+             _final_return(0, 700.0, num_envs=256, settings=default("cheetah_run")),
+             _final_return(1, 710.0, num_envs=256, settings=default("cheetah_run")),
+             *[_final_return(s, 990.0, num_envs=4, device="cpu:cpu x1",
+                             settings=default("cheetah_run")) for s in range(4)],
              _final_return(0, 500.0, task="walker_walk"),
              _final_return(1, 520.0, task="walker_walk"),
-             _final_return(0, 990.0, task="walker_walk", settings=default("walker_walk"))]
-  table = report.form_table(records, expert_returns={"cheetah_run": 875.0, "walker_walk": 1.0},
+             _final_return(0, 990.0, task="walker_walk", settings=default("walker_walk")),
+             _final_return(0, 900.0, task="reacher_easy"),
+             _final_return(0, 100.0, task="reacher_easy", settings=default("reacher_easy"))]
+  table = report.form_table(records, expert_returns={"cheetah_run": 875.0, "walker_walk": 1.0,
+                                                     "reacher_easy": 1.0},
                             demonstration_returns={}, best_per_task=True)
   rows = [line for line in table.splitlines() if line.startswith("| ")][1:]
-  assert [row.split(" | ")[3] for row in rows] == ["128", "512"], rows
-  assert "| 625.0 +- 25.0 |" in rows[0] and rows[0].endswith("| 2 |"), rows
-  assert "| 510.0 +- 10.0 |" in rows[1] and rows[1].endswith("| 2 |"), rows
+  assert [row.split(" | ")[:4] for row in rows] == [
+      ["| reacher_easy", "`gpu:X`", "fast", "512"], ["| cheetah_run", "`gpu:X`", "fast", "128"],
+      ["| walker_walk", "`gpu:X`", "fast", "512"]], rows
+  assert "| 100.0 | - |" in rows[0], rows
+  assert "| 630.0 +- 21.6 |" in rows[1] and rows[1].endswith("| 4 |"), rows
+  assert "| 510.0 +- 10.0 |" in rows[2] and rows[2].endswith("| 2 |"), rows
+
+
+def test_form_table_keeps_runs_of_one_seed_in_two_files_apart():
+  """Two runs of seed 0 with the same settings in two result files are two runs (two rows),
+  whichever was recorded last; within a file, the newer record of a seed wins."""
+  a = "d/2026-12-01_learning_curve_a.jsonl"
+  b = "d/2026-12-02_learning_curve_b.jsonl"
+  records = [_final_return(0, 800.0, _file=a), _final_return(0, 600.0, _file=b),
+             _final_return(1, 700.0, _file=b),
+             _final_return(1, 500.0, _file=b, time="2026-11-01T00:00:00+00:00")]
+  table = report.form_table(records, expert_returns={"cheetah_run": 875.0},
+                            demonstration_returns={})
+  rows = [line for line in table.splitlines() if line.startswith("| cheetah_run")]
+  assert len(rows) == 2, rows
+  assert any("| 1 | 256 | 20.0M | 10.0 min | 800.0 |" in row for row in rows), rows
+  assert any("| 2 | 256 | 20.0M | 10.0 min | 650.0 +- 50.0 |" in row for row in rows), rows
 
 
 def _curve_point(steps, value, **fields):
@@ -282,8 +324,9 @@ def test_parity_tables_are_per_device_and_precision():
   assert "`cpu:cpu x1`, matmuls in float32" in table
 
 
-def test_train_throughput_rows_differ_by_precision_and_xla_flags():
-  """A measurement under other compiler flags or matmul precision is a row of its own."""
+def test_train_throughput_rows_differ_by_precision_xla_flags_and_learner():
+  """A measurement under other compiler flags, matmul precision or learner settings is a row of
+  its own, the learner's departures from the paper named."""
   base = {"kind": "train_throughput", "task": "cheetah_run", "physics": "fast", "num_envs": 512,
           "device": "gpu:X", "versions": {}, "time": "t", "sps": 1.1e5, "env_sps": 2.8e5,
           "ratio_to_env": 0.41, "update_ms": 2.0, "peak_memory_bytes": None,
@@ -294,10 +337,13 @@ def test_train_throughput_rows_differ_by_precision_and_xla_flags():
                 + " --xla_gpu_enable_command_buffer=WHILE")
   tf32 = dict(base, sps=1.2e5, time="v")
   del tf32["physics_matmul_precision"]
-  table = report.train_throughput_table([base, graphs, tf32])
+  bf16 = dict(base, sps=1.3e5, time="w", settings=dict(
+      base["settings"], learner={"target_update_period": 200, "sampled_q_bfloat16": True}))
+  table = report.train_throughput_table([base, graphs, tf32, bf16])
   assert "| 110k | 280k | 0.41 | 2.0 | - | - |" in table
   assert "| 100k | 280k | 0.41 | 2.0 | - | `--xla_gpu_enable_command_buffer=WHILE` |" in table
-  assert "| TF32 | 512 | 128 | lockstep | 120k |" in table
+  assert "| TF32 | 512 | 128 | - | lockstep | 120k |" in table
+  assert "| float32 | 512 | 128 | sampled Q in bf16 | lockstep | 130k |" in table
 
 
 def test_learning_rows_show_the_action_penalty():

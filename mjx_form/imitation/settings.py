@@ -12,6 +12,10 @@ it (benchmarks/results/); an entry without one is not tuned yet.
 from __future__ import annotations
 
 import dataclasses
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+  from mjx_form.imitation.effect_model import EffectModelConfig
 
 GRID = (0.01, 0.1, 1.0)  # the paper's search space for beta_ar and l2
 
@@ -48,16 +52,18 @@ def effect_model_config(task: str, **overrides) -> EffectModelConfig:
 # against 91; cheetah_run fails either way unclipped (~110 against ~70).
 # `reward_clip` (bounding the reward's tail at c running sd, form.py) is 3 for every task: it
 # decides cheetah_run and changes nothing measurable where the reward has no tail. Measured on
-# GPUs (benchmarks/NOTES.md, sessions 18-19), fresh final returns:
+# GPUs (benchmarks/NOTES.md, sessions 18-19), fresh final returns unless said otherwise:
 #   cheetah_run (tumbles: the unclipped reward's running sd ~100 against ~6 clipped): seed 0 with
 #     c = 0 / 3 / 10 in one population 231.7 / 823.6 / 292.2 at 19.0M steps; c = 3 over 7 runs
 #     (seeds 0-2) 631.6-836.5, mean 772.6; c = 2 beside c = 3 (seeds 0-2, one population): 802.6 /
 #     818.5 / 745.1 against 631.6 / 778.6 / 810.7, no difference at 3 seeds (medians over training:
 #     2 clips 7-9% of transitions, 3 clips 2-3%; 2 also biases the running sd low, form.py);
-#   walker_walk seed 2 (the seed whose unclipped final policy had fallen to 531) with c = 0 / 3 in
-#     one population: 915.4 / 936.9 at 11.8M steps (3 clipped a median 0.8%);
+#   walker_walk seed 2 (unclipped in session 13: best evaluation 942, fresh final 536.3 at 13.4M)
+#     with c = 0 / 3 in one population: 915.4 / 936.9 at 11.8M steps (3 clipped a median 0.8%;
+#     both curves dipped on the way, the clipped one from 928 at 7.2M to 533 at 9.2M);
 #   reacher_hard seed 0 (no tail: running sd median 5.8 either way): c = 3 evaluated 547 at 20.5M
-#     steps, where unclipped seeds gave 564 and 393.
+#     steps, where unclipped seeds evaluated 564 and 393 (periodic evaluations; fresh final with
+#     c = 3: 541.7 at 20.6M).
 # reacher_easy and walker_stand were measured unclipped only (their running sd medians 4-14).
 PAPER_RUN = {"standardise_reward": False, "reward_clip": 0.0, "target_update_period": 200}
 DEFAULT_RUN = {"standardise_reward": True, "reward_clip": 3.0, "target_update_period": 25}
