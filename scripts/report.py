@@ -682,7 +682,8 @@ def form_table(records: list[dict], expert_returns: dict[str, float] | None = No
            "shipped expert), else the shipped expert's return at export; fraction = FORM / "
            "expert; the paper's fraction is its FORM return over its expert's. Reward: `raw` = "
            "log pD - log pI as the paper, `standardised` = `--reward_scale standardised` (the "
-           "default); T = the learner's target period (the paper's is 200; the default 25); ar, L2: "
+           "default), `clipped at c sd` = `--reward_clip c` (the default 3); T = the learner's "
+           "target period (the paper's is 200; the default 25); ar, L2: "
            "the effect models' beta_ar and L2 weight" + (
                "; configurations: how many the task has" if best_per_task else "") + ":",
            "",
