@@ -9,6 +9,14 @@ whether the mean reaches the experts issue's bar (0.95x, `mjx_form.paper`).
 
   python benchmarks/expert_eval.py                              # every shipped expert
   python benchmarks/expert_eval.py --tasks walker_walk --policy runs/ww/seed0/best_policy.npz
+
+`--by_start NAME` also splits the returns by the value of one dimension of each episode's first
+observation (`--bins` equal-width bins between its smallest and largest value; names as the
+task's observation layout gives them, e.g. `position[1]`, hopper's initial pitch rooty): which
+starts the policy does well from.
+
+  python benchmarks/expert_eval.py --tasks hopper_stand --policy runs/hs/policy.npz \
+    --episodes 1024 --by_start "position[1]" --bins 8
 """
 
 from __future__ import annotations
@@ -45,6 +53,28 @@ def summary(returns: np.ndarray, task: str) -> dict:
           "reaches_bar": None if paper is None else bool(mean >= paper_lib.EXPERT_BAR * paper)}
 
 
+def start_dimension(layout: dict[str, int], name: str) -> int:
+  """The index of observation dimension `name` ('position[1]', or 'height' for a size-1 entry)
+  in `layout` ({'position': 6, ...}); a clear error naming the valid ones."""
+  names = [f"{key}[{i}]" if size > 1 else key for key, size in layout.items()
+           for i in range(size)]
+  if name not in names:
+    raise ValueError(f"unknown observation dimension {name!r} (valid: {', '.join(names)})")
+  return names.index(name)
+
+
+def returns_by_start(values: np.ndarray, returns: np.ndarray, bins: int) -> dict:
+  """Returns [K] split by `values` [K] (one per episode) into `bins` equal-width bins between
+  their min and max (the last bin closed): edges [bins + 1], episodes and mean return per bin
+  (None where a bin is empty)."""
+  edges = np.linspace(values.min(), values.max(), bins + 1)
+  which = np.clip(np.searchsorted(edges, values, side="right") - 1, 0, bins - 1)
+  counts = np.bincount(which, minlength=bins)
+  sums = np.bincount(which, weights=returns, minlength=bins)
+  return {"edges": edges.tolist(), "episodes": counts.tolist(),
+          "mean_return": [float(s / c) if c else None for s, c in zip(sums, counts)]}
+
+
 def main(argv=None) -> int:
   parser = argparse.ArgumentParser(description=__doc__,
                                    formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -52,12 +82,15 @@ def main(argv=None) -> int:
   parser.add_argument("--episodes", type=int, default=1000)
   parser.add_argument("--chunk", type=int, default=1000, help="episodes run at once")
   parser.add_argument("--seed", type=int, default=0)
+  parser.add_argument("--by_start", default=None, metavar="NAME",
+                      help="split the returns by this dimension of the first observation")
+  parser.add_argument("--bins", type=int, default=8, help="bins of --by_start")
   parser.add_argument("--out", default=None, help="default: benchmarks/results/<date>_"
                       "expert_eval_<device>.jsonl")
   args = parser.parse_args(argv)
   names = common.expert_tasks(parser, args)
-  if args.episodes <= 0 or args.chunk <= 0:
-    parser.error("--episodes and --chunk must be positive")
+  if args.episodes <= 0 or args.chunk <= 0 or args.bins <= 0:
+    parser.error("--episodes, --chunk and --bins must be positive")
   out = args.out or common.default_results_path(f"expert_eval_{jax.default_backend()}")
   writer = common.ResultWriter(out)
   for task in names:
@@ -69,12 +102,21 @@ def main(argv=None) -> int:
       return 2
     # The physics the expert was trained in (the shipped ones: fast).
     env = tasks.make(task, physics=expert.metadata.get("physics", "fast"))
+    try:
+      dimension = (None if args.by_start is None
+                   else start_dimension(env.observation_layout, args.by_start))
+    except ValueError as e:
+      print(f"error: {task}: {e}", file=sys.stderr)
+      return 2
     start = time.perf_counter()
-    _, _, returns = experts.record_demonstrations(
+    observations, _, returns = experts.record_demonstrations(
         env, expert, jax.random.PRNGKey(args.seed), args.episodes, args.chunk,
         print_fn=lambda line: None)
     seconds = time.perf_counter() - start
     numbers = summary(returns, task)
+    if dimension is not None:
+      numbers["by_start"] = {"dimension": args.by_start, **returns_by_start(
+          observations[:, 0, dimension], returns, args.bins)}
     writer.write(kind="expert_eval", task=task, physics=env.physics,
                  policy_file=args.policy or os.path.basename(path),
                  policy_sha256=expert.metadata["sha256"],
@@ -89,6 +131,12 @@ def main(argv=None) -> int:
           f"{numbers['episodes']} episodes, min {numbers['min_return']:.1f} (at export "
           f"{expert.metadata.get('eval_return', float('nan')):.1f}{bar}) [{seconds:.0f}s]",
           flush=True)
+    if dimension is not None:
+      split = numbers["by_start"]
+      for i, (count, mean) in enumerate(zip(split["episodes"], split["mean_return"])):
+        low, high = split["edges"][i], split["edges"][i + 1]
+        print(f"  {args.by_start} in [{low:.3f}, {high:.3f}]: {count} episodes, mean return "
+              f"{'-' if mean is None else f'{mean:.1f}'}", flush=True)
   print(f"results appended to {out}")
   return 0
 

@@ -134,3 +134,34 @@ def test_expert_eval_summarises_returns_and_refuses_another_tasks_policy(tmp_pat
           "--episodes", "2", "--out", str(out)]
   assert bench.main(args) == 2
   assert "cheetah_run" in capsys.readouterr().err and not out.exists()
+  # --by_start: an unknown observation dimension is refused by name before any rollout.
+  args = ["--tasks", "reacher_easy", "--episodes", "2", "--by_start", "position[9]",
+          "--out", str(out)]
+  assert bench.main(args) == 2
+  assert "position[9]" in capsys.readouterr().err and not out.exists()
+
+
+def test_expert_eval_splits_returns_by_the_start():
+  """--by_start's split against a direct numpy computation: equal-width bins between the
+  values' min and max, the max in the last bin, an empty bin's mean None; names resolve as the
+  layout orders them."""
+  bench = load_script("expert_eval", folder="benchmarks")
+  layout = {"position": 6, "height": 1, "velocity": 7}
+  assert bench.start_dimension(layout, "position[1]") == 1
+  assert bench.start_dimension(layout, "height") == 6
+  assert bench.start_dimension(layout, "velocity[0]") == 7
+  with pytest.raises(ValueError, match="height"):
+    bench.start_dimension(layout, "height[0]")
+  rng = np.random.default_rng(0)
+  values = rng.uniform(-np.pi, np.pi, 200)
+  returns = np.where(np.abs(values) < 1.0, 900.0, 50.0) + rng.normal(0, 5, 200)
+  split = bench.returns_by_start(values, returns, 4)
+  edges = np.linspace(values.min(), values.max(), 5)
+  np.testing.assert_allclose(split["edges"], edges)
+  for i in range(4):
+    inside = (values >= edges[i]) & ((values < edges[i + 1]) if i < 3 else True)
+    assert split["episodes"][i] == inside.sum()
+    assert split["mean_return"][i] == pytest.approx(returns[inside].mean())
+  assert sum(split["episodes"]) == 200
+  gap = bench.returns_by_start(np.array([0.0, 0.1, 3.9, 4.0]), np.arange(4.0), 4)
+  assert gap["episodes"] == [2, 0, 0, 2] and gap["mean_return"] == [0.5, None, None, 2.5]
