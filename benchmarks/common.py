@@ -1,4 +1,5 @@
-"""What the benchmarks share: result records (JSON Lines under benchmarks/results/) and timing."""
+"""What the benchmarks share: result records (JSON Lines under benchmarks/results/), timing,
+and the names of observation dimensions."""
 
 from __future__ import annotations
 
@@ -78,3 +79,9 @@ def best_call_time(exe, fn_args: tuple, repeats: int, feed_output: bool = True) 
     args = (holder[0], *fn_args[1:]) if feed_output else fn_args
     holder[0] = jax.block_until_ready(exe(*args))
   return best_time(call, repeats)
+
+
+def dimension_names(layout) -> list[str]:
+  """One name per observation dimension: 'position[3]' from the layout {'position': 8, ...}."""
+  return [f"{key}[{i}]" if size > 1 else key for key, size in layout.items()
+          for i in range(size)]

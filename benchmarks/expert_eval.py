@@ -56,8 +56,7 @@ def summary(returns: np.ndarray, task: str) -> dict:
 def start_dimension(layout: dict[str, int], name: str) -> int:
   """The index of observation dimension `name` ('position[1]', or 'height' for a size-1 entry)
   in `layout` ({'position': 6, ...}); a clear error naming the valid ones."""
-  names = [f"{key}[{i}]" if size > 1 else key for key, size in layout.items()
-           for i in range(size)]
+  names = common.dimension_names(layout)
   if name not in names:
     raise ValueError(f"unknown observation dimension {name!r} (valid: {', '.join(names)})")
   return names.index(name)

@@ -24,6 +24,7 @@ import os
 import sys
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
 from mjx_form.cpu import configure_cpu_xla  # noqa: E402  (before JAX starts)
 
@@ -35,6 +36,7 @@ import numpy as np  # noqa: E402
 from scipy import stats  # noqa: E402
 
 import tasks  # noqa: E402
+from common import dimension_names  # noqa: E402
 from mjx_form.files import effect_models, experts, results  # noqa: E402
 from mjx_form.imitation import effect_model as em  # noqa: E402
 from mjx_form.imitation import pipeline  # noqa: E402
@@ -69,12 +71,6 @@ def rollout(env, agent, noise, key, episodes):
             means, scales)
 
   return jax.device_get(run(key))
-
-
-def dimension_names(layout) -> list[str]:
-  """One name per observation dimension: 'position[3]' from the layout {'position': 8, ...}."""
-  return [f"{key}[{i}]" if size > 1 else key for key, size in layout.items()
-          for i in range(size)]
 
 
 def main(argv=None) -> int:

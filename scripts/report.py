@@ -277,6 +277,11 @@ def _learner_notes(record: dict, with_period: bool = True) -> list[str]:
   return notes
 
 
+def _learner_label(record: dict) -> str:
+  """`_learner_notes` as a table cell: e.g. 'sampled Q in bf16', '-' for the paper's."""
+  return ", ".join(_learner_notes(record)) or "-"
+
+
 def _expert_runs(records: list[dict]) -> dict[tuple, list[dict]]:
   """{(result file, task, seed, member settings): its learning-curve records} of the expert
   runs (task reward; records before FORM existed carry method "expert" or none)."""
@@ -382,7 +387,7 @@ def train_throughput_table(records: list[dict]) -> str:
     return "No training-loop throughput results yet."
   newest = _newest(rows, lambda r: (r["task"], r["num_envs"], r["device"], _matmuls(r),
                                     r["settings"]["updates_per_iteration"], _episodes(r),
-                                    _xla_flags(r), ", ".join(_learner_notes(r))))
+                                    _xla_flags(r), _learner_label(r)))
   lines = ["Environment steps per second of one whole training iteration (collect 100-step "
            "unrolls, normaliser, replay insert, MPO/Retrace updates) beside env-only "
            "`AutoReset(task).step` with random actions, in the same process; peak device memory "
@@ -394,11 +399,11 @@ def train_throughput_table(records: list[dict]) -> str:
            "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
   for r in sorted(newest.values(),
                   key=lambda r: (_order(r["task"]), r["num_envs"], _matmuls(r), _xla_flags(r),
-                                 _learner_notes(r))):
+                                 _learner_label(r))):
     memory = r.get("peak_memory_bytes")
     lines.append(f"| {r['task']} | `{r['device']}` | {r['physics']} | {_matmuls(r)} | "
                  f"{r['num_envs']} | {r['settings']['updates_per_iteration']} | "
-                 f"{', '.join(_learner_notes(r)) or '-'} | {_episodes(r)} | {_k(r['sps'])} | "
+                 f"{_learner_label(r)} | {_episodes(r)} | {_k(r['sps'])} | "
                  f"{_k(r['env_sps'])} | {r['ratio_to_env']:.2f} | {r['update_ms']:.1f} | "
                  f"{'-' if memory is None else f'{memory / 2**30:.1f} GiB'} | "
                  f"{_xla_flags(r)} |")
@@ -508,10 +513,10 @@ def _default_form_variant(task: str) -> str:
   """The `_form_variant` of a FORM run of `task` with every default of
   mjx_form/imitation/settings.py (what `--method form` runs unless told otherwise)."""
   run = form_settings.run_settings(task)
-  model = {**form_settings.DEFAULT, **form_settings.PER_TASK.get(task, {})}
   return _form_variant({"settings": {
       "reward": {"standardise_reward": run["standardise_reward"],
-                 "reward_clip": run["reward_clip"], "effect_model": model},
+                 "reward_clip": run["reward_clip"],
+                 "effect_model": form_settings.effect_model_settings(task)},
       "learner": {"target_update_period": run["target_update_period"]}}})
 
 
@@ -562,7 +567,7 @@ def population_table(records: list[dict]) -> str:
   if not rows:
     return "No population throughput results yet."
   key = lambda r, p: (r.get("_file", ""), r["task"], r["device"], r["num_envs"], p,
-                      r["settings"]["updates_per_iteration"], ", ".join(_learner_notes(r)))
+                      r["settings"]["updates_per_iteration"], _learner_label(r))
   newest = _newest(rows, lambda r: key(r, r["members"]))
   lines = ["Populations (`Trainer(..., seeds=range(P))`, `benchmarks/train_throughput.py "
            "--members`): total env steps per second of the whole training iteration over all "
@@ -585,10 +590,9 @@ def population_table(records: list[dict]) -> str:
     per_member = r["update_ms"] / r["members"]  # update_ms: all members' update, side by side
     memory = r.get("peak_memory_bytes")
     label = _run_label(r["_file"], "population_throughput") if "_file" in r else "-"
-    learner = ", ".join(_learner_notes(r)) or "-"
     lines.append(f"| {r['task']} | `{r['device']}` | {r['num_envs']} | "
-                 f"{r['settings']['updates_per_iteration']} | {learner} | {r['members']} | "
-                 f"{_k(r['sps'])} | "
+                 f"{r['settings']['updates_per_iteration']} | {_learner_label(r)} | "
+                 f"{r['members']} | {_k(r['sps'])} | "
                  f"{speedup} | {r['iteration_s']:.2f} s | {r['collect_s']:.2f} s | "
                  f"{updates_s:.2f} s | {per_member:.2f} | "
                  f"{'-' if memory is None else f'{memory / 2**30:.1f} GiB'} | {label} |")

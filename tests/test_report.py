@@ -119,7 +119,7 @@ def _default_settings(task):
   run = settings.run_settings(task)
   return {"reward": {"standardise_reward": run["standardise_reward"],
                      "reward_clip": run["reward_clip"],
-                     "effect_model": {**settings.DEFAULT, **settings.PER_TASK.get(task, {})}},
+                     "effect_model": settings.effect_model_settings(task)},
           "learner": {"target_update_period": run["target_update_period"]}}
 
 

@@ -32,11 +32,16 @@ PER_TASK: dict[str, dict[str, float]] = {
 }
 
 
+def effect_model_settings(task: str) -> dict[str, float]:
+  """`task`'s tuned effect-model settings (beta_ar, l2): its PER_TASK entry, else DEFAULT."""
+  return {**DEFAULT, **PER_TASK.get(task, {})}
+
+
 def effect_model_config(task: str, **overrides) -> EffectModelConfig:
   """The effect-model settings of `task`, with `overrides` (e.g. beta_ar=0.1) applied."""
   # Imported here: the constants of this module load without JAX (scripts/report.py).
   from mjx_form.imitation.effect_model import EffectModelConfig
-  chosen = {**DEFAULT, **PER_TASK.get(task, {})}
+  chosen = effect_model_settings(task)
   chosen.update({k: v for k, v in overrides.items() if v is not None})
   config = dataclasses.replace(EffectModelConfig(), **chosen)
   config.check()
