@@ -517,7 +517,8 @@ def _default_form_variant(task: str) -> str:
       "reward": {"standardise_reward": run["standardise_reward"],
                  "reward_clip": run["reward_clip"],
                  "effect_model": form_settings.effect_model_settings(task)},
-      "learner": {"target_update_period": run["target_update_period"]}}})
+      "learner": {"target_update_period": run["target_update_period"],
+                  "sampled_q_bfloat16": run["sampled_q_bfloat16"]}}})
 
 
 def form_runs_table(records: list[dict]) -> str:
@@ -687,7 +688,8 @@ def form_table(records: list[dict], expert_returns: dict[str, float] | None = No
            "expert; the paper's fraction is its FORM return over its expert's. Reward: `raw` = "
            "log pD - log pI as the paper, `standardised` = `--reward_scale standardised` (the "
            "default), `clipped at c sd` = `--reward_clip c` (the default 3); T = the learner's "
-           "target period (the paper's is 200; the default 25); ar, L2: "
+           "target period (the paper's is 200; the default 25); `sampled Q in bf16` = "
+           "`--sampled_q_bfloat16` (the default; else float32, the paper's); ar, L2: "
            "the effect models' beta_ar and L2 weight" + (
                "; configurations: how many the task has" if best_per_task else "") + ":",
            "",

@@ -156,9 +156,12 @@ def parse_args(argv=None) -> argparse.Namespace:
                      help="the critic sees clip(a, -1, 1), the action the environment applies "
                           "(Acme's control-suite MPO); by default tanh of the unclipped sample, "
                           "as the paper")
-  train.add_argument("--sampled_q_bfloat16", action="store_true",
+  train.add_argument("--sampled_q_bfloat16", action=argparse.BooleanOptionalAction,
+                     default=None,
                      help="the target critic's Q of the sampled actions in bfloat16 (half of an "
-                          "update's time on a GPU is that Q); by default float32")
+                          "update's time on a GPU is that Q; learning measured unchanged) or "
+                          "float32 (default: bfloat16 for form, see --preset; float32, the "
+                          "paper's, for expert)")
   train.add_argument("--eval_envs", type=int, default=defaults.eval_envs)
   train.add_argument("--lockstep_episodes", action="store_true",
                      help="start every environment's first episode together (as runs before "
@@ -198,10 +201,11 @@ def parse_args(argv=None) -> argparse.Namespace:
   form.add_argument("--effect_l2", type=float, default=None,
                     help="effect models' L2 weight (default: per task)")
   form.add_argument("--preset", default=None, choices=settings.PRESETS,
-                    help="the imitation run's reward scale, reward clip and target period: "
-                         "default (standardised, clipped at 3 sd, 25: measured, "
-                         "mjx_form/imitation/settings.py) or paper (raw, unclipped, 200); "
-                         "--reward_scale, --reward_clip and --target_update_period win")
+                    help="the imitation run's reward scale, reward clip, target period and "
+                         "sampled-Q precision: default (standardised, clipped at 3 sd, 25, "
+                         "bfloat16: measured, mjx_form/imitation/settings.py) or paper (raw, "
+                         "unclipped, 200, float32); --reward_scale, --reward_clip, "
+                         "--target_update_period and --[no-]sampled_q_bfloat16 win")
   form.add_argument("--standardise_reward", dest="reward_scale", action="store_const",
                     const="standardised", help=argparse.SUPPRESS)  # before --reward_scale
   form.add_argument("--reward_scale", default=None, choices=("standardised", "raw"),
@@ -254,14 +258,17 @@ def parse_args(argv=None) -> argparse.Namespace:
 
 
 def train_config(args: argparse.Namespace) -> TrainConfig:
-  period = args.target_update_period
-  if period is None:
-    period = (form_run_settings(args)["target_update_period"] if args.method == "form"
-              else LearnerConfig().target_update_period)
+  if args.method == "form":  # the preset's learner settings, then the flags
+    chosen = form_run_settings(args)
+    period, bfloat16 = chosen["target_update_period"], chosen["sampled_q_bfloat16"]
+  else:  # the paper's learner unless told otherwise
+    period = (LearnerConfig().target_update_period if args.target_update_period is None
+              else args.target_update_period)
+    bfloat16 = bool(args.sampled_q_bfloat16)
   learner = dataclasses.replace(
       LearnerConfig(), num_action_samples=args.num_action_samples,
       target_update_period=period, clip_critic_actions=args.clip_critic_actions,
-      sampled_q_bfloat16=args.sampled_q_bfloat16,
+      sampled_q_bfloat16=bfloat16,
       mpo=dataclasses.replace(LearnerConfig().mpo, action_penalty=args.action_penalty))
   seed = args.seeds[0] if args.seeds else args.seed
   return TrainConfig(task=args.task, physics=args.physics,
@@ -276,8 +283,8 @@ def train_config(args: argparse.Namespace) -> TrainConfig:
 
 
 def form_run_settings(args: argparse.Namespace) -> dict:
-  """The FORM run's reward scale, reward clip and target period: --preset's for the task, then
-  the flags."""
+  """The FORM run's reward scale, reward clip, target period and sampled-Q precision: --preset's
+  for the task, then the flags."""
   chosen = settings.run_settings(args.task, args.preset or "default")
   if args.reward_scale is not None:
     chosen["standardise_reward"] = args.reward_scale == "standardised"
@@ -289,6 +296,8 @@ def form_run_settings(args: argparse.Namespace) -> dict:
     chosen["reward_clip"] = args.reward_clip
   if args.target_update_period is not None:
     chosen["target_update_period"] = args.target_update_period
+  if args.sampled_q_bfloat16 is not None:
+    chosen["sampled_q_bfloat16"] = args.sampled_q_bfloat16
   return chosen
 
 

@@ -253,12 +253,14 @@ def test_training_never_sees_the_task_reward(form_trainer, monkeypatch):
 
 
 def test_form_run_settings_take_the_task_entry_then_the_preset_then_the_flags(monkeypatch):
-  """DEFAULT_RUN's measured reward clip (3 sd) is every task's default; a task's entry in
-  settings.PER_TASK_RUN overrides it; --preset paper replaces both; a flag overrides either."""
+  """DEFAULT_RUN's measured reward clip (3 sd) and bfloat16 sampled Q are every task's default;
+  a task's entry in settings.PER_TASK_RUN overrides them; --preset paper replaces both; a flag
+  overrides either."""
   cli = load_script("run")
   def chosen(*argv):
     return cli.form_run_settings(cli.parse_args(["--method", "form", *argv]))
-  default = {"standardise_reward": True, "reward_clip": 3.0, "target_update_period": 25}
+  default = {"standardise_reward": True, "reward_clip": 3.0, "target_update_period": 25,
+             "sampled_q_bfloat16": True}
   assert chosen("--task", "cheetah_run") == default
   assert chosen("--task", "walker_walk") == default
   monkeypatch.setitem(settings.PER_TASK_RUN, "walker_walk", {"reward_clip": 2.0})
@@ -266,7 +268,27 @@ def test_form_run_settings_take_the_task_entry_then_the_preset_then_the_flags(mo
   assert chosen("--task", "cheetah_run")["reward_clip"] == 3.0
   assert chosen("--task", "walker_walk", "--reward_clip", "0")["reward_clip"] == 0.0
   assert chosen("--task", "walker_walk", "--preset", "paper") == {
-      "standardise_reward": False, "reward_clip": 0.0, "target_update_period": 200}
+      "standardise_reward": False, "reward_clip": 0.0, "target_update_period": 200,
+      "sampled_q_bfloat16": False}
+  assert chosen("--task", "walker_walk", "--no-sampled_q_bfloat16")["sampled_q_bfloat16"] is False
+  assert chosen("--task", "walker_walk", "--preset", "paper",
+                "--sampled_q_bfloat16")["sampled_q_bfloat16"] is True
+
+
+def test_sampled_q_precision_reaches_the_learner_per_method():
+  """FORM's learner computes the sampled actions' Q in bfloat16 unless --preset paper or
+  --no-sampled_q_bfloat16; the expert's in float32 (the paper's learner) unless asked."""
+  cli = load_script("run")
+  def bfloat16(*argv):
+    return cli.train_config(cli.parse_args(list(argv))).learner.sampled_q_bfloat16
+  assert bfloat16("--method", "form") is True
+  assert bfloat16() is True  # form is the default method
+  assert bfloat16("--method", "form", "--preset", "paper") is False
+  assert bfloat16("--method", "form", "--no-sampled_q_bfloat16") is False
+  assert bfloat16("--method", "expert") is False
+  assert bfloat16("--method", "expert", "--sampled_q_bfloat16") is True
+  assert cli.train_config(cli.parse_args(["--method", "expert"])).learner == (
+      cli.LearnerConfig())  # an expert run with no flags is the paper's learner
 
 
 def _readme_args(run_dir, *extra):
@@ -361,7 +383,8 @@ def test_form_command_line_runs_every_stage(tmp_path, capsys):
   args = cli.parse_args(_readme_args(tmp_path / "mixed", "--preset", "paper", "--reward_scale",
                                      "standardised", "--target_update_period", "50"))
   assert cli.form_run_settings(args) == {"standardise_reward": True, "reward_clip": 0.0,
-                                         "target_update_period": 50}
+                                         "target_update_period": 50,
+                                         "sampled_q_bfloat16": False}
   assert cli.train_config(cli.parse_args(["--method", "expert"])).learner.target_update_period == 200
   assert records[1]["learner_preset"] == "custom"
   assert [r["policy"] for r in records[2:]] == ["final", "best"]

@@ -120,14 +120,16 @@ def _default_settings(task):
   return {"reward": {"standardise_reward": run["standardise_reward"],
                      "reward_clip": run["reward_clip"],
                      "effect_model": settings.effect_model_settings(task)},
-          "learner": {"target_update_period": run["target_update_period"]}}
+          "learner": {"target_update_period": run["target_update_period"],
+                      "sampled_q_bfloat16": run["sampled_q_bfloat16"]}}
 
 
 def test_default_form_variant_is_what_a_default_run_records():
   assert report._default_form_variant("cheetah_run") == (
-      "standardised clipped at 3 sd, T 25, ar 0.01, L2 1")
-  # a committed record of a run with the defaults (H200, seed 0, 2026-11-23)
-  name = "2026-11-23_learning_curve_h200_cheetah_run_form_std_t25_reward_clip3_single_seed0"
+      "standardised clipped at 3 sd, T 25, ar 0.01, L2 1, sampled Q in bf16")
+  # a committed record of a run with the defaults (H200, seeds 0-2, 2026-11-24)
+  name = ("2026-11-24_learning_curve_h200_cheetah_run_form_std_t25_reward_clip3_bf16_sampled_q"
+          "_seeds012_41m")
   record = json.loads(open(os.path.join(report.RESULTS, name + ".jsonl")).readline())
   assert report._form_variant(record) == report._default_form_variant("cheetah_run")
 
