@@ -13,7 +13,8 @@ whether the mean reaches the experts issue's bar (0.95x, `mjx_form.paper`).
 `--by_start NAME` also splits the returns by the value of one dimension of each episode's first
 observation (`--bins` equal-width bins between its smallest and largest value; names as the
 task's observation layout gives them, e.g. `position[1]`, hopper's initial pitch rooty): which
-starts the policy does well from.
+starts the policy does well from, and how much it explores there (its Gaussian's mean scale
+along those episodes, and the share of actions whose mean lies 2 scales beyond [-1, 1]).
 
   python benchmarks/expert_eval.py --tasks hopper_stand --policy runs/hs/policy.npz \
     --episodes 1024 --by_start "position[1]" --bins 8
@@ -38,6 +39,8 @@ import numpy as np  # noqa: E402
 import tasks  # noqa: E402
 from mjx_form import paper as paper_lib  # noqa: E402
 from mjx_form.files import experts  # noqa: E402
+from mjx_form.rl import normalizer  # noqa: E402
+from mjx_form.rl.networks import make_networks  # noqa: E402
 
 
 def summary(returns: np.ndarray, task: str) -> dict:
@@ -62,16 +65,42 @@ def start_dimension(layout: dict[str, int], name: str) -> int:
   return names.index(name)
 
 
-def returns_by_start(values: np.ndarray, returns: np.ndarray, bins: int) -> dict:
+def returns_by_start(values: np.ndarray, returns: np.ndarray, bins: int,
+                     **per_episode: np.ndarray) -> dict:
   """Returns [K] split by `values` [K] (one per episode) into `bins` equal-width bins between
   their min and max (the last bin closed): edges [bins + 1], episodes and mean return per bin
-  (None where a bin is empty)."""
+  (None where a bin is empty), and the per-bin mean of each other `per_episode` quantity [K]."""
   edges = np.linspace(values.min(), values.max(), bins + 1)
   which = np.clip(np.searchsorted(edges, values, side="right") - 1, 0, bins - 1)
   counts = np.bincount(which, minlength=bins)
-  sums = np.bincount(which, weights=returns, minlength=bins)
-  return {"edges": edges.tolist(), "episodes": counts.tolist(),
-          "mean_return": [float(s / c) if c else None for s, c in zip(sums, counts)]}
+
+  def means(x):
+    sums = np.bincount(which, weights=x, minlength=bins)
+    return [float(s / c) if c else None for s, c in zip(sums, counts)]
+
+  return {"edges": edges.tolist(), "episodes": counts.tolist(), "mean_return": means(returns),
+          **{name: means(x) for name, x in per_episode.items()}}
+
+
+def exploration(mean: np.ndarray, scale: np.ndarray) -> dict[str, np.ndarray]:
+  """How much the policy explores along each episode, from its Gaussian's mean and scale
+  [K, T, A] at the visited states: `policy_scale` [K], the mean scale, and `beyond_bounds` [K],
+  the share of steps and action dimensions whose mean lies more than 2 scales outside [-1, 1]
+  (there 98% of the samples clip to the same bound: that dimension explores next to nothing)."""
+  beyond = (np.abs(mean) - 1.0) > 2.0 * scale
+  return {"policy_scale": scale.mean(axis=(1, 2)), "beyond_bounds": beyond.mean(axis=(1, 2))}
+
+
+def policy_at(expert: experts.Expert, network_width: int, action_size: int,
+              observations: np.ndarray, chunk: int = 128) -> tuple[np.ndarray, np.ndarray]:
+  """The policy's mean and scale [K, T, A] at `observations` [K, T, D], `chunk` episodes at a
+  time."""
+  policy = make_networks(action_size, network_width).policy
+  apply = jax.jit(lambda obs: policy.apply(expert.params,
+                                           normalizer.normalize(expert.normalizer, obs)))
+  parts = [apply(observations[i:i + chunk]) for i in range(0, len(observations), chunk)]
+  return (np.concatenate([np.asarray(p.mean) for p in parts]),
+          np.concatenate([np.asarray(p.scale) for p in parts]))
 
 
 def main(argv=None) -> int:
@@ -114,8 +143,10 @@ def main(argv=None) -> int:
     seconds = time.perf_counter() - start
     numbers = summary(returns, task)
     if dimension is not None:
+      loc, scale = policy_at(expert, expert.metadata["network_width"], env.action_size,
+                             observations[:, :-1])
       numbers["by_start"] = {"dimension": args.by_start, **returns_by_start(
-          observations[:, 0, dimension], returns, args.bins)}
+          observations[:, 0, dimension], returns, args.bins, **exploration(loc, scale))}
     writer.write(kind="expert_eval", task=task, physics=env.physics,
                  policy_file=args.policy or os.path.basename(path),
                  policy_sha256=expert.metadata["sha256"],
@@ -134,8 +165,10 @@ def main(argv=None) -> int:
       split = numbers["by_start"]
       for i, (count, mean) in enumerate(zip(split["episodes"], split["mean_return"])):
         low, high = split["edges"][i], split["edges"][i + 1]
+        extra = ("" if mean is None else f", policy scale {split['policy_scale'][i]:.3f}, "
+                 f"{split['beyond_bounds'][i]:.0%} of actions beyond the bounds by 2 scales")
         print(f"  {args.by_start} in [{low:.3f}, {high:.3f}]: {count} episodes, mean return "
-              f"{'-' if mean is None else f'{mean:.1f}'}", flush=True)
+              f"{'-' if mean is None else f'{mean:.1f}'}{extra}", flush=True)
   print(f"results appended to {out}")
   return 0
 

@@ -163,5 +163,36 @@ def test_expert_eval_splits_returns_by_the_start():
     assert split["episodes"][i] == inside.sum()
     assert split["mean_return"][i] == pytest.approx(returns[inside].mean())
   assert sum(split["episodes"]) == 200
-  gap = bench.returns_by_start(np.array([0.0, 0.1, 3.9, 4.0]), np.arange(4.0), 4)
+  gap = bench.returns_by_start(np.array([0.0, 0.1, 3.9, 4.0]), np.arange(4.0), 4,
+                               other=np.array([1.0, 2.0, 3.0, 5.0]))
   assert gap["episodes"] == [2, 0, 0, 2] and gap["mean_return"] == [0.5, None, None, 2.5]
+  assert gap["other"] == [1.5, None, None, 4.0]
+
+
+def test_expert_eval_measures_exploration_along_episodes():
+  """`exploration` against a direct count: an action explores next to nothing where its mean
+  lies more than 2 scales beyond [-1, 1] (on either side); `policy_at` gives, chunk by chunk,
+  what the policy network gives at once."""
+  bench = load_script("expert_eval", folder="benchmarks")
+  loc = np.array([[[0.0, 1.5], [-3.0, 1.0]], [[2.0, -2.0], [0.5, 0.5]]])  # [K 2, T 2, A 2]
+  scale = np.array([[[1.0, 0.2], [0.9, 0.1]], [[0.6, 0.4], [0.1, 0.1]]])
+  numbers = bench.exploration(loc, scale)
+  # beyond by more than 2 scales: 1.5 (0.5 > 0.4), -3.0 (2 > 1.8), -2.0 (1 > 0.8); not 2.0
+  # (1 < 1.2), not 1.0 (0 < 0.2)
+  np.testing.assert_allclose(numbers["beyond_bounds"], [2 / 4, 1 / 4])
+  np.testing.assert_allclose(numbers["policy_scale"], scale.mean(axis=(1, 2)))
+  import jax
+  import tasks
+  from mjx_form.files import experts
+  from mjx_form.rl import normalizer
+  from mjx_form.rl.networks import make_networks
+  env = tasks.make("reacher_easy")
+  expert = experts.load_expert(tasks.bundled_expert("reacher_easy"), env)
+  width = expert.metadata["network_width"]
+  obs = np.random.default_rng(0).normal(size=(5, 3, env.observation_size)).astype(np.float32)
+  loc, scale = bench.policy_at(expert, width, env.action_size, obs, chunk=2)
+  direct = make_networks(env.action_size, width).policy.apply(
+      expert.params, normalizer.normalize(expert.normalizer, jax.numpy.asarray(obs)))
+  assert loc.shape == scale.shape == (5, 3, env.action_size)
+  np.testing.assert_allclose(loc, direct.mean, rtol=1e-5, atol=1e-6)
+  np.testing.assert_allclose(scale, direct.scale, rtol=1e-5, atol=1e-6)
