@@ -60,7 +60,8 @@ def trainer_for(mode: str, task: str, devices: int, args) -> Trainer:
                        network_width=args.network_width, eval_envs=devices,
                        learner=dataclasses.replace(
                            LearnerConfig(), num_action_samples=args.num_action_samples,
-                           target_update_period=args.target_update_period))
+                           target_update_period=args.target_update_period,
+                           sampled_q_bfloat16=args.sampled_q_bfloat16))
   members = args.members_per_device * devices if mode == "population" else 1
   return Trainer(config, mesh, seeds=tuple(range(members)))
 
@@ -119,6 +120,9 @@ def main(argv=None) -> int:
                       help="actions per state the target critic evaluates in an update")
   parser.add_argument("--target_update_period", type=int,
                       default=defaults.learner.target_update_period)
+  parser.add_argument("--sampled_q_bfloat16", action="store_true",
+                      help="the target critic's Q of the sampled actions in bfloat16 (FORM's "
+                           "default learner); by default float32, the paper's")
   parser.add_argument("--repeats", type=int, default=3)
   parser.add_argument("--out", default=common.default_results_path("scaling"))
   args = parser.parse_args(argv)

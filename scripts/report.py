@@ -610,7 +610,7 @@ def scaling_table(records: list[dict]) -> str:
   per_device = lambda r: (r["total_envs"] // r["devices"], r["members"] // r["devices"]
                           if r["mode"] == "population" else r["members"])
   key = lambda r, n: (r["task"], r["mode"], r["device"], *per_device(r),
-                      r["settings"]["updates_per_iteration"], n)
+                      r["settings"]["updates_per_iteration"], _learner_label(r), n)
   newest = _newest(rows, lambda r: key(r, r["devices"]))
   lines = ["Scaling over the devices of one host (`benchmarks/scaling.py`): total env steps per "
            "second of the whole training iteration (and of env-only stepping) on N devices; "
@@ -618,17 +618,17 @@ def scaling_table(records: list[dict]) -> str:
            "same amounts per device). weak: one run, its environments, learner batch and "
            "replay per device fixed; population: members per device fixed, each member's "
            "environments split over the devices:", "",
-           "| task | mode | device | envs / device | members | N | iteration steps/s | "
-           "efficiency | env-only steps/s | efficiency | iteration | peak memory |",
-           "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+           "| task | mode | device | learner | envs / device | members | N | iteration "
+           "steps/s | efficiency | env-only steps/s | efficiency | iteration | peak memory |",
+           "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
   ordered = sorted(newest.values(), key=lambda r: (_order(r["task"]), r["mode"], r["device"],
-                                                   r["devices"]))
+                                                   _learner_label(r), r["devices"]))
   for r in ordered:
     one = newest.get(key(r, 1))
     n = r["devices"]
     eff = lambda field: f"{r[field] / (n * one[field]):.2f}" if one else "-"
     memory = r.get("peak_memory_bytes")
-    lines.append(f"| {r['task']} | {r['mode']} | `{r['device']}` | "
+    lines.append(f"| {r['task']} | {r['mode']} | `{r['device']}` | {_learner_label(r)} | "
                  f"{r['total_envs'] // n} | {r['members']} | {n} | {_k(r['sps'])} | "
                  f"{eff('sps')} | {_k(r['env_sps'])} | {eff('env_sps')} | "
                  f"{r['iteration_s']:.2f} s | "

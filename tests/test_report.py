@@ -244,17 +244,23 @@ def test_population_table_gives_the_speed_up_over_one_member_of_the_same_file():
 def test_scaling_table_gives_the_efficiency_against_one_device():
   assert report.scaling_table([]).startswith("No scaling")
 
-  def record(devices, sps, env_sps, mode="weak", device="gpu:H x8"):
+  def record(devices, sps, env_sps, mode="weak", device="gpu:H x8", learner=None):
     return {"kind": "scaling", "task": "humanoid_run", "mode": mode, "device": device,
             "devices": devices, "members": 1, "total_envs": 2048 * devices, "sps": sps,
             "env_sps": env_sps, "iteration_s": 1.5, "peak_memory_bytes": 2**31,
-            "settings": {"updates_per_iteration": 128}}
+            "settings": {"updates_per_iteration": 128, "learner": learner or {}}}
+  bf16 = {"sampled_q_bfloat16": True}
   table = report.scaling_table([record(1, 20_000, 500_000), record(8, 144_000, 3_600_000),
-                                record(8, 100_000, 1e6, device="gpu:other x8")])
+                                record(8, 100_000, 1e6, device="gpu:other x8"),
+                                record(1, 25_000, 500_000, learner=bf16),
+                                record(8, 150_000, 3_600_000, learner=bf16)])
   rows = [line for line in table.splitlines() if line.startswith("| humanoid_run")]
   assert "| 8 | 144k | 0.90 | 3.60M | 0.90 | 1.50 s | 2.0 GiB |" in rows[1], rows
   assert "| 1 | 20k | 1.00 | 500k | 1.00 |" in rows[0], rows
-  assert "| 8 | 100k | - | 1.00M | - |" in rows[2], rows  # no one-device row on that host
+  # a bf16 learner's rows keep their own one-device row (25k, not the float32 run's 20k)
+  assert rows[3].startswith("| humanoid_run | weak | `gpu:H x8` | sampled Q in bf16 | 2048 | 1 "
+                            "| 8 | 150k | 0.75 |"), rows
+  assert "| 8 | 100k | - | 1.00M | - |" in rows[4], rows  # no one-device row on that host
 
 
 def test_demonstrator_tables_show_the_held_out_likelihood():

@@ -74,9 +74,9 @@ def effect_model_config(task: str, **overrides) -> EffectModelConfig:
 # on by default: one update 1.27 ms against 1.71 (cheetah_run, H100), a population of 8 at 3.20x
 # one run's env steps/s against 2.66x, and learning unchanged where measured (session 20):
 #   cheetah_run expert, seeds 0-2, 12.8M steps, one population each: fresh final returns 732.3 /
-#     786.7 / 753.9 (mean 757.6) against float32's 735.9 / 728.8 / 779.6 (748.1);
+#     786.7 / 753.9 (mean 757.7) against float32's 735.9 / 728.8 / 779.6 (748.1);
 #   cheetah_run FORM with every default here, seeds 0-2 to 41.0M steps on an H200: 840.5 / 836.9
-#     / 873.4 (mean 850.3, 0.95 of the demonstrations), the best FORM result so far.
+#     / 873.4 (mean 850.3, 0.95 of the demonstrations), cheetah_run's best FORM result so far.
 # The paper's learner computes in float32 (`--preset paper`).
 PAPER_RUN = {"standardise_reward": False, "reward_clip": 0.0, "target_update_period": 200,
              "sampled_q_bfloat16": False}
