@@ -91,11 +91,11 @@ def exploration(mean: np.ndarray, scale: np.ndarray) -> dict[str, np.ndarray]:
   return {"policy_scale": scale.mean(axis=(1, 2)), "beyond_bounds": beyond.mean(axis=(1, 2))}
 
 
-def policy_at(expert: experts.Expert, network_width: int, action_size: int,
-              observations: np.ndarray, chunk: int = 128) -> tuple[np.ndarray, np.ndarray]:
+def policy_at(expert: experts.Expert, action_size: int, observations: np.ndarray,
+              chunk: int = 128) -> tuple[np.ndarray, np.ndarray]:
   """The policy's mean and scale [K, T, A] at `observations` [K, T, D], `chunk` episodes at a
-  time."""
-  policy = make_networks(action_size, network_width).policy
+  time (the network's width from the expert's metadata)."""
+  policy = make_networks(action_size, expert.metadata["network_width"]).policy
   apply = jax.jit(lambda obs: policy.apply(expert.params,
                                            normalizer.normalize(expert.normalizer, obs)))
   parts = [apply(observations[i:i + chunk]) for i in range(0, len(observations), chunk)]
@@ -143,8 +143,7 @@ def main(argv=None) -> int:
     seconds = time.perf_counter() - start
     numbers = summary(returns, task)
     if dimension is not None:
-      loc, scale = policy_at(expert, expert.metadata["network_width"], env.action_size,
-                             observations[:, :-1])
+      loc, scale = policy_at(expert, env.action_size, observations[:, :-1])
       numbers["by_start"] = {"dimension": args.by_start, **returns_by_start(
           observations[:, 0, dimension], returns, args.bins, **exploration(loc, scale))}
     writer.write(kind="expert_eval", task=task, physics=env.physics,

@@ -192,7 +192,7 @@ def test_expert_eval_measures_exploration_along_episodes():
   expert = experts.load_expert(tasks.bundled_expert("reacher_easy"), env)
   width = expert.metadata["network_width"]
   obs = np.random.default_rng(0).normal(size=(5, 3, env.observation_size)).astype(np.float32)
-  loc, scale = bench.policy_at(expert, width, env.action_size, obs, chunk=2)
+  loc, scale = bench.policy_at(expert, env.action_size, obs, chunk=2)
   direct = make_networks(env.action_size, width).policy.apply(
       expert.params, normalizer.normalize(expert.normalizer, jax.numpy.asarray(obs)))
   assert loc.shape == scale.shape == (5, 3, env.action_size)
