@@ -618,9 +618,9 @@ def scaling_table(records: list[dict]) -> str:
            "same amounts per device). weak: one run, its environments, learner batch and "
            "replay per device fixed; population: members per device fixed, each member's "
            "environments split over the devices:", "",
-           "| task | mode | device | learner | envs / device | members | N | iteration "
-           "steps/s | efficiency | env-only steps/s | efficiency | iteration | peak memory |",
-           "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+           "| task | mode | device | learner | envs / device | updates / iteration | members | N | "
+           "iteration steps/s | efficiency | env-only steps/s | efficiency | iteration | peak "
+           "memory |", "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
   ordered = sorted(newest.values(), key=lambda r: (_order(r["task"]), r["mode"], r["device"],
                                                    _learner_label(r), r["devices"]))
   for r in ordered:
@@ -629,7 +629,8 @@ def scaling_table(records: list[dict]) -> str:
     eff = lambda field: f"{r[field] / (n * one[field]):.2f}" if one else "-"
     memory = r.get("peak_memory_bytes")
     lines.append(f"| {r['task']} | {r['mode']} | `{r['device']}` | {_learner_label(r)} | "
-                 f"{r['total_envs'] // n} | {r['members']} | {n} | {_k(r['sps'])} | "
+                 f"{r['total_envs'] // n} | {r['settings']['updates_per_iteration']} | "
+                 f"{r['members']} | {n} | {_k(r['sps'])} | "
                  f"{eff('sps')} | {_k(r['env_sps'])} | {eff('env_sps')} | "
                  f"{r['iteration_s']:.2f} s | "
                  f"{'-' if memory is None else f'{memory / 2**30:.1f} GiB'} |")

@@ -258,8 +258,8 @@ def test_scaling_table_gives_the_efficiency_against_one_device():
   assert "| 8 | 144k | 0.90 | 3.60M | 0.90 | 1.50 s | 2.0 GiB |" in rows[1], rows
   assert "| 1 | 20k | 1.00 | 500k | 1.00 |" in rows[0], rows
   # a bf16 learner's rows keep their own one-device row (25k, not the float32 run's 20k)
-  assert rows[3].startswith("| humanoid_run | weak | `gpu:H x8` | sampled Q in bf16 | 2048 | 1 "
-                            "| 8 | 150k | 0.75 |"), rows
+  assert rows[3].startswith("| humanoid_run | weak | `gpu:H x8` | sampled Q in bf16 | 2048 | 128 "
+                            "| 1 | 8 | 150k | 0.75 |"), rows
   assert "| 8 | 100k | - | 1.00M | - |" in rows[4], rows  # no one-device row on that host
 
 
