@@ -33,7 +33,6 @@ import numpy as np  # noqa: E402
 import tasks  # noqa: E402
 from mjx_form.files import experts  # noqa: E402
 from mjx_form.rl import normalizer  # noqa: E402
-from mjx_form.rl.networks import make_networks  # noqa: E402
 from mjx_form.sim import env as env_lib  # noqa: E402
 from mjx_form.sim import parity  # noqa: E402
 
@@ -56,7 +55,7 @@ def flat_observations(time_steps) -> np.ndarray:
 
 def mean_action_fn(expert: experts.Expert, action_size: int):
   """Jitted [K, D] raw observations -> [K, A] clipped mean actions of the expert's policy."""
-  policy = make_networks(action_size, expert.metadata["network_width"]).policy
+  policy = experts.policy_network(expert.metadata, action_size)
   return jax.jit(lambda obs: jnp.clip(
       policy.apply(expert.params, normalizer.normalize(expert.normalizer, obs)).mode(), -1, 1))
 

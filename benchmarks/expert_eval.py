@@ -40,7 +40,6 @@ import tasks  # noqa: E402
 from mjx_form import paper as paper_lib  # noqa: E402
 from mjx_form.files import experts  # noqa: E402
 from mjx_form.rl import normalizer  # noqa: E402
-from mjx_form.rl.networks import make_networks  # noqa: E402
 
 
 def summary(returns: np.ndarray, task: str) -> dict:
@@ -95,7 +94,7 @@ def policy_at(expert: experts.Expert, action_size: int, observations: np.ndarray
               chunk: int = 128) -> tuple[np.ndarray, np.ndarray]:
   """The policy's mean and scale [K, T, A] at `observations` [K, T, D], `chunk` episodes at a
   time (the network's width from the expert's metadata)."""
-  policy = make_networks(action_size, expert.metadata["network_width"]).policy
+  policy = experts.policy_network(expert.metadata, action_size)
   apply = jax.jit(lambda obs: policy.apply(expert.params,
                                            normalizer.normalize(expert.normalizer, obs)))
   parts = [apply(observations[i:i + chunk]) for i in range(0, len(observations), chunk)]

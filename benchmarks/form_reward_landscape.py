@@ -41,7 +41,6 @@ from mjx_form.files import effect_models, experts, results  # noqa: E402
 from mjx_form.imitation import effect_model as em  # noqa: E402
 from mjx_form.imitation import pipeline  # noqa: E402
 from mjx_form.rl import normalizer  # noqa: E402
-from mjx_form.rl.networks import make_networks  # noqa: E402
 from mjx_form.sim import env as env_lib  # noqa: E402
 
 
@@ -49,7 +48,7 @@ def rollout(env, agent, noise, key, episodes):
   """Observations [K, T+1, D], returns [K], and the policy's mean and scale [T, K, A] at the
   states visited: `agent`'s (a loaded policy file's) mean action plus N(0, noise^2) (clipped),
   or uniform random actions where `noise` is None."""
-  policy = make_networks(env.action_size, agent.metadata["network_width"]).policy
+  policy = experts.policy_network(agent.metadata, env.action_size)
 
   @jax.jit
   def run(key):

@@ -39,6 +39,7 @@ from mjx_form.imitation import demonstrator as demonstrator_lib  # noqa: E402
 from mjx_form.imitation import pipeline, settings  # noqa: E402
 from mjx_form.rl import grid, runner  # noqa: E402
 from mjx_form.rl.learner import LearnerConfig  # noqa: E402
+from mjx_form.rl.networks import POLICY_HEADS  # noqa: E402
 from mjx_form.rl.train import TrainConfig  # noqa: E402
 from mjx_form.sim.physics import DEFAULT_PHYSICS, PHYSICS_MODES  # noqa: E402
 from mjx_form.sim.wrappers import AutoReset  # noqa: E402
@@ -142,6 +143,11 @@ def parse_args(argv=None) -> argparse.Namespace:
                      help="learner updates per iteration (num_envs x unroll_length env steps)")
   train.add_argument("--network_width", type=int, default=defaults.network_width,
                      help="width of every network: policy, critic and effect models")
+  train.add_argument("--policy_head", default=defaults.policy_head,
+                     choices=list(POLICY_HEADS),
+                     help="the policy's Gaussian: paper (mean unbounded, scale softplus + "
+                          "1e-4; the default) or acme (Acme's control-suite MPO head: tanh "
+                          "mean, scale >= 0.3)")
   train.add_argument("--num_action_samples", type=int,
                      default=defaults.learner.num_action_samples)
   train.add_argument("--target_update_period", type=int, default=None,
@@ -277,8 +283,8 @@ def train_config(args: argparse.Namespace) -> TrainConfig:
                      unroll_length=args.unroll_length, batch_size=args.batch_size,
                      replay_capacity=args.replay_capacity,
                      updates_per_iteration=args.updates_per_iteration,
-                     network_width=args.network_width, eval_envs=args.eval_envs,
-                     seed=seed, stagger_episodes=not args.lockstep_episodes,
+                     network_width=args.network_width, policy_head=args.policy_head,
+                     eval_envs=args.eval_envs, seed=seed, stagger_episodes=not args.lockstep_episodes,
                      learner=learner)
 
 

@@ -291,6 +291,15 @@ def test_sampled_q_precision_reaches_the_learner_per_method():
       cli.LearnerConfig())  # an expert run with no flags is the paper's learner
 
 
+def test_policy_head_flag_reaches_the_config():
+  """--policy_head picks the policy's head for either method; without it, the paper's."""
+  cli = load_script("run")
+  head = lambda *argv: cli.train_config(cli.parse_args(list(argv))).policy_head
+  assert head() == "paper" and head("--method", "expert") == "paper"
+  assert head("--method", "expert", "--policy_head", "acme") == "acme"
+  assert head("--method", "form", "--policy_head", "acme") == "acme"
+
+
 def _readme_args(run_dir, *extra):
   """The README's main command, shortened to one iteration, in `run_dir`."""
   argv = run_commands()[0]

@@ -1,10 +1,11 @@
-"""The MPO networks: shapes and the critic's one-encoding-per-state broadcast."""
+"""The MPO networks: shapes, the critic's one-encoding-per-state broadcast, the policy heads."""
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pytest
 
-from mjx_form.rl.networks import Critic, make_networks
+from mjx_form.rl.networks import Critic, make_networks, policy_head
 
 
 def test_critic_equals_dense_layers_on_the_concatenation():
@@ -49,3 +50,31 @@ def test_policy_shapes_and_positive_scale():
   pi = networks.policy.apply(params, obs)
   assert pi.mean.shape == (4, 3) and pi.scale.shape == (4, 3)
   assert bool(jnp.all(pi.scale > 0))
+
+
+def test_acme_head_bounds_the_mean_and_floors_the_scale():
+  """The acme head on the same parameters as the paper's: mean tanh(paper mean), scale
+  softplus(raw) * 0.7 / ln 2 + 0.3 (Acme's MultivariateNormalDiagHead), where the paper's scale
+  is softplus(raw) + 1e-4; so the mean stays in (-1, 1) and the scale at 0.3 or more."""
+  obs = 3 * jax.random.normal(jax.random.PRNGKey(0), (64, 7))
+  paper, acme = (make_networks(3, 32, head).policy for head in ("paper", "acme"))
+  params = paper.init(jax.random.PRNGKey(1), obs)
+  # Trained-looking outputs: last-layer weights far from their 1e-4 initial scale.
+  params = jax.tree.map(lambda p: p + jax.random.normal(jax.random.PRNGKey(2), p.shape), params)
+  ref, pi = paper.apply(params, obs), acme.apply(params, obs)
+  softplus = np.asarray(ref.scale, np.float64) - 1e-4
+  np.testing.assert_allclose(pi.mean, np.tanh(np.asarray(ref.mean, np.float64)), rtol=1e-5,
+                             atol=1e-6)
+  np.testing.assert_allclose(pi.scale, softplus * 0.7 / np.log(2.0) + 0.3, rtol=1e-5)
+  assert np.abs(ref.mean).max() > 1.5  # the paper's mean leaves the bounds here ...
+  assert np.abs(pi.mean).max() <= 1.0 and pi.scale.min() >= 0.3  # ... the acme head's cannot
+  # A zero last layer: mean 0, scale init_scale + min_scale = 1.0.
+  zero = jax.tree.map(jnp.zeros_like, params["params"]["Dense_0"])
+  pi0 = acme.apply({"params": {**params["params"], "Dense_0": zero}}, obs)
+  np.testing.assert_allclose(pi0.mean, 0.0)
+  np.testing.assert_allclose(pi0.scale, 1.0, rtol=1e-6)
+
+
+def test_unknown_policy_head_is_refused_by_name():
+  with pytest.raises(ValueError, match="unknown policy head 'tanh'.*paper, acme"):
+    policy_head("tanh")

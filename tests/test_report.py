@@ -241,6 +241,14 @@ def test_population_table_gives_the_speed_up_over_one_member_of_the_same_file():
   assert rows[3].endswith("| 2026-12-02 faster |"), rows
 
 
+def test_learner_label_names_what_differs_from_the_paper():
+  assert report._learner_label({"settings": {"learner": {}}}) == "-"
+  record = {"settings": {"policy_head": "acme", "learner": {"target_update_period": 25,
+                                                            "sampled_q_bfloat16": True}}}
+  assert report._learner_label(record) == "T 25, sampled Q in bf16, acme policy head"
+  assert report._learner_label({"settings": {"policy_head": "paper", "learner": {}}}) == "-"
+
+
 def test_scaling_table_gives_the_efficiency_against_one_device():
   assert report.scaling_table([]).startswith("No scaling")
 

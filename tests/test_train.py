@@ -236,6 +236,7 @@ def test_settings_added_since_older_checkpoints_default_to_what_ran_before():
     (dict(unroll_length=0), "unroll_length must be a positive integer"),
     (dict(learner=LearnerConfig(target_update_period=0)), "target_update_period must be a pos"),
     (dict(learner=LearnerConfig(num_action_samples=0)), "num_action_samples must be a positive"),
+    (dict(policy_head="tanh"), "unknown policy head 'tanh'"),
 ])
 def test_bad_settings_are_refused(change, message):
   with pytest.raises(ValueError, match=message):
@@ -410,6 +411,31 @@ def test_demonstrations_from_an_exported_expert(tmp_path, capsys):
     demos.load_demonstrations(out, task="cheetah_run")
   assert cli.main(args) == 2  # never overwritten without --overwrite
   assert "exists" in capsys.readouterr().err
+
+
+def test_an_exported_policy_keeps_its_head(tmp_path):
+  """A policy file records its head; loading builds that head (files without one: the paper's,
+  which every run before heads used), and demonstrations are recorded with it."""
+  from mjx_form.files import experts
+  from mjx_form.rl.networks import POLICY_HEADS
+  trainer = Trainer(dataclasses.replace(CONFIG, policy_head="acme"))
+  state = trainer.init(trainer.keys())
+  path = str(tmp_path / "policy.npz")
+  runner.export_policy(trainer, state, 0, path, {"env_steps": 0})
+  env = tasks.make("reacher_easy")
+  expert = experts.load_expert(path, env)
+  assert expert.metadata["policy_head"] == "acme"
+  policy = experts.policy_network(expert.metadata, env.action_size)
+  assert policy == trainer.networks.policy and policy.head == POLICY_HEADS["acme"]
+  older = {k: v for k, v in expert.metadata.items() if k != "policy_head"}
+  assert experts.policy_network(older, env.action_size).head == POLICY_HEADS["paper"]
+  obs, actions, _ = experts.record(env, expert, jax.random.PRNGKey(0), episodes=2)
+  from mjx_form.rl import normalizer
+  first = policy.apply(expert.params, normalizer.normalize(expert.normalizer, obs[:, 0]))
+  np.testing.assert_allclose(actions[:, 0], np.clip(first.mean, -1, 1), rtol=1e-5, atol=1e-6)
+  paper = experts.policy_network(older, env.action_size).apply(
+      expert.params, normalizer.normalize(expert.normalizer, obs[:, 0]))
+  assert not np.allclose(paper.scale, first.scale)  # the heads differ on these parameters
 
 
 def test_progress_line_shows_the_form_reward_and_its_clipped_share():

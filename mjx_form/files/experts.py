@@ -1,8 +1,8 @@
 """Expert policies as files, and demonstrations recorded from them on the device.
 
 An expert file is the `policy.npz` a training run writes (mjx_form.rl.runner.export_policy): the
-policy parameters and the observation normaliser, with the task, observation layout and network
-width in its metadata. `record` runs K full episodes in parallel (one jitted scan of 1000 steps
+policy parameters and the observation normaliser, with the task, observation layout, network
+width and policy head in its metadata (files from before heads existed have the paper's). `record` runs K full episodes in parallel (one jitted scan of 1000 steps
 over a vmapped batch) and returns what `mjx_form.files.demos.save_demonstrations` stores.
 """
 
@@ -19,7 +19,7 @@ import numpy as np
 
 from mjx_form.files import policy_io
 from mjx_form.rl import normalizer
-from mjx_form.rl.networks import make_networks
+from mjx_form.rl.networks import GaussianPolicy, make_networks
 from mjx_form.sim import env as env_lib
 
 
@@ -27,6 +27,13 @@ class Expert(NamedTuple):
   params: dict  # flax params of the GaussianPolicy
   normalizer: normalizer.NormalizerState
   metadata: dict
+
+
+def policy_network(metadata: dict, action_size: int) -> GaussianPolicy:
+  """The policy module an expert file's parameters belong to (width and head from its
+  metadata); ValueError naming an unknown head."""
+  return make_networks(action_size, metadata["network_width"],
+                       metadata.get("policy_head", "paper")).policy
 
 
 def load_expert(path: str, env: env_lib.Task) -> Expert:
@@ -47,15 +54,16 @@ def record(env: env_lib.Task, expert: Expert, key: jax.Array, episodes: int,
   Returns observations [K, T+1, D], actions [K, T, A] (clipped to [-1, 1], what the simulator
   applied) and task returns [K]. Actions are the policy's mean unless `stochastic`.
   """
-  rollout = _rollout_fn(env, expert.metadata["network_width"], episodes, stochastic)
+  rollout = _rollout_fn(env, policy_network(expert.metadata, env.action_size), episodes,
+                        stochastic)
   obs, actions, returns = jax.device_get(rollout(expert.params, expert.normalizer, key))
   return np.asarray(obs, np.float32), np.asarray(actions, np.float32), np.asarray(returns)
 
 
 @functools.cache
-def _rollout_fn(env: env_lib.Task, network_width: int, episodes: int, stochastic: bool):
-  """The jitted rollout of `record`, built once per task object and size (chunks reuse it)."""
-  policy = make_networks(env.action_size, network_width).policy
+def _rollout_fn(env: env_lib.Task, policy: GaussianPolicy, episodes: int, stochastic: bool):
+  """The jitted rollout of `record`, built once per task object, policy module and size
+  (chunks reuse it)."""
 
   @jax.jit
   def rollout(params, norm, key):

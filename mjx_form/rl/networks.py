@@ -1,7 +1,9 @@
 """The MPO networks of the paper (../shared/DESIGN.md, "Algorithms"), in flax.
 
 Encoder: linear 256, optional LayerNorm, tanh, then optional hidden layers of 256 with ELU.
-Policy:  encoder (LayerNorm, one hidden layer) -> diagonal Gaussian, scale softplus + 1e-4.
+Policy:  encoder (LayerNorm, one hidden layer) -> diagonal Gaussian; its head (`POLICY_HEADS`)
+         is the paper's (mean unbounded, scale softplus + 1e-4) or Acme's control-suite MPO
+         head (mean tanh-bounded to the action bounds, scale at least 0.3).
 Critic:  encoder (LayerNorm, one hidden layer) of the observation, concatenated with
          tanh(action) -> linear 256, LayerNorm, tanh -> 3 layers of 256 with ELU -> scalar.
          The linear layer on the concatenation runs split (`ConcatDense`), so that with N
@@ -39,12 +41,40 @@ class Encoder(nn.Module):
     return x
 
 
+@dataclasses.dataclass(frozen=True)
+class PolicyHead:
+  """How the policy's last layer becomes a Gaussian: mean = tanh(raw) if `tanh_mean` else raw;
+  scale = softplus(raw) * init_scale / softplus(0) + min_scale (init_scale None: factor 1)."""
+
+  tanh_mean: bool = False
+  min_scale: float = 1e-4
+  init_scale: float | None = None
+
+
+POLICY_HEADS = {
+    # The paper's: the mean may leave [-1, 1] (the environment clips the action), the scale may
+    # shrink to 1e-4.
+    "paper": PolicyHead(),
+    # Acme's control-suite MPO/DMPO head (`MultivariateNormalDiagHead(tanh_mean=True,
+    # min_scale=0.3, init_scale=0.7)`): the mean stays in the bounds, the scale at 0.3 or more
+    # (1.0 at initialisation), so every action dimension keeps exploring.
+    "acme": PolicyHead(tanh_mean=True, min_scale=0.3, init_scale=0.7),
+}
+
+
+def policy_head(name: str) -> PolicyHead:
+  """The head called `name`; ValueError naming the valid ones."""
+  if name not in POLICY_HEADS:
+    raise ValueError(f"unknown policy head {name!r}; valid heads: {', '.join(POLICY_HEADS)}")
+  return POLICY_HEADS[name]
+
+
 class GaussianPolicy(nn.Module):
   """Observation [..., D] -> DiagonalGaussian with mean and scale [..., A]."""
 
   action_size: int
   width: int = 256
-  min_scale: float = 1e-4
+  head: PolicyHead = PolicyHead()
 
   @nn.compact
   def __call__(self, obs: jax.Array) -> DiagonalGaussian:
@@ -52,7 +82,14 @@ class GaussianPolicy(nn.Module):
     out = nn.Dense(2 * self.action_size, kernel_init=nn.initializers.variance_scaling(
         1e-4, "fan_in", "truncated_normal"))(h)  # small initial means: actions near 0
     mean, raw_scale = jnp.split(out, 2, axis=-1)
-    return DiagonalGaussian(mean, scale_from_raw(raw_scale, self.min_scale))
+    if self.head.tanh_mean:
+      mean = jnp.tanh(mean)
+    if self.head.init_scale is not None:  # rescaled so that raw = 0 gives init_scale
+      scale = (jax.nn.softplus(raw_scale) * (self.head.init_scale / jax.nn.softplus(0.0))
+               + self.head.min_scale)
+    else:
+      scale = scale_from_raw(raw_scale, self.head.min_scale)
+    return DiagonalGaussian(mean, scale)
 
 
 class ConcatDense(nn.Module):
@@ -109,5 +146,6 @@ class Networks:
   critic: Critic
 
 
-def make_networks(action_size: int, width: int = 256) -> Networks:
-  return Networks(GaussianPolicy(action_size, width), Critic(width, (width,) * 3))
+def make_networks(action_size: int, width: int = 256, head: str = "paper") -> Networks:
+  return Networks(GaussianPolicy(action_size, width, policy_head(head)),
+                  Critic(width, (width,) * 3))

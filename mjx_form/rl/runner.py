@@ -45,7 +45,8 @@ RESUMABLE = ("total_env_steps", "log_every", "eval_every", "checkpoint_every")
 # Settings added since checkpoints were first written, with the value that does what runs did
 # before them: a checkpoint whose config lacks one resumes only with that value.
 ADDED_SETTINGS = {"learner.mpo.action_penalty": False, "learner.mpo.epsilon_penalty": 1e-3,
-                  "learner.clip_critic_actions": False, "learner.sampled_q_bfloat16": False}
+                  "learner.clip_critic_actions": False, "learner.sampled_q_bfloat16": False,
+                  "policy_head": "paper"}
 
 
 # Columns that not every row has (evaluation rows; devices that report memory).
@@ -407,7 +408,8 @@ def export_policy(trainer: Trainer, state, member: int, path: str, row: dict) ->
   metadata = {"task": cfg.task, "observation_size": env.observation_size,
               "action_size": env.action_size,
               "observation_layout": [[k, v] for k, v in env.observation_layout.items()],
-              "network_width": cfg.network_width, "physics": cfg.physics,
+              "network_width": cfg.network_width, "policy_head": cfg.policy_head,
+              "physics": cfg.physics,
               "env_steps": row.get("env_steps"), "eval_return": row.get("eval_return"),
               "train_config": cfg.to_dict()}
   policy_io.save_policy(path, arrays, metadata, overwrite=True)

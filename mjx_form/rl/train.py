@@ -45,6 +45,7 @@ from mjx_form import cpu
 from mjx_form import mesh as mesh_lib
 from mjx_form.rl import learner as learner_lib
 from mjx_form.rl import grid, normalizer, replay
+from mjx_form.rl import networks as networks_lib
 from mjx_form.rl.networks import make_networks
 from mjx_form.rl.reward_sources import make_reward_source
 from mjx_form.sim import env as env_lib
@@ -65,6 +66,7 @@ class TrainConfig:
   replay_capacity: int = 10_000  # unrolls
   updates_per_iteration: int = 8  # learner updates per collected unroll of every env
   network_width: int = 256
+  policy_head: str = "paper"  # the policy's Gaussian head (networks.POLICY_HEADS)
   normalizer_decay: float = 0.99  # observation EMA decay per iteration
   eval_envs: int = 16
   seed: int = 0
@@ -84,6 +86,7 @@ class TrainConfig:
       if getattr(self, name) % num_devices:
         raise ValueError(f"{name}={getattr(self, name)} must be a multiple of the number of "
                          f"devices ({num_devices})")
+    networks_lib.policy_head(self.policy_head)  # ValueError naming the valid heads
     if self.num_envs > self.replay_capacity:
       raise ValueError(f"replay_capacity={self.replay_capacity} must hold at least one "
                        f"iteration's unrolls (num_envs={self.num_envs})")
@@ -176,7 +179,8 @@ class Trainer:
     self._batch = mesh_lib.batch_sharding(self.mesh)
     self._member_batch = mesh_lib.member_batch_sharding(self.mesh)
     self.auto_reset = AutoReset(self.env, self._batch)
-    self.networks = make_networks(self.env.action_size, config.network_width)
+    self.networks = make_networks(self.env.action_size, config.network_width,
+                                  config.policy_head)
     self.source = reward_source or make_reward_source(config.reward_source)
     if self.source.name != config.reward_source:
       raise ValueError(f"the config names reward source {config.reward_source!r}, the trainer "
