@@ -2,8 +2,9 @@
 
 An expert file is the `policy.npz` a training run writes (mjx_form.rl.runner.export_policy): the
 policy parameters and the observation normaliser, with the task, observation layout, network
-width and policy head in its metadata (files from before heads existed have the paper's). `record` runs K full episodes in parallel (one jitted scan of 1000 steps
-over a vmapped batch) and returns what `mjx_form.files.demos.save_demonstrations` stores.
+width and policy head in its metadata (files from before heads existed have the paper's).
+`record` runs K full episodes in parallel (one jitted scan of 1000 steps over a vmapped batch)
+and returns what `mjx_form.files.demos.save_demonstrations` stores.
 """
 
 from __future__ import annotations
