@@ -284,8 +284,8 @@ def train_config(args: argparse.Namespace) -> TrainConfig:
                      replay_capacity=args.replay_capacity,
                      updates_per_iteration=args.updates_per_iteration,
                      network_width=args.network_width, policy_head=args.policy_head,
-                     eval_envs=args.eval_envs, seed=seed, stagger_episodes=not args.lockstep_episodes,
-                     learner=learner)
+                     eval_envs=args.eval_envs, seed=seed,
+                     stagger_episodes=not args.lockstep_episodes, learner=learner)
 
 
 def form_run_settings(args: argparse.Namespace) -> dict:
