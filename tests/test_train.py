@@ -306,6 +306,7 @@ def test_command_line_trains_resumes_and_refuses_mismatches(tmp_path, capsys):
   assert all(isinstance(r["persistent_cache_hits"], int) for r in records)
   params, meta = policy_io.load_policy(run_dir / "policy.npz", task="reacher_easy")
   assert meta["env_steps"] == 80 and "policy" in params and "normalizer" in params
+  assert meta["policy_head"] == "paper"
   # best_policy.npz: the policy of the best evaluation over both processes.
   best_row = max(rows, key=lambda r: float(r["eval_return"]))
   best_params, best = policy_io.load_policy(run_dir / "best_policy.npz", task="reacher_easy")
@@ -321,6 +322,9 @@ def test_command_line_trains_resumes_and_refuses_mismatches(tmp_path, capsys):
   # A checkpoint of another configuration is refused, naming the difference.
   assert cli.main(_cli_args(run_dir, "--env_steps", "120", "--resume", "--seed", "1")) == 2
   assert "seed" in capsys.readouterr().err
+  assert cli.main(_cli_args(run_dir, "--env_steps", "120", "--resume", "--policy_head",
+                            "acme")) == 2  # the network differs
+  assert "policy_head" in capsys.readouterr().err
   # Resuming with more steps continues from the last checkpoint; the best policy so far is
   # replaced only by a better evaluation (here: one no evaluation can beat).
   best_meta = {k: v for k, v in best.items() if k not in ("format", "version", "sha256")}
