@@ -307,6 +307,12 @@ def _fastest_to(curves: list[list[dict]], threshold: float, task: str) -> str:
           f"{_run_label(fastest['_file'], task)})")
 
 
+# The reference of issue 17's cheetah_run target: Brax's PPO on the same GPU model, measured
+# once outside this repository (benchmarks/NOTES.md, "Targets of issue 3").
+BRAX_PPO_CHEETAH_800 = {"return": 800.0, "seconds": 161, "device": "an H200",
+                        "date": "2026-11-22"}
+
+
 def learning_summary(records: list[dict], threshold: float = 800.0) -> str:
   """One row per task: how many expert runs, the highest evaluation of any of them, and the
   fastest run to a first evaluation at or above `threshold` and at or above the experts bar
@@ -336,6 +342,17 @@ def learning_summary(records: list[dict], threshold: float = 800.0) -> str:
                  f"({best['env_steps'] / 1e6:.1f}M, {_run_label(best['_file'], task)}) | "
                  f"{_fastest_to(curves, threshold, task)} | {bar:.1f} | "
                  f"{_fastest_to(curves, bar, task)} |")
+  cheetah = [sorted(c, key=lambda r: r["env_steps"]) for key, c in runs.items()
+             if key[1] == "cheetah_run"]
+  cold = [c for c in cheetah if c[0].get("persistent_cache_hits") == 0]
+  if cheetah and threshold == BRAX_PPO_CHEETAH_800["return"]:
+    lines += ["", f"cheetah_run against Brax PPO: Brax's PPO reached "
+              f"{BRAX_PPO_CHEETAH_800['return']:.0f} in {BRAX_PPO_CHEETAH_800['seconds']} s on "
+              f"{BRAX_PPO_CHEETAH_800['device']}, compilation included (measured "
+              f"{BRAX_PPO_CHEETAH_800['date']}, `benchmarks/NOTES.md`); the fastest run here: "
+              f"{_fastest_to(cheetah, threshold, 'cheetah_run')}; the fastest that compiled "
+              f"every program (no persistent-cache hits recorded): "
+              f"{_fastest_to(cold, threshold, 'cheetah_run') if cold else 'none recorded'}."]
   return "\n".join(lines)
 
 

@@ -308,6 +308,24 @@ def test_learning_tables_show_expert_runs_only():
   assert "990.0" not in report.learning_table([*curve, fast, form])
 
 
+def test_learning_summary_sets_cheetah_against_brax_ppo_cold_and_warm():
+  base = {"kind": "learning_curve", "task": "cheetah_run", "seed": 0, "num_envs": 512,
+          "method": "expert", "device": "gpu:X", "settings": {"eval_episodes": 32}}
+  warm = [dict(base, _file="warm.jsonl", env_steps=1e6, wall_s=w, eval_return=v,
+               persistent_cache_hits=4) for w, v in ((100.0, 500.0), (150.0, 805.0))]
+  cold = [dict(base, _file="cold.jsonl", env_steps=1e6, wall_s=w, eval_return=v,
+               persistent_cache_hits=0) for w, v in ((160.0, 700.0), (210.0, 801.0))]
+  old = [dict(base, _file="old.jsonl", env_steps=1e6, wall_s=190.0, eval_return=900.0)]
+  line = report.learning_summary([*warm, *cold, *old]).splitlines()[-1]
+  assert line.startswith("cheetah_run against Brax PPO: Brax's PPO reached 800 in 161 s"), line
+  # fastest of all: the warm run; of the runs that compiled (cache hits recorded as 0): cold.
+  assert "the fastest run here: 150 s (1.0M, warm)" in line, line
+  assert "no persistent-cache hits recorded): 210 s (1.0M, cold)." in line, line
+  line = report.learning_summary([*warm, *old]).splitlines()[-1]
+  assert line.endswith("no persistent-cache hits recorded): none recorded."), line
+  assert "Brax" not in report.learning_summary([dict(r, task="walker_walk") for r in warm])
+
+
 def test_throughput_table_lists_each_measurement():
   record = {"kind": "env_throughput", "task": "cheetah_run", "physics": "parity",
             "num_envs": 2048, "device": "gpu:X", "versions": {}, "time": "t", "sps": 1.5e5,
