@@ -35,6 +35,7 @@ configure_cpu_xla()
 
 import jax  # noqa: E402
 import numpy as np  # noqa: E402
+from scipy import special  # noqa: E402
 
 import tasks  # noqa: E402
 from mjx_form import paper as paper_lib  # noqa: E402
@@ -83,11 +84,16 @@ def returns_by_start(values: np.ndarray, returns: np.ndarray, bins: int,
 
 def exploration(mean: np.ndarray, scale: np.ndarray) -> dict[str, np.ndarray]:
   """How much the policy explores along each episode, from its Gaussian's mean and scale
-  [K, T, A] at the visited states: `policy_scale` [K], the mean scale, and `beyond_bounds` [K],
+  [K, T, A] at the visited states: `policy_scale` [K], the mean scale; `beyond_bounds` [K],
   the share of steps and action dimensions whose mean lies more than 2 scales outside [-1, 1]
-  (there 98% of the samples clip to the same bound: that dimension explores next to nothing)."""
+  (there 98% of the samples clip to the same bound: that dimension explores next to nothing);
+  `clipped` [K], the probability that a sample leaves [-1, 1] (the environment clips it),
+  averaged over steps and dimensions: comparable between policy heads, where a tanh-bounded
+  mean is never beyond the bounds."""
   beyond = (np.abs(mean) - 1.0) > 2.0 * scale
-  return {"policy_scale": scale.mean(axis=(1, 2)), "beyond_bounds": beyond.mean(axis=(1, 2))}
+  outside = special.ndtr((-1.0 - mean) / scale) + special.ndtr((mean - 1.0) / scale)
+  return {"policy_scale": scale.mean(axis=(1, 2)), "beyond_bounds": beyond.mean(axis=(1, 2)),
+          "clipped": outside.mean(axis=(1, 2))}
 
 
 def policy_at(expert: experts.Expert, action_size: int, observations: np.ndarray,
@@ -164,7 +170,8 @@ def main(argv=None) -> int:
       for i, (count, mean) in enumerate(zip(split["episodes"], split["mean_return"])):
         low, high = split["edges"][i], split["edges"][i + 1]
         extra = ("" if mean is None else f", policy scale {split['policy_scale'][i]:.3f}, "
-                 f"{split['beyond_bounds'][i]:.0%} of actions beyond the bounds by 2 scales")
+                 f"{split['beyond_bounds'][i]:.0%} of actions beyond the bounds by 2 scales, "
+                 f"{split['clipped'][i]:.0%} of samples clipped")
         print(f"  {args.by_start} in [{low:.3f}, {high:.3f}]: {count} episodes, mean return "
               f"{'-' if mean is None else f'{mean:.1f}'}{extra}", flush=True)
   print(f"results appended to {out}")

@@ -183,6 +183,11 @@ def test_expert_eval_measures_exploration_along_episodes():
   # (1 < 1.2), not 1.0 (0 < 0.2)
   np.testing.assert_allclose(numbers["beyond_bounds"], [2 / 4, 1 / 4])
   np.testing.assert_allclose(numbers["policy_scale"], [0.55, 0.3])
+  # The chance that a sample clips, against tabulated normal probabilities: mean 0, scale 1:
+  # P(|x| > 1) = 0.317311; mean 1.5, scale 0.2: P(x > 1) = Phi(2.5) = 0.993790.
+  one = bench.exploration(np.array([[[0.0, 1.5]]]), np.array([[[1.0, 0.2]]]))["clipped"]
+  np.testing.assert_allclose(one, [(0.317311 + 0.993790) / 2], atol=1e-6)
+  assert 0.0 < numbers["clipped"][1] < numbers["clipped"][0] < 1.0
   import jax
   import tasks
   from mjx_form.files import experts
