@@ -14,7 +14,8 @@ whether the mean reaches the experts issue's bar (0.95x, `mjx_form.paper`).
 observation (`--bins` equal-width bins between its smallest and largest value; names as the
 task's observation layout gives them, e.g. `position[1]`, hopper's initial pitch rooty): which
 starts the policy does well from, and how much it explores there (its Gaussian's mean scale
-along those episodes, and the share of actions whose mean lies 2 scales beyond [-1, 1]).
+along those episodes, the share of actions whose mean lies 2 scales beyond [-1, 1], and the
+chance that a sample leaves [-1, 1]).
 
   python benchmarks/expert_eval.py --tasks hopper_stand --policy runs/hs/policy.npz \
     --episodes 1024 --by_start "position[1]" --bins 8
@@ -99,7 +100,7 @@ def exploration(mean: np.ndarray, scale: np.ndarray) -> dict[str, np.ndarray]:
 def policy_at(expert: experts.Expert, action_size: int, observations: np.ndarray,
               chunk: int = 128) -> tuple[np.ndarray, np.ndarray]:
   """The policy's mean and scale [K, T, A] at `observations` [K, T, D], `chunk` episodes at a
-  time (the network's width from the expert's metadata)."""
+  time (the network's width and head from the expert's metadata)."""
   policy = experts.policy_network(expert.metadata, action_size)
   apply = jax.jit(lambda obs: policy.apply(expert.params,
                                            normalizer.normalize(expert.normalizer, obs)))

@@ -330,9 +330,9 @@ def learning_summary(records: list[dict], threshold: float = 800.0) -> str:
            f"{threshold:.0f}, fastest run: wall clock (env steps, run) | {paper.EXPERT_BAR}x "
            f"paper's expert | time to expert: wall clock (env steps, run) |",
            "|---|---|---|---|---|---|"]
-  for task in TASK_ORDER:
-    curves = [sorted(c, key=lambda r: r["env_steps"]) for key, c in runs.items()
-              if key[1] == task]
+  curves_of = {task: [sorted(c, key=lambda r: r["env_steps"]) for key, c in runs.items()
+                      if key[1] == task] for task in TASK_ORDER}
+  for task, curves in curves_of.items():
     bar = paper.EXPERT_BAR * PAPER_EXPERT[task]
     if not curves:
       lines.append(f"| {task} | 0 | - | - | {bar:.1f} | no runs yet |")
@@ -342,8 +342,7 @@ def learning_summary(records: list[dict], threshold: float = 800.0) -> str:
                  f"({best['env_steps'] / 1e6:.1f}M, {_run_label(best['_file'], task)}) | "
                  f"{_fastest_to(curves, threshold, task)} | {bar:.1f} | "
                  f"{_fastest_to(curves, bar, task)} |")
-  cheetah = [sorted(c, key=lambda r: r["env_steps"]) for key, c in runs.items()
-             if key[1] == "cheetah_run"]
+  cheetah = curves_of["cheetah_run"]
   cold = [c for c in cheetah if c[0].get("persistent_cache_hits") == 0]
   if cheetah and threshold == BRAX_PPO_CHEETAH_800["return"]:
     lines += ["", f"cheetah_run against Brax PPO: Brax's PPO reached "

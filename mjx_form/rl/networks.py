@@ -84,7 +84,7 @@ class GaussianPolicy(nn.Module):
     mean, raw_scale = jnp.split(out, 2, axis=-1)
     if self.head.tanh_mean:
       mean = jnp.tanh(mean)
-    if self.head.init_scale is not None:  # rescaled so that raw = 0 gives init_scale
+    if self.head.init_scale is not None:  # rescaled: raw = 0 gives init_scale + min_scale
       scale = (jax.nn.softplus(raw_scale) * (self.head.init_scale / jax.nn.softplus(0.0))
                + self.head.min_scale)
     else:

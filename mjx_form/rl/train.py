@@ -46,7 +46,6 @@ from mjx_form import mesh as mesh_lib
 from mjx_form.rl import learner as learner_lib
 from mjx_form.rl import grid, normalizer, replay
 from mjx_form.rl import networks as networks_lib
-from mjx_form.rl.networks import make_networks
 from mjx_form.rl.reward_sources import make_reward_source
 from mjx_form.sim import env as env_lib
 from mjx_form.sim import physics as physics_lib
@@ -179,8 +178,8 @@ class Trainer:
     self._batch = mesh_lib.batch_sharding(self.mesh)
     self._member_batch = mesh_lib.member_batch_sharding(self.mesh)
     self.auto_reset = AutoReset(self.env, self._batch)
-    self.networks = make_networks(self.env.action_size, config.network_width,
-                                  config.policy_head)
+    self.networks = networks_lib.make_networks(self.env.action_size, config.network_width,
+                                               config.policy_head)
     self.source = reward_source or make_reward_source(config.reward_source)
     if self.source.name != config.reward_source:
       raise ValueError(f"the config names reward source {config.reward_source!r}, the trainer "
