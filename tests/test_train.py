@@ -424,6 +424,11 @@ def test_an_exported_policy_keeps_its_head(tmp_path):
   from mjx_form.rl.networks import POLICY_HEADS
   trainer = Trainer(dataclasses.replace(CONFIG, policy_head="acme"))
   state = trainer.init(trainer.keys())
+  # Trained-looking weights (far from the 1e-4 initial last layer), so that the heads' mean
+  # actions differ: the paper's leave [-1, 1] and clip, the acme head's are tanh-bounded.
+  policy = jax.tree.map(lambda p: p + 0.1 * jax.random.normal(jax.random.PRNGKey(1), p.shape),
+                        state.learner.policy)
+  state = state._replace(learner=state.learner._replace(policy=policy))
   path = str(tmp_path / "policy.npz")
   runner.export_policy(trainer, state, 0, path, {"env_steps": 0})
   env = tasks.make("reacher_easy")
@@ -440,6 +445,8 @@ def test_an_exported_policy_keeps_its_head(tmp_path):
   paper = experts.policy_network(older, env.action_size).apply(
       expert.params, normalizer.normalize(expert.normalizer, obs[:, 0]))
   assert not np.allclose(paper.scale, first.scale)  # the heads differ on these parameters
+  assert not np.allclose(actions[:, 0], np.clip(paper.mean, -1, 1), atol=1e-3)  # so it is
+  # the acme head that recorded the actions
 
 
 def test_progress_line_shows_the_form_reward_and_its_clipped_share():
