@@ -582,7 +582,7 @@ def form_runs_table(records: list[dict]) -> str:
 def population_table(records: list[dict]) -> str:
   """`kind: population_throughput`: P runs in one program against one run, per task, device
   and environments per member; the speed-up against P = 1 of the same result file (one
-  invocation of the benchmark, one version of the code)."""
+  invocation of the benchmark, one version of the code), else, marked, of another file."""
   rows = [r for r in records if r.get("kind") == "population_throughput"]
   if not rows:
     return "No population throughput results yet."
@@ -603,9 +603,17 @@ def population_table(records: list[dict]) -> str:
   ordered = sorted(newest.values(), key=lambda r: (_order(r["task"]), r["device"],
                                                    r["num_envs"], r.get("_file", ""),
                                                    r["members"]))
+  # Where a result file has no P = 1, the newest P = 1 of the same task, device and settings
+  # from another file stands in, marked with an asterisk.
+  elsewhere = {k[1:]: r for k, r in sorted(newest.items(), key=lambda kr: kr[1].get("time", ""))
+               if r["members"] == 1}
+  starred = False
   for r in ordered:
     one = newest.get(key(r, 1))
     speedup = f"{r['sps'] / one['sps']:.2f}x" if one else "-"
+    if one is None and key(r, 1)[1:] in elsewhere:
+      speedup = f"{r['sps'] / elsewhere[key(r, 1)[1:]]['sps']:.2f}x*"
+      starred = True
     updates_s = r["iteration_s"] - r["collect_s"]
     per_member = r["update_ms"] / r["members"]  # update_ms: all members' update, side by side
     memory = r.get("peak_memory_bytes")
@@ -616,6 +624,9 @@ def population_table(records: list[dict]) -> str:
                  f"{speedup} | {r['iteration_s']:.2f} s | {r['collect_s']:.2f} s | "
                  f"{updates_s:.2f} s | {per_member:.2f} | "
                  f"{'-' if memory is None else f'{memory / 2**30:.1f} GiB'} | {label} |")
+  if starred:
+    lines += ["", "\\* over P = 1 of another result file (same task, device, environments, "
+              "updates and learner settings)."]
   return "\n".join(lines)
 
 

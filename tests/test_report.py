@@ -214,7 +214,7 @@ def test_form_runs_table_has_one_row_per_run_and_seed():
       "50.0 | 50.0 | 77.0 | 0.5 | 2026-12-01 |"], table
 
 
-def test_population_table_gives_the_speed_up_over_one_member_of_the_same_file():
+def test_population_table_gives_the_speed_up_over_one_member_of_the_same_file_or_a_marked_other():
   assert report.population_table([]).startswith("No population")
 
   def record(members, sps, iteration_s, collect_s, file="2026-12-01_population_throughput.jsonl",
@@ -239,6 +239,22 @@ def test_population_table_gives_the_speed_up_over_one_member_of_the_same_file():
   assert rows[3].startswith("| cheetah_run | `gpu:X` | 512 | 100 | sampled Q in bf16 | 4 | 100k | "
                             "2.50x |"), rows
   assert rows[3].endswith("| 2026-12-02 faster |"), rows
+  assert "another result file" not in table
+
+  # A file without P = 1 is measured against the newest P = 1 of the same settings elsewhere,
+  # marked; with no such P = 1 anywhere (other learner settings) it gets none.
+  newer = "2026-12-03_population_throughput_p8.jsonl"
+  t25 = {"target_update_period": 25}
+  table = report.population_table([record(1, 50_000, 1.0, 0.4, later, bf16) | {"time": "1"},
+                                   record(1, 40_000, 1.0, 0.4, later, bf16) | {"time": "2"},
+                                   record(8, 200_000, 2.0, 0.8, newer, bf16) | {"time": "3"},
+                                   record(8, 100_000, 2.0, 0.8, newer, t25) | {"time": "3"}])
+  rows = {line.split(" | ")[4]: line for line in table.splitlines()
+          if line.startswith("| cheetah_run") and "| 8 |" in line}
+  assert "| 8 | 200k | 5.00x* |" in rows["sampled Q in bf16"], rows
+  assert "| 8 | 100k | - |" in rows["T 25"], rows
+  assert table.endswith("\\* over P = 1 of another result file (same task, device, "
+                        "environments, updates and learner settings)."), table
 
 
 def test_learner_label_names_what_differs_from_the_paper():
