@@ -19,6 +19,10 @@ chance that a sample leaves [-1, 1]).
 
   python benchmarks/expert_eval.py --tasks hopper_stand --policy runs/hs/policy.npz \
     --episodes 1024 --by_start "position[1]" --bins 8
+
+The split also gives the share of each bin's episodes with any reward (`rewarded`). With
+`--stochastic` the actions are sampled from the policy's Gaussian (clipped, as the learner's
+actors act) instead of its mean: how often the policy's exploration finds reward, and from where.
 """
 
 from __future__ import annotations
@@ -119,6 +123,9 @@ def main(argv=None) -> int:
   parser.add_argument("--by_start", default=None, metavar="NAME",
                       help="split the returns by this dimension of the first observation")
   parser.add_argument("--bins", type=int, default=8, help="bins of --by_start")
+  parser.add_argument("--stochastic", action="store_true",
+                      help="sample the actions from the policy (as its actors act) instead of "
+                      "taking its mean")
   parser.add_argument("--out", default=None, help="default: benchmarks/results/<date>_"
                       "expert_eval_<device>.jsonl")
   args = parser.parse_args(argv)
@@ -145,24 +152,26 @@ def main(argv=None) -> int:
     start = time.perf_counter()
     observations, _, returns = experts.record_demonstrations(
         env, expert, jax.random.PRNGKey(args.seed), args.episodes, args.chunk,
-        print_fn=lambda line: None)
+        stochastic=args.stochastic, print_fn=lambda line: None)
     seconds = time.perf_counter() - start
     numbers = summary(returns, task)
     if dimension is not None:
       loc, scale = policy_at(expert, env.action_size, observations[:, :-1])
       numbers["by_start"] = {"dimension": args.by_start, **returns_by_start(
-          observations[:, 0, dimension], returns, args.bins, **exploration(loc, scale))}
+          observations[:, 0, dimension], returns, args.bins, **exploration(loc, scale),
+          rewarded=(returns > 0).astype(np.float64))}
     writer.write(kind="expert_eval", task=task, physics=env.physics,
                  policy_file=args.policy or os.path.basename(path),
                  policy_sha256=expert.metadata["sha256"],
                  policy_env_steps=expert.metadata.get("env_steps"),
-                 export_return=expert.metadata.get("eval_return"), stochastic=False,
+                 export_return=expert.metadata.get("eval_return"), stochastic=args.stochastic,
                  seed=args.seed, seconds=seconds, **numbers)
     paper = numbers["paper_expert_return"]
     bar = ("" if paper is None else f"; {paper_lib.EXPERT_BAR}x paper "
            f"{paper_lib.EXPERT_BAR * paper:.1f}: "
            f"{'reached' if numbers['reaches_bar'] else 'NOT reached'}")
-    print(f"{task}: {numbers['mean_return']:.1f} +- {numbers['stderr_return']:.1f} (s.e.) over "
+    print(f"{task}{' (sampled actions)' if args.stochastic else ''}: "
+          f"{numbers['mean_return']:.1f} +- {numbers['stderr_return']:.1f} (s.e.) over "
           f"{numbers['episodes']} episodes, min {numbers['min_return']:.1f} (at export "
           f"{expert.metadata.get('eval_return', float('nan')):.1f}{bar}) [{seconds:.0f}s]",
           flush=True)
@@ -172,7 +181,8 @@ def main(argv=None) -> int:
         low, high = split["edges"][i], split["edges"][i + 1]
         extra = ("" if mean is None else f", policy scale {split['policy_scale'][i]:.3f}, "
                  f"{split['beyond_bounds'][i]:.0%} of actions beyond the bounds by 2 scales, "
-                 f"{split['clipped'][i]:.0%} of samples clipped")
+                 f"{split['clipped'][i]:.0%} of samples clipped, "
+                 f"{split['rewarded'][i]:.0%} of episodes rewarded")
         print(f"  {args.by_start} in [{low:.3f}, {high:.3f}]: {count} episodes, mean return "
               f"{'-' if mean is None else f'{mean:.1f}'}{extra}", flush=True)
   print(f"results appended to {out}")

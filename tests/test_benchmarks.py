@@ -203,3 +203,34 @@ def test_expert_eval_measures_exploration_along_episodes():
   assert loc.shape == scale.shape == (5, 3, env.action_size)
   np.testing.assert_allclose(loc, direct.mean, rtol=1e-5, atol=1e-6)
   np.testing.assert_allclose(scale, direct.scale, rtol=1e-5, atol=1e-6)
+
+
+def test_expert_eval_samples_actions_when_stochastic_and_counts_rewarded_episodes(
+    tmp_path, monkeypatch):
+  """--stochastic reaches the rollout and the record (default: the mean action); the split's
+  `rewarded` is each bin's share of episodes with a positive return, against numpy."""
+  bench = load_script("expert_eval", folder="benchmarks")
+  import tasks
+  env = tasks.make("reacher_easy")
+  rng = np.random.default_rng(0)
+  obs = rng.normal(size=(6, 4, env.observation_size)).astype(np.float32)  # [K, T+1, D]
+  returns = np.array([0.0, 3.0, 0.0, 0.0, 5.0, 1.0])
+  calls = []
+
+  def fake_record(env, expert, key, episodes, chunk, stochastic=False, print_fn=print):
+    calls.append(stochastic)
+    return obs, np.zeros((6, 3, env.action_size), np.float32), returns
+
+  monkeypatch.setattr(bench.experts, "record_demonstrations", fake_record)
+  for flag in ([], ["--stochastic"]):
+    out = tmp_path / f"eval{len(flag)}.jsonl"
+    args = ["--tasks", "reacher_easy", "--episodes", "6", "--by_start", "position[0]",
+            "--bins", "2", "--out", str(out), *flag]
+    assert bench.main(args) == 0
+    record, = [json.loads(line) for line in open(out)]
+    assert record["stochastic"] is bool(flag) and calls[-1] is bool(flag)
+    split = record["by_start"]
+    first = obs[:, 0, 0]
+    low = first < (first.min() + first.max()) / 2
+    assert split["rewarded"] == pytest.approx([(returns[low] > 0).mean(),
+                                               (returns[~low] > 0).mean()])
