@@ -277,6 +277,9 @@ def _learner_notes(record: dict, with_period: bool = True) -> list[str]:
   head = record.get("settings", {}).get("policy_head", "paper")
   if head != "paper":
     notes.append(f"{head} policy head")
+  correlation = record.get("settings", {}).get("action_noise_correlation", 0.0)
+  if correlation:
+    notes.append(f"actor noise correlated {correlation:g}")
   return notes
 
 

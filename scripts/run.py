@@ -148,6 +148,11 @@ def parse_args(argv=None) -> argparse.Namespace:
                      help="the policy's Gaussian: paper (mean unbounded, scale softplus + "
                           "1e-4; the default) or acme (Acme's control-suite MPO head: tanh "
                           "mean, scale >= 0.3)")
+  train.add_argument("--action_noise_correlation", type=float,
+                     default=defaults.action_noise_correlation, metavar="C",
+                     help="the actors' noise correlated in time: e_t = C e_(t-1) + sqrt(1 - C^2) "
+                          "xi_t, action = mean + scale e_t (default 0: independent draws each "
+                          "step, the paper's; each action's marginal is the policy either way)")
   train.add_argument("--num_action_samples", type=int,
                      default=defaults.learner.num_action_samples)
   train.add_argument("--target_update_period", type=int, default=None,
@@ -284,6 +289,7 @@ def train_config(args: argparse.Namespace) -> TrainConfig:
                      replay_capacity=args.replay_capacity,
                      updates_per_iteration=args.updates_per_iteration,
                      network_width=args.network_width, policy_head=args.policy_head,
+                     action_noise_correlation=args.action_noise_correlation,
                      eval_envs=args.eval_envs, seed=seed,
                      stagger_episodes=not args.lockstep_episodes, learner=learner)
 

@@ -300,6 +300,15 @@ def test_policy_head_flag_reaches_the_config():
   assert head("--method", "form", "--policy_head", "acme") == "acme"
 
 
+def test_action_noise_correlation_flag_reaches_the_config():
+  """--action_noise_correlation sets the actors' noise correlation for either method; 0 without."""
+  cli = load_script("run")
+  c = lambda *argv: cli.train_config(cli.parse_args(list(argv))).action_noise_correlation
+  assert c() == 0.0 and c("--method", "expert") == 0.0
+  assert c("--method", "expert", "--action_noise_correlation", "0.9") == 0.9
+  assert c("--method", "form", "--action_noise_correlation", "0.5") == 0.5
+
+
 def _readme_args(run_dir, *extra):
   """The README's main command, shortened to one iteration, in `run_dir`."""
   argv = run_commands()[0]

@@ -263,6 +263,10 @@ def test_learner_label_names_what_differs_from_the_paper():
                                                             "sampled_q_bfloat16": True}}}
   assert report._learner_label(record) == "T 25, sampled Q in bf16, acme policy head"
   assert report._learner_label({"settings": {"policy_head": "paper", "learner": {}}}) == "-"
+  record = {"settings": {"action_noise_correlation": 0.9, "learner": {}}}
+  assert report._learner_label(record) == "actor noise correlated 0.9"
+  record = {"settings": {"action_noise_correlation": 0.0, "learner": {}}}
+  assert report._learner_label(record) == "-"
 
 
 def test_scaling_table_gives_the_efficiency_against_one_device():

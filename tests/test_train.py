@@ -237,6 +237,8 @@ def test_settings_added_since_older_checkpoints_default_to_what_ran_before():
     (dict(learner=LearnerConfig(target_update_period=0)), "target_update_period must be a pos"),
     (dict(learner=LearnerConfig(num_action_samples=0)), "num_action_samples must be a positive"),
     (dict(policy_head="tanh"), "unknown policy head 'tanh'"),
+    (dict(action_noise_correlation=1.0), "action_noise_correlation must be in \\[0, 1\\)"),
+    (dict(action_noise_correlation=-0.1), "action_noise_correlation must be in"),
 ])
 def test_bad_settings_are_refused(change, message):
   with pytest.raises(ValueError, match=message):
@@ -459,3 +461,53 @@ def test_progress_line_shows_the_form_reward_and_its_clipped_share():
   assert "form reward -2.50 (sd 4.00, 25.0% clipped; log pD 3.0, log pI 5.5)" in line, line
   line = runner._progress_line({**row, "form_reward_clipped": 0.0}, 20, 100)
   assert "form reward -2.50 (sd 4.00; log pD 3.0" in line and "clipped" not in line, line
+
+
+def test_correlated_noise_is_a_unit_variance_ar1_restarted_by_nan():
+  """`correlated_noise` iterated over many chains against the AR(1)'s own formulas (numpy):
+  stationary variance 1 and lag-k correlation c^k from a fresh start; NaN restarts with xi."""
+  from mjx_form.rl.train import correlated_noise
+  c, chains, steps = 0.8, 20_000, 12
+  xi = np.random.default_rng(0).standard_normal((steps, chains)).astype(np.float32)
+  e = np.full((chains,), np.nan, np.float32)
+  path = []
+  for t in range(steps):
+    e = np.asarray(correlated_noise(e, xi[t], c))
+    path.append(e)
+  path = np.stack(path)
+  np.testing.assert_array_equal(path[0], xi[0])  # a fresh start takes the draw itself
+  np.testing.assert_allclose(path.var(axis=1), 1.0, atol=0.04)  # stationary from the start
+  for lag in (1, 3):
+    corr = np.corrcoef(path[5], path[5 + lag])[0, 1]
+    assert abs(corr - c ** lag) < 0.02, (lag, corr)
+  assert abs(np.corrcoef(path[5], path[6])[0, 1]) > 0.7  # and c = 0 would give ~0:
+  independent = np.asarray(correlated_noise(path[5], xi[6], 0.0))
+  np.testing.assert_array_equal(independent, xi[6])
+
+
+def test_actors_noise_is_correlated_within_episodes_and_fresh_after_an_end():
+  """With action_noise_correlation the collected actions' noise (action - mean) / scale, from
+  the policy at the stored observations, follows the AR(1) within an episode and starts afresh
+  the step after an episode ends; with 0 the state holds no noise (nothing new in checkpoints)."""
+  config = dataclasses.replace(CONFIG, num_envs=64, replay_capacity=64, unroll_length=20,
+                               action_noise_correlation=0.999, stagger_episodes=False)
+  trainer = Trainer(config, mesh_lib.make_mesh(jax.devices()[:1]))
+  state = trainer.init(jax.random.PRNGKey(0)[None])
+  assert state.noise.shape == (64, 2) and np.isnan(np.asarray(state.noise)).all()
+  ends = np.arange(64) % 2 == 0  # half the envs end their episode after their 5th step
+  state = state._replace(env=state.env.replace(info=dict(
+      state.env.info, step=np.where(ends, 995, 0).astype(np.int32))))
+  env, _, noise, unrolls, _ = jax.jit(trainer._collect)(state, jax.random.PRNGKey(1)[None])
+  obs = np.asarray(unrolls["observation"])[0, :, :-1]  # [N, T, D]
+  pi = trainer._policies(state.learner.policy, state.normalizer, obs.reshape(-1, obs.shape[-1]))
+  e = ((np.asarray(unrolls["action"])[0] - np.asarray(pi.mean).reshape(obs.shape[:2] + (2,)))
+       / np.asarray(pi.scale).reshape(obs.shape[:2] + (2,)))  # [N, T, A]
+  np.testing.assert_allclose(np.asarray(noise), e[:, -1], atol=1e-4)  # the state's noise
+  jumps = np.abs(np.diff(e, axis=1))  # [N, T-1, A]: step t to t+1
+  within = np.ones(jumps.shape[:2], bool)
+  within[ends, 4] = False  # the ending envs' 6th step starts a new episode
+  assert jumps[within].max() < 0.25, jumps[within].max()  # sqrt(1 - 0.999^2) = 0.045 per step
+  assert np.median(jumps[~within]) > 0.3, jumps[~within]  # fresh draws: |N(0, 2)|, median 0.95
+  assert (np.asarray(env.info["step"])[ends] == 15).all()
+  plain = Trainer(CONFIG, mesh_lib.make_mesh(jax.devices()[:1]))
+  assert plain.init(jax.random.PRNGKey(0)[None]).noise.shape == (CONFIG.num_envs, 0)

@@ -3,8 +3,9 @@ a member's own values reach the one compiled program.
 
 Members share everything that fixes the program's shapes and structure: the task, every size
 (environments, unrolls, batches, replay, networks, action samples), the policy head, the
-reward source and its models (FORM's effect-model settings too: the demonstrator is trained
-offline with them, one file for the population). The settings below are numbers inside the
+actors' noise correlation (its state's shape depends on it), the reward source and its models
+(FORM's effect-model settings too: the demonstrator is trained offline with them, one file for
+the population). The settings below are numbers inside the
 learner update or the reward source's step, so each member may have its own: they travel as
 [P] arrays, and inside the vmapped update each member's config holds its value where a single
 run's holds a constant (`learner_config`), so a member computes what a single run with its

@@ -46,7 +46,7 @@ RESUMABLE = ("total_env_steps", "log_every", "eval_every", "checkpoint_every")
 # before them: a checkpoint whose config lacks one resumes only with that value.
 ADDED_SETTINGS = {"learner.mpo.action_penalty": False, "learner.mpo.epsilon_penalty": 1e-3,
                   "learner.clip_critic_actions": False, "learner.sampled_q_bfloat16": False,
-                  "policy_head": "paper"}
+                  "policy_head": "paper", "action_noise_correlation": 0.0}
 
 
 # Columns that not every row has (evaluation rows; devices that report memory).

@@ -66,6 +66,10 @@ class TrainConfig:
   updates_per_iteration: int = 8  # learner updates per collected unroll of every env
   network_width: int = 256
   policy_head: str = "paper"  # the policy's Gaussian head (networks.POLICY_HEADS)
+  # c of the actors' noise e_t = c e_{t-1} + sqrt(1 - c^2) xi_t (action = mean + scale e_t): 0
+  # draws it afresh every step (the paper's); 0 < c < 1 correlates it in time, each action's
+  # marginal still the policy's Gaussian.
+  action_noise_correlation: float = 0.0
   normalizer_decay: float = 0.99  # observation EMA decay per iteration
   eval_envs: int = 16
   seed: int = 0
@@ -99,6 +103,9 @@ class TrainConfig:
                        "observation is kept only where an unroll ends")
     if not 0.0 <= self.normalizer_decay < 1.0:
       raise ValueError(f"normalizer_decay must be in [0, 1), got {self.normalizer_decay}")
+    if not 0.0 <= self.action_noise_correlation < 1.0:
+      raise ValueError("action_noise_correlation must be in [0, 1), got "
+                       f"{self.action_noise_correlation}")
 
   def to_dict(self) -> dict:
     return dataclasses.asdict(self)
@@ -129,6 +136,9 @@ class TrainState(NamedTuple):
   episode_return: jax.Array  # [P * N] task return of each env's running episode (for logging);
                              # NaN while an env runs its shortened (staggered) first episode
   source: Any  # the reward source's state, [P, ...]
+  # [P * N, A]: each env's actor noise of its last step (`action_noise_correlation`), NaN where
+  # the next step starts afresh (a new episode); [P * N, 0] with independent noise.
+  noise: jax.Array
   key: jax.Array  # [P, 2]
   iteration: jax.Array  # int32 []: the members take their iterations together
   # Each member's own value of the settings members override (mjx_form.rl.grid), [P] each;
@@ -283,7 +293,7 @@ class Trainer:
         replay=replay.ReplayState(storage, jnp.zeros((), jnp.int32), jnp.zeros((), jnp.int32)),
         env=None, episode_return=None,
         source=self.source.init(source_key, self.env.observation_size, self.env.action_size),
-        key=key, iteration=None, settings=None)
+        noise=None, key=key, iteration=None, settings=None)
     return state, jax.random.split(env_key, cfg.num_envs), start
 
   def _init(self, keys: jax.Array) -> TrainState:
@@ -298,7 +308,10 @@ class Trainer:
       # Partial episodes are not reported. (float32, not weak-typed: a weak-typed leaf here
       # would differ from the iteration's output and make its second call compile again.)
       episode_return = jnp.where(start > 0, jnp.nan, 0.0).astype(jnp.float32)
+    width = self.env.action_size if self.config.action_noise_correlation else 0
+    noise = jnp.full((start.shape[0], width), jnp.nan, jnp.float32)
     return members._replace(
+        noise=jax.lax.with_sharding_constraint(noise, self._batch),
         replay=members.replay._replace(
             data=jax.lax.with_sharding_constraint(members.replay.data, self._member_batch)),
         env=jax.lax.with_sharding_constraint(env_state, self._batch),
@@ -315,7 +328,7 @@ class Trainer:
                                                abstract.replay.data),
                                   self._replicated, self._replicated),
         env=bat(abstract.env), episode_return=self._batch, source=rep(abstract.source),
-        key=self._replicated, iteration=self._replicated, settings=rep(abstract.settings))
+        noise=self._batch, key=self._replicated, iteration=self._replicated, settings=rep(abstract.settings))
 
   # --- one iteration ----------------------------------------------------------------------
 
@@ -328,28 +341,36 @@ class Trainer:
 
   def _collect(self, state: TrainState, keys: jax.Array):
     """`unroll_length` steps of every env with its member's online policy; keys [P, 2].
-    Returns (env, returns, unrolls [P, N, ...], stats [P])."""
+    Returns (env, returns, noise, unrolls [P, N, ...], stats [P])."""
     p, t = self.members, self.config.unroll_length
+    c = self.config.action_noise_correlation
 
     def step(carry, key):  # key [P, 2]
-      env_state, running = carry
+      env_state, running, noise = carry
       pi = self._policies(state.learner.policy, state.normalizer, env_state.obs)
-      action = jax.vmap(lambda pi, k: pi.sample(k))(pi, key)  # [P, N, A]
+      if c:  # the same draws as `sample`'s, correlated with the env's last step's noise
+        xi = jax.vmap(lambda pi, k: jax.random.normal(k, pi.mean.shape, pi.mean.dtype))(pi, key)
+        noise = correlated_noise(noise, xi.reshape(noise.shape), c)  # [P * N, A]
+        action = pi.mean + pi.scale * noise.reshape(pi.mean.shape)
+      else:
+        action = jax.vmap(lambda pi, k: pi.sample(k))(pi, key)  # [P, N, A]
+      # The behaviour density Retrace needs: the policy's Gaussian, each action's marginal.
       log_prob = pi.log_prob(action).reshape(-1)  # [P * N]
       action = action.reshape((-1, action.shape[-1]))  # [P * N, A]
       stepped = self.auto_reset.step(env_state, action)
       running = running + stepped.reward
       done = stepped.done > 0
+      noise = jnp.where(done[:, None], jnp.nan, noise)  # a new episode's noise starts afresh
       whole = done & jnp.isfinite(running)  # a whole episode ended (not a staggered first one)
       out = {"observation": env_state.obs, "action": action, "behaviour_log_prob": log_prob,
              "reward": stepped.reward, "done": done, "whole": whole,
              "error": stepped.info["physics_error"] > 0,
              "finished_return": jnp.where(whole, running, 0.0)}
-      return (stepped, jnp.where(done, 0.0, running)), out
+      return (stepped, jnp.where(done, 0.0, running), noise), out
 
     step_keys = jnp.swapaxes(jax.vmap(lambda k: jax.random.split(k, t))(keys), 0, 1)  # [T, P, 2]
-    (env_state, running), traj = jax.lax.scan(step, (state.env, state.episode_return),
-                                              step_keys)
+    (env_state, running, noise), traj = jax.lax.scan(
+        step, (state.env, state.episode_return, state.noise), step_keys)
     # traj leaves are time-major [T, P * N, ...]. The last observation is the true successor of
     # the last step: the ended episode's final observation where an episode ended there.
     observation = jnp.concatenate([traj["observation"], env_state.info["final_obs"][None]])
@@ -371,7 +392,7 @@ class Trainer:
                                        / jnp.maximum(whole, 1), jnp.nan),
              "train_reward": jnp.mean(traj["reward"], axis=(0, 2)),
              "physics_errors": total(traj["error"])}
-    return env_state, running, unrolls, stats
+    return env_state, running, noise, unrolls, stats
 
   def _learn(self, learner, source, norm, buffer, settings: dict, keys: jax.Array):
     """One learner update of every member; keys [P, 2]. Returns (learner, source, metrics)."""
@@ -398,7 +419,7 @@ class Trainer:
     cfg = self.config
     key, collect_key, learn_key = jnp.moveaxis(
         jax.vmap(lambda k: jax.random.split(k, 3))(state.key), 1, 0)  # [3, P, 2]
-    env_state, running, unrolls, stats = self._collect(state, collect_key)
+    env_state, running, noise, unrolls, stats = self._collect(state, collect_key)
     norm = jax.vmap(lambda n, obs: normalizer.update(n, obs, cfg.normalizer_decay))(
         state.normalizer, unrolls["observation"][:, :, :-1])
     buffer = jax.vmap(replay.insert)(state.replay, unrolls)
@@ -412,7 +433,7 @@ class Trainer:
                                               jnp.swapaxes(learn_keys, 0, 1))  # [U, P, 2]
     metrics = {**jax.tree.map(lambda m: jnp.mean(m, axis=0), metrics), **stats}
     state = TrainState(learner=learner, normalizer=norm, replay=buffer, env=env_state,
-                       episode_return=running, source=source, key=key,
+                       episode_return=running, source=source, noise=noise, key=key,
                        iteration=state.iteration + 1, settings=state.settings)
     return state, metrics
 
@@ -436,6 +457,13 @@ class Trainer:
     (_, total), _ = jax.lax.scan(step, (states, jnp.zeros(reset_keys.shape[:1])), None,
                                  length=env_lib.EPISODE_LENGTH)
     return total.reshape((self.members, n))
+
+
+def correlated_noise(last: jax.Array, xi: jax.Array, c: float) -> jax.Array:
+  """The actors' noise of this step from the last step's `last` and fresh standard normal draws
+  `xi` (same shape): c last + sqrt(1 - c^2) xi, a stationary AR(1) with unit variance; xi
+  itself where `last` is NaN (an episode's first step)."""
+  return jnp.where(jnp.isnan(last), xi, c * last + jnp.sqrt(1.0 - c * c) * xi)
 
 
 def program_bytes(compiled) -> int | None:
