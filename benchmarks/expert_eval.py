@@ -22,7 +22,8 @@ chance that a sample leaves [-1, 1]).
 
 The split also gives the share of each bin's episodes with any reward (`rewarded`). With
 `--stochastic` the actions are sampled from the policy's Gaussian (clipped, as the learner's
-actors act) instead of its mean: how often the policy's exploration finds reward, and from where.
+actors act) instead of its mean: how often the policy's exploration finds reward, and from where;
+`--action_noise_correlation C` samples them as a run with that setting does.
 """
 
 from __future__ import annotations
@@ -126,12 +127,19 @@ def main(argv=None) -> int:
   parser.add_argument("--stochastic", action="store_true",
                       help="sample the actions from the policy (as its actors act) instead of "
                       "taking its mean")
+  parser.add_argument("--action_noise_correlation", type=float, default=0.0, metavar="C",
+                      help="with --stochastic: the noise correlated in time as a training "
+                      "run's actors draw it with this setting (default 0: independent)")
   parser.add_argument("--out", default=None, help="default: benchmarks/results/<date>_"
                       "expert_eval_<device>.jsonl")
   args = parser.parse_args(argv)
   names = common.expert_tasks(parser, args)
   if args.episodes <= 0 or args.chunk <= 0 or args.bins <= 0:
     parser.error("--episodes, --chunk and --bins must be positive")
+  if not 0.0 <= args.action_noise_correlation < 1.0:
+    parser.error("--action_noise_correlation must be in [0, 1)")
+  if args.action_noise_correlation and not args.stochastic:
+    parser.error("--action_noise_correlation needs --stochastic (it is the sampling noise's)")
   out = args.out or common.default_results_path(f"expert_eval_{jax.default_backend()}")
   writer = common.ResultWriter(out)
   for task in names:
@@ -152,7 +160,8 @@ def main(argv=None) -> int:
     start = time.perf_counter()
     observations, _, returns = experts.record_demonstrations(
         env, expert, jax.random.PRNGKey(args.seed), args.episodes, args.chunk,
-        stochastic=args.stochastic, print_fn=lambda line: None)
+        stochastic=args.stochastic, noise_correlation=args.action_noise_correlation,
+        print_fn=lambda line: None)
     seconds = time.perf_counter() - start
     numbers = summary(returns, task)
     if dimension is not None:
@@ -165,6 +174,7 @@ def main(argv=None) -> int:
                  policy_sha256=expert.metadata["sha256"],
                  policy_env_steps=expert.metadata.get("env_steps"),
                  export_return=expert.metadata.get("eval_return"), stochastic=args.stochastic,
+                 action_noise_correlation=args.action_noise_correlation,
                  seed=args.seed, seconds=seconds, **numbers)
     paper = numbers["paper_expert_return"]
     bar = ("" if paper is None else f"; {paper_lib.EXPERT_BAR}x paper "

@@ -217,20 +217,49 @@ def test_expert_eval_samples_actions_when_stochastic_and_counts_rewarded_episode
   returns = np.array([0.0, 3.0, 0.0, 0.0, 5.0, 1.0])
   calls = []
 
-  def fake_record(env, expert, key, episodes, chunk, stochastic=False, print_fn=print):
-    calls.append(stochastic)
+  def fake_record(env, expert, key, episodes, chunk, stochastic=False, print_fn=print,
+                  noise_correlation=0.0):
+    calls.append((stochastic, noise_correlation))
     return obs, np.zeros((6, 3, env.action_size), np.float32), returns
 
   monkeypatch.setattr(bench.experts, "record_demonstrations", fake_record)
-  for flag in ([], ["--stochastic"]):
+  for flag, c in (([], 0.0), (["--stochastic"], 0.0),
+                  (["--stochastic", "--action_noise_correlation", "0.9"], 0.9)):
     out = tmp_path / f"eval{len(flag)}.jsonl"
     args = ["--tasks", "reacher_easy", "--episodes", "6", "--by_start", "position[0]",
             "--bins", "2", "--out", str(out), *flag]
     assert bench.main(args) == 0
     record, = [json.loads(line) for line in open(out)]
-    assert record["stochastic"] is bool(flag) and calls[-1] is bool(flag)
+    assert record["stochastic"] is bool(flag) and calls[-1] == (bool(flag), c)
+    assert record["action_noise_correlation"] == c
     split = record["by_start"]
     first = obs[:, 0, 0]
     low = first < (first.min() + first.max()) / 2
     assert split["rewarded"] == pytest.approx([(returns[low] > 0).mean(),
                                                (returns[~low] > 0).mean()])
+  # A correlation without sampling, or out of [0, 1), is refused before any rollout.
+  for bad in (["--action_noise_correlation", "0.9"],
+              ["--stochastic", "--action_noise_correlation", "1.0"]):
+    with pytest.raises(SystemExit) as exit_info:
+      bench.main(["--tasks", "reacher_easy", "--out", str(tmp_path / "bad.jsonl"), *bad])
+    assert exit_info.value.code == 2 and not (tmp_path / "bad.jsonl").exists()
+  assert len(calls) == 3
+
+
+def test_recorded_actions_follow_the_actors_correlated_noise():
+  """experts.record with noise_correlation samples as a run's actors do: the first step's
+  actions equal independent sampling's (a fresh start takes the draw itself), later ones
+  differ; the correlation without sampling is refused."""
+  import jax
+  import tasks
+  from mjx_form.files import experts
+  env = tasks.make("reacher_easy")
+  expert = experts.load_expert(tasks.bundled_expert("reacher_easy"), env)
+  key = jax.random.PRNGKey(3)
+  _, independent, _ = experts.record(env, expert, key, 2, stochastic=True)
+  _, correlated, _ = experts.record(env, expert, key, 2, stochastic=True, noise_correlation=0.9)
+  np.testing.assert_array_equal(correlated[:, 0], independent[:, 0])
+  assert not np.allclose(correlated[:, 1:], independent[:, 1:])
+  assert np.abs(correlated).max() <= 1.0
+  with pytest.raises(ValueError, match="sampled actions only"):
+    experts.record(env, expert, key, 2, noise_correlation=0.9)

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from mjx_form.rl.distributions import DiagonalGaussian, GaussianMixture, scale_from_raw
+from mjx_form.rl.distributions import (DiagonalGaussian, GaussianMixture, correlated_noise,
+                                       scale_from_raw)
 
 
 def _random_gaussian(rng, shape):
@@ -132,3 +133,24 @@ def test_mixture_samples_follow_its_weights_and_components():
   shares = np.array([np.mean(x[:, 0] < -1.5), np.mean(np.abs(x[:, 0]) < 1.5),
                      np.mean(x[:, 0] > 2.5)])
   np.testing.assert_allclose(shares, w, atol=0.01)
+
+
+def test_correlated_noise_is_a_unit_variance_ar1_restarted_by_nan():
+  """`correlated_noise` iterated over many chains against the AR(1)'s own formulas (numpy):
+  stationary variance 1 and lag-k correlation c^k from a fresh start; NaN restarts with xi."""
+  c, chains, steps = 0.8, 20_000, 12
+  xi = np.random.default_rng(0).standard_normal((steps, chains)).astype(np.float32)
+  e = np.full((chains,), np.nan, np.float32)
+  path = []
+  for t in range(steps):
+    e = np.asarray(correlated_noise(e, xi[t], c))
+    path.append(e)
+  path = np.stack(path)
+  np.testing.assert_array_equal(path[0], xi[0])  # a fresh start takes the draw itself
+  np.testing.assert_allclose(path.var(axis=1), 1.0, atol=0.04)  # stationary from the start
+  for lag in (1, 3):
+    corr = np.corrcoef(path[5], path[5 + lag])[0, 1]
+    assert abs(corr - c ** lag) < 0.02, (lag, corr)
+  assert abs(np.corrcoef(path[5], path[6])[0, 1]) > 0.7  # and c = 0 would give ~0:
+  independent = np.asarray(correlated_noise(path[5], xi[6], 0.0))
+  np.testing.assert_array_equal(independent, xi[6])

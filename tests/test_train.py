@@ -463,28 +463,6 @@ def test_progress_line_shows_the_form_reward_and_its_clipped_share():
   assert "form reward -2.50 (sd 4.00; log pD 3.0" in line and "clipped" not in line, line
 
 
-def test_correlated_noise_is_a_unit_variance_ar1_restarted_by_nan():
-  """`correlated_noise` iterated over many chains against the AR(1)'s own formulas (numpy):
-  stationary variance 1 and lag-k correlation c^k from a fresh start; NaN restarts with xi."""
-  from mjx_form.rl.train import correlated_noise
-  c, chains, steps = 0.8, 20_000, 12
-  xi = np.random.default_rng(0).standard_normal((steps, chains)).astype(np.float32)
-  e = np.full((chains,), np.nan, np.float32)
-  path = []
-  for t in range(steps):
-    e = np.asarray(correlated_noise(e, xi[t], c))
-    path.append(e)
-  path = np.stack(path)
-  np.testing.assert_array_equal(path[0], xi[0])  # a fresh start takes the draw itself
-  np.testing.assert_allclose(path.var(axis=1), 1.0, atol=0.04)  # stationary from the start
-  for lag in (1, 3):
-    corr = np.corrcoef(path[5], path[5 + lag])[0, 1]
-    assert abs(corr - c ** lag) < 0.02, (lag, corr)
-  assert abs(np.corrcoef(path[5], path[6])[0, 1]) > 0.7  # and c = 0 would give ~0:
-  independent = np.asarray(correlated_noise(path[5], xi[6], 0.0))
-  np.testing.assert_array_equal(independent, xi[6])
-
-
 def test_actors_noise_is_correlated_within_episodes_and_fresh_after_an_end():
   """With action_noise_correlation the collected actions' noise (action - mean) / scale, from
   the policy at the stored observations, follows the AR(1) within an episode and starts afresh

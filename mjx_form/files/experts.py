@@ -19,7 +19,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from mjx_form.files import policy_io
-from mjx_form.rl import normalizer
+from mjx_form.rl import distributions, normalizer
 from mjx_form.rl.networks import GaussianPolicy, make_networks
 from mjx_form.sim import env as env_lib
 
@@ -49,20 +49,26 @@ def load_expert(path: str, env: env_lib.Task) -> Expert:
 
 
 def record(env: env_lib.Task, expert: Expert, key: jax.Array, episodes: int,
-           stochastic: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+           stochastic: bool = False, noise_correlation: float = 0.0
+           ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
   """`episodes` full episodes of the expert, in parallel on the device.
 
   Returns observations [K, T+1, D], actions [K, T, A] (clipped to [-1, 1], what the simulator
-  applied) and task returns [K]. Actions are the policy's mean unless `stochastic`.
+  applied) and task returns [K]. Actions are the policy's mean unless `stochastic`, then
+  sampled with noise correlated in time by `noise_correlation` as a training run's actors
+  sample them (`TrainConfig.action_noise_correlation`; 0: independent draws).
   """
+  if noise_correlation and not stochastic:
+    raise ValueError("noise_correlation applies to sampled actions only (stochastic=True)")
   rollout = _rollout_fn(env, policy_network(expert.metadata, env.action_size), episodes,
-                        stochastic)
+                        stochastic, float(noise_correlation))
   obs, actions, returns = jax.device_get(rollout(expert.params, expert.normalizer, key))
   return np.asarray(obs, np.float32), np.asarray(actions, np.float32), np.asarray(returns)
 
 
 @functools.cache
-def _rollout_fn(env: env_lib.Task, policy: GaussianPolicy, episodes: int, stochastic: bool):
+def _rollout_fn(env: env_lib.Task, policy: GaussianPolicy, episodes: int, stochastic: bool,
+                noise_correlation: float = 0.0):
   """The jitted rollout of `record`, built once per task object, policy module and size
   (chunks reuse it)."""
 
@@ -71,14 +77,21 @@ def _rollout_fn(env: env_lib.Task, policy: GaussianPolicy, episodes: int, stocha
     reset_key, action_key = jax.random.split(key)
     states = jax.vmap(env.reset)(jax.random.split(reset_key, episodes))
 
-    def step(states, key):
+    def step(carry, key):
+      states, noise = carry
       pi = policy.apply(params, normalizer.normalize(norm, states.obs))
-      action = jnp.clip(pi.sample(key) if stochastic else pi.mode(), -1.0, 1.0)
-      next_states = jax.vmap(env.step)(states, action)
-      return next_states, (states.obs, action, next_states.reward)
+      if noise_correlation:  # as the actors of a run with this correlation act
+        noise = distributions.correlated_noise(
+            noise, jax.random.normal(key, pi.mean.shape, pi.mean.dtype), noise_correlation)
+        action = pi.mean + pi.scale * noise
+      else:
+        action = pi.sample(key) if stochastic else pi.mode()
+      next_states = jax.vmap(env.step)(states, jnp.clip(action, -1.0, 1.0))
+      return (next_states, noise), (states.obs, jnp.clip(action, -1.0, 1.0), next_states.reward)
 
-    final, (obs, actions, rewards) = jax.lax.scan(
-        step, states, jax.random.split(action_key, env_lib.EPISODE_LENGTH))
+    fresh = jnp.full((episodes, env.action_size), jnp.nan)  # each episode's noise starts afresh
+    (final, _), (obs, actions, rewards) = jax.lax.scan(
+        step, (states, fresh), jax.random.split(action_key, env_lib.EPISODE_LENGTH))
     obs = jnp.concatenate([obs, final.obs[None]])  # [T+1, K, D]
     return jnp.swapaxes(obs, 0, 1), jnp.swapaxes(actions, 0, 1), rewards.sum(axis=0)
 
@@ -87,7 +100,8 @@ def _rollout_fn(env: env_lib.Task, policy: GaussianPolicy, episodes: int, stocha
 
 def record_demonstrations(env: env_lib.Task, expert: Expert, key: jax.Array, episodes: int,
                           chunk: int = 1000, stochastic: bool = False,
-                          print_fn=print) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                          print_fn=print, noise_correlation: float = 0.0
+                          ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
   """`record` in chunks of `chunk` episodes (one compiled rollout, reused), with a progress
   line per chunk: observations [K, T+1, D], actions [K, T, A], returns [K]."""
   if episodes < 1 or chunk < 1:
@@ -96,7 +110,8 @@ def record_demonstrations(env: env_lib.Task, expert: Expert, key: jax.Array, epi
   parts, done, start = [], 0, time.perf_counter()
   while done < episodes:
     key, sub = jax.random.split(key)
-    parts.append(record(env, expert, sub, chunk, stochastic=stochastic))
+    parts.append(record(env, expert, sub, chunk, stochastic=stochastic,
+                        noise_correlation=noise_correlation))
     done += chunk
     returns = np.concatenate([p[2] for p in parts])
     print_fn(f"{min(done, episodes)}/{episodes} expert episodes, mean return "

@@ -1,6 +1,7 @@
 """Distributions as NamedTuples of arrays, so they are pytrees (jit, vmap, stop_gradient and
 tree_map apply to them): the policy's diagonal Gaussian ([..., A]; the last axis is the action)
-and the effect models' mixture of diagonal Gaussians ([..., K, D])."""
+and the effect models' mixture of diagonal Gaussians ([..., K, D]); and the actors' noise
+correlated in time (`correlated_noise`)."""
 
 from __future__ import annotations
 
@@ -84,3 +85,10 @@ class GaussianMixture(NamedTuple):
     pick = lambda a: jnp.take_along_axis(a, k[..., None, None], axis=-2)[..., 0, :]
     mean, scale = pick(self.mean), pick(self.scale)
     return mean + scale * jax.random.normal(normal_key, mean.shape, mean.dtype)
+
+
+def correlated_noise(last: jax.Array, xi: jax.Array, c: float) -> jax.Array:
+  """The actors' noise of this step from the last step's `last` and fresh standard normal draws
+  `xi` (same shape): c last + sqrt(1 - c^2) xi, a stationary AR(1) with unit variance; xi
+  itself where `last` is NaN (an episode's first step)."""
+  return jnp.where(jnp.isnan(last), xi, c * last + jnp.sqrt(1.0 - c * c) * xi)

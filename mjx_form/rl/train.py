@@ -44,7 +44,7 @@ import tasks
 from mjx_form import cpu
 from mjx_form import mesh as mesh_lib
 from mjx_form.rl import learner as learner_lib
-from mjx_form.rl import grid, normalizer, replay
+from mjx_form.rl import distributions, grid, normalizer, replay
 from mjx_form.rl import networks as networks_lib
 from mjx_form.rl.reward_sources import make_reward_source
 from mjx_form.sim import env as env_lib
@@ -350,7 +350,7 @@ class Trainer:
       pi = self._policies(state.learner.policy, state.normalizer, env_state.obs)
       if c:  # the same draws as `sample`'s, correlated with the env's last step's noise
         xi = jax.vmap(lambda pi, k: jax.random.normal(k, pi.mean.shape, pi.mean.dtype))(pi, key)
-        noise = correlated_noise(noise, xi.reshape(noise.shape), c)  # [P * N, A]
+        noise = distributions.correlated_noise(noise, xi.reshape(noise.shape), c)  # [P * N, A]
         action = pi.mean + pi.scale * noise.reshape(pi.mean.shape)
       else:
         action = jax.vmap(lambda pi, k: pi.sample(k))(pi, key)  # [P, N, A]
@@ -457,13 +457,6 @@ class Trainer:
     (_, total), _ = jax.lax.scan(step, (states, jnp.zeros(reset_keys.shape[:1])), None,
                                  length=env_lib.EPISODE_LENGTH)
     return total.reshape((self.members, n))
-
-
-def correlated_noise(last: jax.Array, xi: jax.Array, c: float) -> jax.Array:
-  """The actors' noise of this step from the last step's `last` and fresh standard normal draws
-  `xi` (same shape): c last + sqrt(1 - c^2) xi, a stationary AR(1) with unit variance; xi
-  itself where `last` is NaN (an episode's first step)."""
-  return jnp.where(jnp.isnan(last), xi, c * last + jnp.sqrt(1.0 - c * c) * xi)
 
 
 def program_bytes(compiled) -> int | None:
