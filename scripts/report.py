@@ -266,7 +266,8 @@ def _member(record: dict) -> str:
 def _learner_notes(record: dict, with_period: bool = True) -> list[str]:
   """A run's learner settings that differ from the paper's: e.g. ['T 25', 'critic clips
   actions', 'acme policy head']; [] for the paper's."""
-  learner = record.get("settings", {}).get("learner", {})
+  settings = record.get("settings", {})
+  learner = settings.get("learner", {})
   notes = []
   if with_period and learner.get("target_update_period", 200) != 200:
     notes.append(f"T {learner['target_update_period']}")
@@ -274,10 +275,10 @@ def _learner_notes(record: dict, with_period: bool = True) -> list[str]:
     notes.append("critic clips actions")
   if learner.get("sampled_q_bfloat16"):
     notes.append("sampled Q in bf16")
-  head = record.get("settings", {}).get("policy_head", "paper")
+  head = settings.get("policy_head", "paper")
   if head != "paper":
     notes.append(f"{head} policy head")
-  correlation = record.get("settings", {}).get("action_noise_correlation", 0.0)
+  correlation = settings.get("action_noise_correlation", 0.0)
   if correlation:
     notes.append(f"actor noise correlated {correlation:g}")
   return notes

@@ -154,3 +154,16 @@ def test_correlated_noise_is_a_unit_variance_ar1_restarted_by_nan():
   assert abs(np.corrcoef(path[5], path[6])[0, 1]) > 0.7  # and c = 0 would give ~0:
   independent = np.asarray(correlated_noise(path[5], xi[6], 0.0))
   np.testing.assert_array_equal(independent, xi[6])
+  # The Gaussian's correlated draw: from a fresh start (NaN) and with c = 0 it is `sample`'s
+  # draw; later it is mean + scale * the continued noise.
+  pi = DiagonalGaussian(jnp.array([[0.5, -1.0]]), jnp.array([[2.0, 0.1]]))
+  key, fresh = jax.random.PRNGKey(4), jnp.full((1, 2), jnp.nan)
+  for c in (0.0, 0.8):
+    draw, noise = pi.sample_correlated(key, fresh, c)
+    np.testing.assert_array_equal(draw, pi.sample(key))
+  assert np.isnan(pi.sample_correlated(key, fresh, 0.0)[1]).all()  # c = 0: last unchanged
+  last = jnp.array([[1.0, -2.0]])
+  draw, noise = pi.sample_correlated(key, last, 0.8)
+  expected = 0.8 * last + 0.6 * (pi.sample(key) - pi.mean) / pi.scale
+  np.testing.assert_allclose(noise, expected, rtol=1e-5, atol=1e-6)
+  np.testing.assert_allclose(draw, pi.mean + pi.scale * noise, rtol=1e-6)

@@ -19,7 +19,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from mjx_form.files import policy_io
-from mjx_form.rl import distributions, normalizer
+from mjx_form.rl import normalizer
 from mjx_form.rl.networks import GaussianPolicy, make_networks
 from mjx_form.sim import env as env_lib
 
@@ -80,14 +80,13 @@ def _rollout_fn(env: env_lib.Task, policy: GaussianPolicy, episodes: int, stocha
     def step(carry, key):
       states, noise = carry
       pi = policy.apply(params, normalizer.normalize(norm, states.obs))
-      if noise_correlation:  # as the actors of a run with this correlation act
-        noise = distributions.correlated_noise(
-            noise, jax.random.normal(key, pi.mean.shape, pi.mean.dtype), noise_correlation)
-        action = pi.mean + pi.scale * noise
+      if stochastic:  # as the actors of a run with this noise correlation act
+        action, noise = pi.sample_correlated(key, noise, noise_correlation)
       else:
-        action = pi.sample(key) if stochastic else pi.mode()
-      next_states = jax.vmap(env.step)(states, jnp.clip(action, -1.0, 1.0))
-      return (next_states, noise), (states.obs, jnp.clip(action, -1.0, 1.0), next_states.reward)
+        action = pi.mode()
+      action = jnp.clip(action, -1.0, 1.0)
+      next_states = jax.vmap(env.step)(states, action)
+      return (next_states, noise), (states.obs, action, next_states.reward)
 
     fresh = jnp.full((episodes, env.action_size), jnp.nan)  # each episode's noise starts afresh
     (final, _), (obs, actions, rewards) = jax.lax.scan(

@@ -31,6 +31,17 @@ class DiagonalGaussian(NamedTuple):
     dtype = jnp.result_type(self.mean, self.scale)
     return self.mean + self.scale * jax.random.normal(key, shape, dtype)
 
+  def sample_correlated(self, key: jax.Array, last: jax.Array,
+                        c: float) -> tuple[jax.Array, jax.Array]:
+    """One draw [..., A] whose noise continues `last` [..., A] (`correlated_noise`), and that
+    noise; c = 0 (a Python number): `sample`'s draw, `last` returned unchanged."""
+    if not c:
+      return self.sample(key), last
+    shape = jnp.broadcast_shapes(jnp.shape(self.mean), jnp.shape(self.scale))
+    xi = jax.random.normal(key, shape, jnp.result_type(self.mean, self.scale))  # `sample`'s draw
+    noise = correlated_noise(last, xi, c)
+    return self.mean + self.scale * noise, noise
+
   def log_prob(self, x: jax.Array) -> jax.Array:
     """Log density of `x` [..., A], summed over the action axis: [...]."""
     z = (x - self.mean) / self.scale

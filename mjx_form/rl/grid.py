@@ -5,11 +5,10 @@ Members share everything that fixes the program's shapes and structure: the task
 (environments, unrolls, batches, replay, networks, action samples), the policy head, the
 actors' noise correlation (its state's shape depends on it), the reward source and its models
 (FORM's effect-model settings too: the demonstrator is trained offline with them, one file for
-the population). The settings below are numbers inside the
-learner update or the reward source's step, so each member may have its own: they travel as
-[P] arrays, and inside the vmapped update each member's config holds its value where a single
-run's holds a constant (`learner_config`), so a member computes what a single run with its
-settings computes.
+the population). The settings below are numbers inside the learner update or the reward
+source's step, so each member may have its own: they travel as [P] arrays, and inside the
+vmapped update each member's config holds its value where a single run's holds a constant
+(`learner_config`), so a member computes what a single run with its settings computes.
 
 A member is a seed and its overrides, e.g. (0, {"target_update_period": 25}); a grid
 (`expand`) is every combination of the seeds and the listed values.

@@ -44,7 +44,7 @@ import tasks
 from mjx_form import cpu
 from mjx_form import mesh as mesh_lib
 from mjx_form.rl import learner as learner_lib
-from mjx_form.rl import distributions, grid, normalizer, replay
+from mjx_form.rl import grid, normalizer, replay
 from mjx_form.rl import networks as networks_lib
 from mjx_form.rl.reward_sources import make_reward_source
 from mjx_form.sim import env as env_lib
@@ -328,7 +328,8 @@ class Trainer:
                                                abstract.replay.data),
                                   self._replicated, self._replicated),
         env=bat(abstract.env), episode_return=self._batch, source=rep(abstract.source),
-        noise=self._batch, key=self._replicated, iteration=self._replicated, settings=rep(abstract.settings))
+        noise=self._batch, key=self._replicated, iteration=self._replicated,
+        settings=rep(abstract.settings))
 
   # --- one iteration ----------------------------------------------------------------------
 
@@ -346,14 +347,12 @@ class Trainer:
     c = self.config.action_noise_correlation
 
     def step(carry, key):  # key [P, 2]
-      env_state, running, noise = carry
+      env_state, running, noise = carry  # noise [P * N, A or 0]
       pi = self._policies(state.learner.policy, state.normalizer, env_state.obs)
-      if c:  # the same draws as `sample`'s, correlated with the env's last step's noise
-        xi = jax.vmap(lambda pi, k: jax.random.normal(k, pi.mean.shape, pi.mean.dtype))(pi, key)
-        noise = distributions.correlated_noise(noise, xi.reshape(noise.shape), c)  # [P * N, A]
-        action = pi.mean + pi.scale * noise.reshape(pi.mean.shape)
-      else:
-        action = jax.vmap(lambda pi, k: pi.sample(k))(pi, key)  # [P, N, A]
+      by_member = noise.reshape(pi.mean.shape[:2] + noise.shape[-1:])  # [P, N, A or 0]
+      action, noise = jax.vmap(lambda pi, k, e: pi.sample_correlated(k, e, c))(
+          pi, key, by_member)  # [P, N, A]
+      noise = noise.reshape(noise.shape[0] * noise.shape[1], noise.shape[2])
       # The behaviour density Retrace needs: the policy's Gaussian, each action's marginal.
       log_prob = pi.log_prob(action).reshape(-1)  # [P * N]
       action = action.reshape((-1, action.shape[-1]))  # [P * N, A]
