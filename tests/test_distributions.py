@@ -167,3 +167,10 @@ def test_correlated_noise_is_a_unit_variance_ar1_restarted_by_nan():
   expected = 0.8 * last + 0.6 * (pi.sample(key) - pi.mean) / pi.scale
   np.testing.assert_allclose(noise, expected, rtol=1e-5, atol=1e-6)
   np.testing.assert_allclose(draw, pi.mean + pi.scale * noise, rtol=1e-6)
+  # A population member's c is an array (traced): at 0 it still draws exactly `sample`'s draw,
+  # also after an earlier step's noise, and keeps that draw's noise as its state.
+  zero = jax.jit(lambda last, c: pi.sample_correlated(key, last, c))
+  draw, noise = zero(last, jnp.float32(0.0))
+  np.testing.assert_array_equal(draw, pi.sample(key))
+  np.testing.assert_array_equal(noise, jax.random.normal(key, (1, 2)))  # `sample`'s xi
+  np.testing.assert_allclose(zero(last, jnp.float32(0.8))[1], expected, rtol=1e-5, atol=1e-6)

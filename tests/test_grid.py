@@ -22,8 +22,11 @@ def test_a_grid_is_every_combination_of_seeds_and_values():
       {"target_update_period": 200, "standardise_reward": True})
   assert overrides[4:] == overrides[:4]
   assert grid.expand((3,), {}) == ((3,), ({},))
-  # A member's values split into the learner's and the reward source's.
-  assert grid.split(overrides[1]) == ({"target_update_period": 25}, {"standardise_reward": True})
+  # A member's values split into the learner's, the actors' and the reward source's.
+  assert grid.split(overrides[1]) == ({"target_update_period": 25}, {},
+                                      {"standardise_reward": True})
+  assert grid.split({"action_noise_correlation": 0.9, "reward_clip": 3.0}) == (
+      {}, {"action_noise_correlation": 0.9}, {"reward_clip": 3.0})
 
 
 def test_members_are_named_by_their_seed_and_settings():
@@ -42,6 +45,8 @@ def test_values_are_parsed_as_their_setting_and_checked():
   assert grid.parse_value("clip_critic_actions", "1") is True  # a learner bool
   assert grid.parse_value("clip_critic_actions", "false") is False
   assert grid.parse_value("reward_clip", "3") == 3.0 and grid.parse_value("reward_clip", "0") == 0
+  assert grid.parse_value("action_noise_correlation", "0") == 0.0  # independent: allowed
+  assert grid.parse_value("action_noise_correlation", "0.9") == 0.9
   for name, text, message in (("target_update_period", "2.5", "expected int"),
                               ("target_update_period", "0", "must be positive"),
                               ("discount", "1.5", r"\(0, 1\]"),
@@ -51,6 +56,8 @@ def test_values_are_parsed_as_their_setting_and_checked():
                               ("reward_clip", "-1", "0 \\(off\\) or finite and > 1"),
                               ("reward_clip", "inf", "finite"),
                               ("reward_clip", "1", "collapses"),
+                              ("action_noise_correlation", "1", r"\[0, 1\)"),
+                              ("action_noise_correlation", "-0.5", r"\[0, 1\)"),
                               ("num_envs", "8", "cannot differ")):
     with pytest.raises(ValueError, match=message):
       grid.parse_value(name, text)

@@ -21,14 +21,16 @@ from mjx_form.rl.train import Trainer
 pytestmark = pytest.mark.xdist_group("train")  # the single runs' programs are test_train's
 
 SEEDS = (0, 1)
-# Member 1 has its own learner settings (mjx_form.rl.grid; `--grid NAME=...` gives them): it
-# copies its targets every 2 updates where CONFIG (and member 0) copy every 3, and learns 10x
-# faster.
+# Member 1 has its own learner and actor settings (mjx_form.rl.grid; `--grid NAME=...` gives
+# them): it copies its targets every 2 updates where CONFIG (and member 0) copy every 3, learns
+# 10x faster, and its actors' noise is correlated in time where member 0's is independent (as
+# a single run's at 0, though the population keeps a noise state for both).
 OVERRIDES = ({"target_update_period": CONFIG.learner.target_update_period,
-              "learning_rate": CONFIG.learner.learning_rate},
-             {"target_update_period": 2, "learning_rate": 1e-3})
-MEMBER_CONFIGS = (CONFIG, dataclasses.replace(CONFIG, seed=1, learner=dataclasses.replace(
-    CONFIG.learner, target_update_period=2, learning_rate=1e-3)))
+              "learning_rate": CONFIG.learner.learning_rate, "action_noise_correlation": 0.0},
+             {"target_update_period": 2, "learning_rate": 1e-3, "action_noise_correlation": 0.9})
+MEMBER_CONFIGS = (CONFIG, dataclasses.replace(
+    CONFIG, seed=1, action_noise_correlation=0.9,
+    learner=dataclasses.replace(CONFIG.learner, target_update_period=2, learning_rate=1e-3)))
 
 
 @pytest.fixture(scope="module")
@@ -98,20 +100,22 @@ def test_population_from_the_command_line_writes_each_member(tmp_path, capsys):
   run_dir, curve = tmp_path / "pop", tmp_path / "curve.jsonl"
   # Both seeds with member 1's settings (the fixture's iteration program: the members' values
   # are data, so other values of the same settings compile nothing new).
-  grid = ("--grid", "target_update_period=2", "--grid", "learning_rate=0.001")
+  grid = ("--grid", "target_update_period=2", "--grid", "learning_rate=0.001",
+          "--grid", "action_noise_correlation=0.9")
   args = _cli_args(run_dir, "--seeds", "0,1", *grid, "--env_steps", "80",
                    "--results", str(curve))
   assert cli.train_config(cli.parse_args(args)) == CONFIG
   assert cli.main(args) == 0
   out = capsys.readouterr().out
-  names = [f"seed{s}_learning_rate0.001_target_update_period2" for s in SEEDS]
-  assert ("a population of 2 (seed 0, learning_rate 0.001, target_update_period 2; seed 1, "
-          "learning_rate 0.001, target_update_period 2)") in out
-  assert "seed 1, learning_rate 0.001, target_update_period 2: iter 1/2" in out
-  assert "seed 1, learning_rate 0.001, target_update_period 2: fresh evaluation of the best" in out
+  names = [f"seed{s}_action_noise_correlation0.9_learning_rate0.001_target_update_period2"
+           for s in SEEDS]
+  own = "action_noise_correlation 0.9, learning_rate 0.001, target_update_period 2"
+  assert f"a population of 2 (seed 0, {own}; seed 1, {own})" in out
+  assert f"seed 1, {own}: iter 1/2" in out
+  assert f"seed 1, {own}: fresh evaluation of the best" in out
   stored = json.load(open(run_dir / "config.json"))
   assert stored["seeds"] == [0, 1] and stored["overrides"] == [
-      {"learning_rate": 1e-3, "target_update_period": 2}] * 2
+      {"action_noise_correlation": 0.9, "learning_rate": 1e-3, "target_update_period": 2}] * 2
   assert checkpoint.latest_step(str(run_dir / "checkpoints")) == 2  # one for all members
   records = [json.loads(line) for line in open(curve)]
   for seed, name in zip(SEEDS, names):
@@ -121,11 +125,13 @@ def test_population_from_the_command_line_writes_each_member(tmp_path, capsys):
     _, meta = policy_io.load_policy(member / "policy.npz", task="reacher_easy")
     assert meta["env_steps"] == 80 and meta["train_config"]["seed"] == seed
     assert meta["train_config"]["learner"]["target_update_period"] == 2
+    assert meta["train_config"]["action_noise_correlation"] == 0.9
     assert policy_io.load_policy(member / "best_policy.npz")[1]["train_config"]["seed"] == seed
     mine = [r for r in records if r["seed"] == seed]
     assert [r["kind"] for r in mine] == ["learning_curve", "final_return", "final_return"]
     assert all(r["population"] == 2 and r["settings"]["seed"] == seed
                and r["settings"]["learner"]["learning_rate"] == 1e-3
+               and r["settings"]["action_noise_correlation"] == 0.9
                and r["learner_preset"] == "custom" for r in mine)
   # The members' policies are their own.
   policies = [policy_io.load_policy(run_dir / n / "policy.npz")[1]["sha256"] for n in names]

@@ -34,8 +34,9 @@ class DiagonalGaussian(NamedTuple):
   def sample_correlated(self, key: jax.Array, last: jax.Array,
                         c: float) -> tuple[jax.Array, jax.Array]:
     """One draw [..., A] whose noise continues `last` [..., A] (`correlated_noise`), and that
-    noise; c = 0 (a Python number): `sample`'s draw, `last` returned unchanged."""
-    if not c:
+    noise; c = 0 as a Python number: `sample`'s draw, `last` returned unchanged (as an array, c =
+    0 gives the same draw and returns its noise)."""
+    if isinstance(c, (int, float)) and not c:
       return self.sample(key), last
     shape = jnp.broadcast_shapes(jnp.shape(self.mean), jnp.shape(self.scale))
     xi = jax.random.normal(key, shape, jnp.result_type(self.mean, self.scale))  # `sample`'s draw

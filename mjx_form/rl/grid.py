@@ -3,12 +3,14 @@ a member's own values reach the one compiled program.
 
 Members share everything that fixes the program's shapes and structure: the task, every size
 (environments, unrolls, batches, replay, networks, action samples), the policy head, the
-actors' noise correlation (its state's shape depends on it), the reward source and its models
-(FORM's effect-model settings too: the demonstrator is trained offline with them, one file for
-the population). The settings below are numbers inside the learner update or the reward
-source's step, so each member may have its own: they travel as [P] arrays, and inside the
-vmapped update each member's config holds its value where a single run's holds a constant
-(`learner_config`), so a member computes what a single run with its settings computes.
+reward source and its models (FORM's effect-model settings too: the demonstrator is trained
+offline with them, one file for the population). The settings below are numbers inside the
+learner update, the actors' draw or the reward source's step, so each member may have its own:
+they travel as [P] arrays, and inside the vmapped update (or draw) each member's config holds
+its value where a single run's holds a constant (`learner_config`), so a member computes what a
+single run with its settings computes. (The actors' noise correlation is one: a member at 0
+draws exactly what a single run's independent draw gives, while the population keeps a noise
+state for every member.)
 
 A member is a seed and its overrides, e.g. (0, {"target_update_period": 25}); a grid
 (`expand`) is every combination of the seeds and the listed values.
@@ -35,20 +37,23 @@ LEARNER = {
     "epsilon_scale": (("mpo", "epsilon_scale"), float),
     "clip_critic_actions": (("clip_critic_actions",), bool),
 }
+# name -> type: settings of the actors' draw (TrainConfig fields).
+ACTOR = {"action_noise_correlation": float}
 # name -> type: settings a reward source lists in its `variable_settings` (FORM's
 # standardise_reward and reward_clip); the source's `specialise(values)` gives a member's source.
 SOURCE = {"standardise_reward": bool, "reward_clip": float}
-NAMES = (*LEARNER, *SOURCE)
+NAMES = (*LEARNER, *ACTOR, *SOURCE)
 
 
 def _kind(name: str) -> type:
-  return LEARNER[name][1] if name in LEARNER else SOURCE[name]
+  return LEARNER[name][1] if name in LEARNER else ACTOR.get(name) or SOURCE[name]
 
 
-def split(values: dict) -> tuple[dict, dict]:
-  """(the LEARNER settings of `values`, the reward source's)."""
+def split(values: dict) -> tuple[dict, dict, dict]:
+  """(the LEARNER settings of `values`, the ACTOR ones, the reward source's)."""
   return ({k: v for k, v in values.items() if k in LEARNER},
-          {k: v for k, v in values.items() if k not in LEARNER})
+          {k: v for k, v in values.items() if k in ACTOR},
+          {k: v for k, v in values.items() if k not in LEARNER and k not in ACTOR})
 
 
 def parse_value(name: str, text: str):
@@ -75,6 +80,8 @@ def check_value(name: str, value) -> None:
     raise ValueError(f"discount must be in (0, 1], got {value}")
   if name == "retrace_lambda" and not 0.0 <= value <= 1.0:
     raise ValueError(f"retrace_lambda must be in [0, 1], got {value}")
+  if name == "action_noise_correlation" and not 0.0 <= value < 1.0:
+    raise ValueError(f"action_noise_correlation must be in [0, 1), got {value}")
   if name == "reward_clip" and not (value == 0.0 or 1.0 < value < float("inf")):
     # The running statistics fold in the clipped rewards: at c <= 1 their sd shrinks towards 0
     # batch after batch (FORM's module docstring).

@@ -196,15 +196,18 @@ class Trainer:
                        f"was given {self.source.name!r}")
     variable = tuple(getattr(self.source, "variable_settings", ()))
     for name in names:
-      if name not in grid.LEARNER and name not in variable:
+      if name not in grid.LEARNER and name not in grid.ACTOR and name not in variable:
         raise ValueError(f"{name!r} cannot differ between members of a {self.source.name} "
-                         f"run (it can: {', '.join((*grid.LEARNER, *variable))})")
+                         f"run (it can: {', '.join((*grid.LEARNER, *grid.ACTOR, *variable))})")
     for overrides in self.overrides:
       for name, value in overrides.items():
         grid.check_value(name, value)
     # Each member's value of every setting some member overrides (TrainState.settings).
     self._settings = [{**{n: self._default(n) for n in names}, **o} for o in self.overrides]
     self._setting_names = names
+    # Whether some member's actors correlate their noise (TrainState.noise holds a state then).
+    self._correlated = any(self.member_config(i).action_noise_correlation
+                           for i in range(self.members))
     self._replicated = mesh_lib.replicated(self.mesh)
     abstract = jax.eval_shape(self._init, self.keys(0))
     self.state_sharding = self._shardings(abstract)
@@ -225,17 +228,19 @@ class Trainer:
       for part in grid.LEARNER[name][0]:
         value = getattr(value, part)
       return value
+    if name in grid.ACTOR:
+      return getattr(self.config, name)
     return self.source.settings()[name]
 
   def member_config(self, i: int) -> TrainConfig:
     """Member i's settings (its seed and overrides applied; the source's are `member_source`)."""
-    learner_values, _ = grid.split(self.overrides[i])
-    return dataclasses.replace(self.config, seed=self.seeds[i],
+    learner_values, actor_values, _ = grid.split(self.overrides[i])
+    return dataclasses.replace(self.config, seed=self.seeds[i], **actor_values,
                                learner=grid.learner_config(self.config.learner, learner_values))
 
   def member_source(self, i: int):
     """Member i's reward source (its overrides of the source's settings applied)."""
-    return self._source_with(grid.split(self.overrides[i])[1])
+    return self._source_with(grid.split(self.overrides[i])[2])
 
   def _source_with(self, values: dict):
     """The reward source with `values` (Python, or a member's traced ones) for its settings."""
@@ -308,7 +313,7 @@ class Trainer:
       # Partial episodes are not reported. (float32, not weak-typed: a weak-typed leaf here
       # would differ from the iteration's output and make its second call compile again.)
       episode_return = jnp.where(start > 0, jnp.nan, 0.0).astype(jnp.float32)
-    width = self.env.action_size if self.config.action_noise_correlation else 0
+    width = self.env.action_size if self._correlated else 0
     noise = jnp.full((start.shape[0], width), jnp.nan, jnp.float32)
     return members._replace(
         noise=jax.lax.with_sharding_constraint(noise, self._batch),
@@ -344,14 +349,18 @@ class Trainer:
     """`unroll_length` steps of every env with its member's online policy; keys [P, 2].
     Returns (env, returns, noise, unrolls [P, N, ...], stats [P])."""
     p, t = self.members, self.config.unroll_length
-    c = self.config.action_noise_correlation
+    # Each member's correlation: [P] where members have their own, else the run's constant.
+    c = state.settings.get("action_noise_correlation",
+                           jnp.full((p,), self.config.action_noise_correlation)
+                           if self._correlated else 0.0)
 
     def step(carry, key):  # key [P, 2]
       env_state, running, noise = carry  # noise [P * N, A or 0]
       pi = self._policies(state.learner.policy, state.normalizer, env_state.obs)
       by_member = noise.reshape(pi.mean.shape[:2] + noise.shape[-1:])  # [P, N, A or 0]
-      action, noise = jax.vmap(lambda pi, k, e: pi.sample_correlated(k, e, c))(
-          pi, key, by_member)  # [P, N, A]
+      action, noise = jax.vmap(lambda pi, k, e, c: pi.sample_correlated(k, e, c),
+                               in_axes=(0, 0, 0, 0 if self._correlated else None))(
+          pi, key, by_member, c)  # [P, N, A]
       noise = noise.reshape(noise.shape[0] * noise.shape[1], noise.shape[2])
       # The behaviour density Retrace needs: the policy's Gaussian, each action's marginal.
       log_prob = pi.log_prob(action).reshape(-1)  # [P * N]
@@ -396,7 +405,7 @@ class Trainer:
   def _learn(self, learner, source, norm, buffer, settings: dict, keys: jax.Array):
     """One learner update of every member; keys [P, 2]. Returns (learner, source, metrics)."""
     cfg = self.config
-    learner_values, source_values = grid.split(settings)
+    learner_values, _, source_values = grid.split(settings)
     sample_key, source_key, update_key = jnp.moveaxis(
         jax.vmap(lambda k: jax.random.split(k, 3))(keys), 1, 0)  # [3, P, 2]
     batch = jax.vmap(lambda b, k: replay.sample(b, k, cfg.batch_size))(buffer, sample_key)
