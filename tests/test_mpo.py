@@ -247,6 +247,52 @@ def test_action_penalty_duals_only_when_on():
     mpo.mpo_loss(off, online, target, actions, q_values, mpo.MPOConfig(action_penalty=True))
 
 
+def test_action_penalty_as_a_members_traced_flag():
+  """A population member's flag (a traced bool, grid.py): off gives plain MPO's loss and
+  gradients (to float rounding: the compiled sums differ in order), with the penalty's dual untouched (zero gradient) and its metrics NaN;
+  on gives the Python True's."""
+  target, actions, q_values = _saturated_problem()
+  online = DiagonalGaussian(target.mean + 0.1, target.scale * 1.1)
+  duals = mpo.init_duals(mpo.MPOConfig(action_penalty=True), A)._replace(
+      log_penalty_temperature=jnp.array(-2.0))
+  plain = mpo.MPOConfig()
+  plain_duals = duals._replace(log_penalty_temperature=None)
+
+  @jax.jit
+  def traced(flag):
+    config = mpo.MPOConfig(action_penalty=flag)
+    loss, metrics = mpo.mpo_loss(duals, online, target, actions, q_values, config)
+    return loss, metrics, _grads(duals, online, target, actions, q_values, config)
+
+  @jax.jit
+  def untraced():  # compiled too, so that both sides fuse alike
+    loss, metrics = mpo.mpo_loss(plain_duals, online, target, actions, q_values, plain)
+    return loss, metrics, _grads(plain_duals, online, target, actions, q_values, plain)
+
+  loss, metrics, grads = untraced()
+  loss_off, metrics_off, grads_off = traced(jnp.array(False))
+  np.testing.assert_allclose(loss_off, loss, rtol=1e-6)
+  without_penalty_dual = (grads_off[0]._replace(log_penalty_temperature=None), grads_off[1])
+  for a, b in zip(jax.tree.leaves(without_penalty_dual), jax.tree.leaves(grads[:2]),
+                  strict=True):  # duals, online
+    np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-8)
+  assert float(grads_off[0].log_penalty_temperature) == 0.0
+  assert np.isnan(metrics_off["penalty_temperature"]) and np.isnan(
+      metrics_off["penalty_kl_nonparametric_rel"])
+  np.testing.assert_array_equal(metrics_off["kl_mean"], metrics["kl_mean"])
+  on = mpo.MPOConfig(action_penalty=True)
+  loss_true, metrics_true = mpo.mpo_loss(duals, online, target, actions, q_values, on)
+  grads_true = _grads(duals, online, target, actions, q_values, on)
+  loss_on, metrics_on, grads_on = traced(jnp.array(True))
+  np.testing.assert_allclose(loss_on, loss_true, rtol=1e-6)
+  np.testing.assert_allclose(metrics_on["penalty_temperature"],
+                             metrics_true["penalty_temperature"], rtol=1e-6)
+  for a, b in zip(jax.tree.leaves(grads_on[:2]), jax.tree.leaves(grads_true[:2]), strict=True):
+    np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-7)
+  assert abs(float(grads_on[0].log_penalty_temperature)) > 1e-6  # its dual learns when on
+  assert abs(float(loss_on - loss_off)) > 1e-3  # and the penalty changes the loss
+
+
 def test_action_penalty_pulls_saturated_means_inside_the_bounds():
   target, actions, q_values = _saturated_problem()
   g_mean = {}

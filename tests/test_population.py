@@ -23,14 +23,19 @@ pytestmark = pytest.mark.xdist_group("train")  # the single runs' programs are t
 SEEDS = (0, 1)
 # Member 1 has its own learner and actor settings (mjx_form.rl.grid; `--grid NAME=...` gives
 # them): it copies its targets every 2 updates where CONFIG (and member 0) copy every 3, learns
-# 10x faster, and its actors' noise is correlated in time where member 0's is independent (as
-# a single run's at 0, though the population keeps a noise state for both).
+# 10x faster, penalises actions outside the bounds, and its actors' noise is correlated in time
+# where member 0's is independent (as a single run's at 0, though the population keeps a noise
+# state and the penalty's dual for both).
 OVERRIDES = ({"target_update_period": CONFIG.learner.target_update_period,
-              "learning_rate": CONFIG.learner.learning_rate, "action_noise_correlation": 0.0},
-             {"target_update_period": 2, "learning_rate": 1e-3, "action_noise_correlation": 0.9})
+              "learning_rate": CONFIG.learner.learning_rate, "action_noise_correlation": 0.0,
+              "action_penalty": False},
+             {"target_update_period": 2, "learning_rate": 1e-3, "action_noise_correlation": 0.9,
+              "action_penalty": True})
 MEMBER_CONFIGS = (CONFIG, dataclasses.replace(
     CONFIG, seed=1, action_noise_correlation=0.9,
-    learner=dataclasses.replace(CONFIG.learner, target_update_period=2, learning_rate=1e-3)))
+    learner=dataclasses.replace(
+        CONFIG.learner, target_update_period=2, learning_rate=1e-3,
+        mpo=dataclasses.replace(CONFIG.learner.mpo, action_penalty=True))))
 
 
 @pytest.fixture(scope="module")
@@ -60,11 +65,18 @@ def test_members_are_the_runs_their_seeds_and_settings_give_alone(population):
     state, metrics = run_iterations(single, single.init(key), 3)
     returns = np.asarray(single.evaluate(state.learner.policy, state.normalizer,
                                          jax.random.PRNGKey(seed + 1)[None]))
-    ours = _members_of(population, pop_state, i)
-    theirs = _members_of(single, state, 0)
-    for (path, a), b in zip(jax.tree_util.tree_leaves_with_path(ours), jax.tree.leaves(theirs)):
-      np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=2e-4, atol=2e-5,
+    ours = dict(jax.tree_util.tree_leaves_with_path(_members_of(population, pop_state, i)))
+    theirs = dict(jax.tree_util.tree_leaves_with_path(_members_of(single, state, 0)))
+    for path, b in theirs.items():
+      np.testing.assert_allclose(np.asarray(ours[path]), np.asarray(b), rtol=2e-4, atol=2e-5,
                                  err_msg=f"seed {seed}{jax.tree_util.keystr(path)}")
+    # What the member holds beyond its single run: member 0's penalty dual (and its optimiser's
+    # moments), at their initial values since its flag is off.
+    extra = {jax.tree_util.keystr(p): np.asarray(v) for p, v in ours.items() if p not in theirs}
+    assert i == 1 or (extra and all("log_penalty_temperature" in p for p in extra)), extra
+    for p, v in extra.items():
+      expected = CONFIG.learner.mpo.init_log_temperature if ".duals." in p else 0.0
+      np.testing.assert_array_equal(v, expected, err_msg=p)
     n = CONFIG.num_envs
     np.testing.assert_allclose(pop_state.env.obs[i * n:(i + 1) * n], state.env.obs,
                                rtol=1e-4, atol=1e-5)

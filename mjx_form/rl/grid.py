@@ -10,7 +10,8 @@ they travel as [P] arrays, and inside the vmapped update (or draw) each member's
 its value where a single run's holds a constant (`learner_config`), so a member computes what a
 single run with its settings computes. (The actors' noise correlation is one: a member at 0
 draws exactly what a single run's independent draw gives, while the population keeps a noise
-state for every member.)
+state for every member. The action penalty is another: its dual is in every member's state
+if any member penalises, and stays at its initial value in a member that does not.)
 
 A member is a seed and its overrides, e.g. (0, {"target_update_period": 25}); a grid
 (`expand`) is every combination of the seeds and the listed values.
@@ -36,6 +37,8 @@ LEARNER = {
     "epsilon_mean": (("mpo", "epsilon_mean"), float),
     "epsilon_scale": (("mpo", "epsilon_scale"), float),
     "clip_critic_actions": (("clip_critic_actions",), bool),
+    "action_penalty": (("mpo", "action_penalty"), bool),
+    "epsilon_penalty": (("mpo", "epsilon_penalty"), float),
 }
 # name -> type: settings of the actors' draw (TrainConfig fields).
 ACTOR = {"action_noise_correlation": float}

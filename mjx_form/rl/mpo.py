@@ -57,6 +57,8 @@ class MPOConfig:
   init_log_alpha_mean: float = 1.0
   init_log_alpha_scale: float = 10.0
   action_penalty: bool = False  # the MO-MPO penalty on sampled actions outside [-1, 1]
+  # (a population member's traced bool where members differ: its duals then always hold the
+  # penalty's, `init_duals` with it True)
   epsilon_penalty: float = 1e-3  # its KL bound (Acme's default); its dual starts as eta's
 
 
@@ -129,18 +131,22 @@ def mpo_loss(duals: MPODuals, online: DiagonalGaussian, target: DiagonalGaussian
   ess = 1.0 / jnp.sum(jnp.square(weights), axis=0)  # [S], of the Q weights
   out_of_bounds = sampled_actions - jnp.clip(sampled_actions, -1.0, 1.0)  # [N, S, A]
   penalty_metrics = {}
-  if config.action_penalty:
+  on = config.action_penalty  # a Python bool, or a population member's traced one (grid.py)
+  if not (isinstance(on, bool) and not on):
     if duals.log_penalty_temperature is None:
       raise ValueError("MPOConfig.action_penalty needs duals from init_duals with it on")
     penalty_temperature = dual_value(duals.log_penalty_temperature)
     cost = -jnp.linalg.norm(out_of_bounds, axis=-1)  # [N, S], 0 inside the bounds
     penalty_weights = jax.lax.stop_gradient(e_step_weights(cost, penalty_temperature))
-    loss_temperature += temperature_loss(cost, penalty_temperature, config.epsilon_penalty)
-    weights = weights + penalty_weights  # each sums to 1 over the samples; together to 2
+    # Where a member's flag is off its weights are plain MPO's exactly (w + 0) and so are its
+    # loss and gradients (to rounding); its penalty dual gets a zero gradient and stays put.
+    loss_temperature += jnp.where(
+        on, temperature_loss(cost, penalty_temperature, config.epsilon_penalty), 0.0)
+    weights = weights + jnp.where(on, penalty_weights, 0.0)  # each sums to 1; together to 2
     penalty_metrics = {
-        "penalty_temperature": penalty_temperature,
-        "penalty_kl_nonparametric_rel": (_kl_from_uniform(penalty_weights)
-                                         / config.epsilon_penalty)}
+        "penalty_temperature": jnp.where(on, penalty_temperature, jnp.nan),
+        "penalty_kl_nonparametric_rel": jnp.where(
+            on, _kl_from_uniform(penalty_weights) / config.epsilon_penalty, jnp.nan)}
 
   # M-step: weighted maximum likelihood of the two decoupled distributions.
   fixed_scale = DiagonalGaussian(online.mean, target.scale)  # learns the mean

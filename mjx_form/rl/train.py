@@ -208,6 +208,10 @@ class Trainer:
     # Whether some member's actors correlate their noise (TrainState.noise holds a state then).
     self._correlated = any(self.member_config(i).action_noise_correlation
                            for i in range(self.members))
+    # The learner state's structure: the action penalty's dual is there if any member penalises
+    # (a member whose flag is off leaves it at its initial value).
+    self._init_learner = grid.learner_config(config.learner, {"action_penalty": any(
+        self.member_config(i).learner.mpo.action_penalty for i in range(self.members))})
     self._replicated = mesh_lib.replicated(self.mesh)
     abstract = jax.eval_shape(self._init, self.keys(0))
     self.state_sharding = self._shardings(abstract)
@@ -292,7 +296,7 @@ class Trainer:
       phases = max(1, env_lib.EPISODE_LENGTH // cfg.unroll_length)
       start = cfg.unroll_length * jax.random.randint(stagger_key, (cfg.num_envs,), 0, phases)
     state = TrainState(
-        learner=learner_lib.init(self.networks, cfg.learner, learner_key,
+        learner=learner_lib.init(self.networks, self._init_learner, learner_key,
                                  self.env.observation_size, self.env.action_size),
         normalizer=normalizer.init(self.env.observation_size),
         replay=replay.ReplayState(storage, jnp.zeros((), jnp.int32), jnp.zeros((), jnp.int32)),
