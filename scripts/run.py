@@ -37,7 +37,7 @@ import tasks  # noqa: E402
 from mjx_form import mesh as mesh_lib  # noqa: E402
 from mjx_form.imitation import demonstrator as demonstrator_lib  # noqa: E402
 from mjx_form.imitation import pipeline, settings  # noqa: E402
-from mjx_form.rl import grid, runner  # noqa: E402
+from mjx_form.rl import grid, recipes, runner  # noqa: E402
 from mjx_form.rl.learner import LearnerConfig  # noqa: E402
 from mjx_form.rl.networks import POLICY_HEADS  # noqa: E402
 from mjx_form.rl.train import TrainConfig  # noqa: E402
@@ -48,7 +48,7 @@ from mjx_form.sim.wrappers import AutoReset  # noqa: E402
 METHODS = ("form", "expert", "random")
 # Options that only --method form reads (a user who gives one to another method is told so).
 FORM_ONLY = ("expert", "demos", "demo_episodes", "save_demos", "demonstrator",
-             "train_demonstrator", "beta_ar", "effect_l2", "reward_scale", "reward_clip", "preset")
+             "train_demonstrator", "beta_ar", "effect_l2", "reward_scale", "reward_clip")
 
 DEFAULT_COMPILATION_CACHE = os.path.join(
     os.environ.get("XDG_CACHE_HOME", os.path.expanduser("~/.cache")), "mjx_form", "jax")
@@ -143,16 +143,17 @@ def parse_args(argv=None) -> argparse.Namespace:
                      help="learner updates per iteration (num_envs x unroll_length env steps)")
   train.add_argument("--network_width", type=int, default=defaults.network_width,
                      help="width of every network: policy, critic and effect models")
-  train.add_argument("--policy_head", default=defaults.policy_head,
+  train.add_argument("--policy_head", default=None,
                      choices=list(POLICY_HEADS),
                      help="the policy's Gaussian: paper (mean unbounded, scale softplus + "
-                          "1e-4; the default) or acme (Acme's control-suite MPO head: tanh "
-                          "mean, scale >= 0.3)")
+                          "1e-4; the default, but see --preset for expert) or acme (Acme's "
+                          "control-suite MPO head: tanh mean, scale >= 0.3)")
   train.add_argument("--action_noise_correlation", type=float,
-                     default=defaults.action_noise_correlation, metavar="C",
+                     default=None, metavar="C",
                      help="the actors' noise correlated in time: e_t = C e_(t-1) + sqrt(1 - C^2) "
                           "xi_t, action = mean + scale e_t (default 0: independent draws each "
-                          "step, the paper's; each action's marginal is the policy either way)")
+                          "step, the paper's, but see --preset for expert; each action's "
+                          "marginal is the policy either way)")
   train.add_argument("--num_action_samples", type=int,
                      default=defaults.learner.num_action_samples)
   train.add_argument("--target_update_period", type=int, default=None,
@@ -211,12 +212,15 @@ def parse_args(argv=None) -> argparse.Namespace:
                          "mjx_form/imitation/settings.py)")
   form.add_argument("--effect_l2", type=float, default=None,
                     help="effect models' L2 weight (default: per task)")
-  form.add_argument("--preset", default=None, choices=settings.PRESETS,
-                    help="the imitation run's reward scale, reward clip, target period and "
-                         "sampled-Q precision: default (standardised, clipped at 3 sd, 25, "
-                         "bfloat16: measured, mjx_form/imitation/settings.py) or paper (raw, "
-                         "unclipped, 200, float32); --reward_scale, --reward_clip, "
-                         "--target_update_period and --[no-]sampled_q_bfloat16 win")
+  train.add_argument("--preset", default=None, choices=settings.PRESETS,
+                     help="default: measured settings; paper: the paper's. For form: the "
+                          "reward scale, reward clip, target period and sampled-Q precision "
+                          "(default: standardised, clipped at 3 sd, 25, bfloat16, "
+                          "mjx_form/imitation/settings.py; paper: raw, unclipped, 200, "
+                          "float32). For expert: the policy head, actor noise correlation, "
+                          "target period and sampled-Q precision (default: the task's recipe "
+                          "in mjx_form/rl/recipes.py where it has one, else the paper's: "
+                          "paper head, 0, 200, float32). Single flags win")
   form.add_argument("--standardise_reward", dest="reward_scale", action="store_const",
                     const="standardised", help=argparse.SUPPRESS)  # before --reward_scale
   form.add_argument("--reward_scale", default=None, choices=("standardised", "raw"),
@@ -269,13 +273,14 @@ def parse_args(argv=None) -> argparse.Namespace:
 
 
 def train_config(args: argparse.Namespace) -> TrainConfig:
-  if args.method == "form":  # the preset's learner settings, then the flags
+  """The run's TrainConfig: the method's preset for the task, then the flags."""
+  if args.method == "form":
     chosen = form_run_settings(args)
-    period, bfloat16 = chosen["target_update_period"], chosen["sampled_q_bfloat16"]
-  else:  # the paper's learner unless told otherwise
-    period = (LearnerConfig().target_update_period if args.target_update_period is None
-              else args.target_update_period)
-    bfloat16 = bool(args.sampled_q_bfloat16)
+    for k in ("policy_head", "action_noise_correlation"):  # the paper's unless told otherwise
+      chosen[k] = getattr(TrainConfig(), k) if getattr(args, k) is None else getattr(args, k)
+  else:
+    chosen = expert_run_settings(args)
+  period, bfloat16 = chosen["target_update_period"], chosen["sampled_q_bfloat16"]
   learner = dataclasses.replace(
       LearnerConfig(), num_action_samples=args.num_action_samples,
       target_update_period=period, clip_critic_actions=args.clip_critic_actions,
@@ -288,10 +293,18 @@ def train_config(args: argparse.Namespace) -> TrainConfig:
                      unroll_length=args.unroll_length, batch_size=args.batch_size,
                      replay_capacity=args.replay_capacity,
                      updates_per_iteration=args.updates_per_iteration,
-                     network_width=args.network_width, policy_head=args.policy_head,
-                     action_noise_correlation=args.action_noise_correlation,
+                     network_width=args.network_width, policy_head=chosen["policy_head"],
+                     action_noise_correlation=chosen["action_noise_correlation"],
                      eval_envs=args.eval_envs, seed=seed,
                      stagger_episodes=not args.lockstep_episodes, learner=learner)
+
+
+def expert_run_settings(args: argparse.Namespace) -> dict:
+  """An expert run's policy head, actor noise correlation, target period and sampled-Q
+  precision: --preset's for the task (mjx_form/rl/recipes.py), then the flags."""
+  chosen = recipes.expert_settings(args.task, args.preset or "default")
+  chosen.update({k: getattr(args, k) for k in recipes.KEYS if getattr(args, k) is not None})
+  return chosen
 
 
 def form_run_settings(args: argparse.Namespace) -> dict:
@@ -399,6 +412,9 @@ def main(argv=None) -> int:
     try:
       config = train_config(args)
       config.check(mesh.devices.size)
+      if args.method == "expert" and args.task in recipes.PER_TASK and args.preset != "paper":
+        say(f"{args.task}'s expert recipe (mjx_form/rl/recipes.py; --preset paper: the "
+            "paper's settings): " + ", ".join(f"{k} {v}" for k, v in expert_run_settings(args).items()))
       source = form_source(args, run_dir, results_path, say) if args.method == "form" else None
       rows = runner.run(config, run_dir, args.env_steps, resume=args.resume,
                         log_every=args.log_every, eval_every=args.eval_every,

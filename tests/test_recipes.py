@@ -1,0 +1,56 @@
+"""Expert recipes (mjx_form/rl/recipes.py) and how run.py applies them."""
+
+import pytest
+from conftest import load_script
+
+import tasks
+from mjx_form.rl import recipes
+from mjx_form.rl.learner import LearnerConfig
+from mjx_form.rl.networks import POLICY_HEADS
+from mjx_form.rl.train import TrainConfig
+
+
+def test_paper_preset_is_the_paper_learner_and_actor():
+  paper = recipes.expert_settings("hopper_stand", "paper")
+  assert paper == {"policy_head": "paper", "action_noise_correlation": 0.0,
+                   "target_update_period": 200, "sampled_q_bfloat16": False}
+  assert paper["target_update_period"] == LearnerConfig().target_update_period
+  assert paper["policy_head"] == TrainConfig().policy_head
+
+
+def test_recipes_name_real_tasks_and_valid_settings():
+  for task, recipe in recipes.PER_TASK.items():
+    assert task in tasks.TASKS
+    assert set(recipe) <= set(recipes.KEYS), task
+    assert recipe.get("policy_head", "paper") in POLICY_HEADS
+    assert 0.0 <= recipe.get("action_noise_correlation", 0.0) < 1.0
+    assert recipe.get("target_update_period", 1) >= 1
+
+
+def test_default_preset_is_the_task_recipe_else_the_paper():
+  assert recipes.expert_settings("hopper_stand") == {
+      "policy_head": "acme", "action_noise_correlation": 0.9, "target_update_period": 100,
+      "sampled_q_bfloat16": True}
+  assert recipes.expert_settings("cheetah_run") == recipes.expert_settings("cheetah_run", "paper")
+  with pytest.raises(ValueError, match="unknown preset 'fast'"):
+    recipes.expert_settings("hopper_stand", "fast")
+
+
+def test_run_applies_the_recipe_to_expert_runs_only_and_flags_win():
+  cli = load_script("run")
+  config = lambda *argv: cli.train_config(cli.parse_args(list(argv)))
+  hop = config("--task", "hopper_stand", "--method", "expert")
+  assert (hop.policy_head, hop.action_noise_correlation) == ("acme", 0.9)
+  assert (hop.learner.target_update_period, hop.learner.sampled_q_bfloat16) == (100, True)
+  paper = config("--task", "hopper_stand", "--method", "expert", "--preset", "paper")
+  assert paper.learner == LearnerConfig() and paper.policy_head == "paper"
+  assert paper.action_noise_correlation == 0.0
+  mixed = config("--task", "hopper_stand", "--method", "expert", "--target_update_period", "25",
+                 "--action_noise_correlation", "0", "--no-sampled_q_bfloat16")
+  assert (mixed.learner.target_update_period, mixed.action_noise_correlation) == (25, 0.0)
+  assert mixed.learner.sampled_q_bfloat16 is False and mixed.policy_head == "acme"
+  walker = config("--task", "walker_walk", "--method", "expert")  # no recipe: the paper's
+  assert walker.learner == LearnerConfig() and walker.policy_head == "paper"
+  form = config("--task", "hopper_stand", "--method", "form")  # FORM has its own settings
+  assert (form.policy_head, form.action_noise_correlation) == ("paper", 0.0)
+  assert form.learner.target_update_period == 25
