@@ -299,6 +299,12 @@ def _expert_runs(records: list[dict]) -> dict[tuple, list[dict]]:
   return runs
 
 
+def _eval_episodes(runs: dict[tuple, list[dict]]) -> str:
+  """The runs' evaluation sizes, e.g. '16 or 32'."""
+  sizes = sorted({curve[0]["settings"]["eval_episodes"] for curve in runs.values()})
+  return " or ".join(map(str, sizes))
+
+
 def _fastest_to(curves: list[list[dict]], threshold: float, task: str) -> str:
   """Wall clock (env steps, run) of the fastest of `curves` to a first evaluation at or above
   `threshold`, or "not reached"."""
@@ -326,7 +332,7 @@ def learning_summary(records: list[dict], threshold: float = 800.0) -> str:
     return "No learning results yet."
   lines = [f"Expert runs (`--method expert`) per task; the full table, one row per run with its "
            f"settings, is in `benchmarks/NOTES.md`. Evaluation: mean task return of "
-           f"{next(iter(runs.values()))[0]['settings']['eval_episodes']} episodes with the "
+           f"{_eval_episodes(runs)} episodes (a run's `--eval_envs`) with the "
            f"policy's mean action; wall clock includes start-up (compiling, or loading from "
            f"JAX's persistent compilation cache). Time to expert: the fastest run to a first "
            f"evaluation at or above {paper.EXPERT_BAR}x the paper's expert return:", "",
@@ -366,7 +372,8 @@ def learning_table(records: list[dict], threshold: float = 800.0) -> str:
     return "No learning results yet."
   rows = [r for curve in runs.values() for r in curve]
   lines = [f"Expert runs (MPO + Retrace on the task reward, one seed each). Evaluation: mean "
-           f"task return of {rows[0]['settings']['eval_episodes']} full episodes with the "
+           f"task return of {_eval_episodes(runs)} full episodes (a run's `--eval_envs`) "
+           f"with the "
            f"policy's mean action. Wall clock includes compilation (and each restart's "
            f"compilation where a run was continued with --resume); start-up: its part before the "
            f"first iteration (building, tracing, compiling; `cached`: programs loaded from JAX's "
@@ -465,8 +472,9 @@ def experts_table(records: list[dict] = (), folder: str = EXPERTS) -> str:
   bar = paper.EXPERT_BAR
   lines = ["Expert policies shipped in `tasks/experts/` (`scripts/make_demos.py --task <name>` "
            "records demonstrations from them), policy mean action. At export: the best of the "
-           "run's 32-episode evaluations (biased upwards); fresh: a later evaluation of the "
-           "file over the most episodes measured (`benchmarks/expert_eval.py`, `kind: "
+           "run's periodic evaluations (16-32 episodes; biased upwards); fresh: a later "
+           "evaluation of the file over the most episodes measured "
+           "(`benchmarks/expert_eval.py`, `kind: "
            "expert_eval`), mean +- standard error; dm_control: the same policy in dm_control's "
            "own environment against as many MJX episodes on the CPU "
            f"(`benchmarks/dm_control_transfer.py`), and their ratio; bar: {bar}x the paper's "

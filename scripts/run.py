@@ -126,8 +126,8 @@ def parse_args(argv=None) -> argparse.Namespace:
                            "the same settings loads its programs instead of compiling them "
                            "(cheetah_run expert on an H200: start-up 28 s instead of 74 s); "
                            "'' turns it off; JAX_COMPILATION_CACHE_DIR, where set, wins")
-  train = parser.add_argument_group("training (--method form and expert; defaults are the "
-                                    "paper's)")
+  train = parser.add_argument_group("training (--method form and expert; the learner's "
+                                    "defaults: see --preset)")
   defaults = TrainConfig()
   train.add_argument("--run_dir", help="where logs, checkpoints and policy.npz go "
                      "(default runs/<task>_<method>_seed<seed>)")
@@ -158,8 +158,8 @@ def parse_args(argv=None) -> argparse.Namespace:
                      default=defaults.learner.num_action_samples)
   train.add_argument("--target_update_period", type=int, default=None,
                      help="learner updates between copies of the online networks to the "
-                          f"targets (default: {defaults.learner.target_update_period}, the "
-                          "paper's, for expert; for form see --preset)")
+                          "targets (default: see --preset; the paper's is "
+                          f"{defaults.learner.target_update_period})")
   train.add_argument("--action_penalty", action="store_true",
                      help="MPO's penalty on sampled actions outside [-1, 1] (multi-objective "
                           "MPO, epsilon 1e-3; on by default in Acme, not stated in the paper): "
@@ -172,8 +172,7 @@ def parse_args(argv=None) -> argparse.Namespace:
                      default=None,
                      help="the target critic's Q of the sampled actions in bfloat16 (half of an "
                           "update's time on a GPU is that Q; learning measured unchanged) or "
-                          "float32 (default: bfloat16 for form, see --preset; float32, the "
-                          "paper's, for expert)")
+                          "float32, the paper's (default: see --preset)")
   train.add_argument("--eval_envs", type=int, default=defaults.eval_envs)
   train.add_argument("--lockstep_episodes", action="store_true",
                      help="start every environment's first episode together (as runs before "
@@ -249,8 +248,8 @@ def parse_args(argv=None) -> argparse.Namespace:
     return args
   if args.log_every is None:
     args.log_every = 50 if args.method == "random" else 1
-  if args.method == "random" and (args.seeds or args.grid):
-    parser.error("--seeds and --grid apply to --method form and expert")
+  if args.method == "random" and (args.seeds or args.grid or args.preset):
+    parser.error("--seeds, --grid and --preset apply to --method form and expert")
   args.grid = _grid(parser, args.grid, args.method)
   if args.method != "form":
     given = [f"--{name}" for name in FORM_ONLY if getattr(args, name) not in (None, False)]
@@ -305,6 +304,17 @@ def expert_run_settings(args: argparse.Namespace) -> dict:
   chosen = recipes.expert_settings(args.task, args.preset or "default")
   chosen.update({k: getattr(args, k) for k in recipes.KEYS if getattr(args, k) is not None})
   return chosen
+
+
+def recipe_line(args: argparse.Namespace) -> str:
+  """What an expert run prints when its task's recipe applies: the recipe, and the flags that
+  override it."""
+  recipe = recipes.PER_TASK[args.task]
+  flags = [f"--{k}" for k in recipes.KEYS if getattr(args, k) is not None]
+  return (f"{args.task}'s expert recipe (mjx_form/rl/recipes.py): "
+          + ", ".join(f"{k} {v}" for k, v in recipe.items())
+          + (f"; overridden by {', '.join(flags)}" if flags else "")
+          + "; --preset paper for the paper's settings")
 
 
 def form_run_settings(args: argparse.Namespace) -> dict:
@@ -413,8 +423,7 @@ def main(argv=None) -> int:
       config = train_config(args)
       config.check(mesh.devices.size)
       if args.method == "expert" and args.task in recipes.PER_TASK and args.preset != "paper":
-        say(f"{args.task}'s expert recipe (mjx_form/rl/recipes.py; --preset paper: the "
-            "paper's settings): " + ", ".join(f"{k} {v}" for k, v in expert_run_settings(args).items()))
+        say(recipe_line(args))
       source = form_source(args, run_dir, results_path, say) if args.method == "form" else None
       rows = runner.run(config, run_dir, args.env_steps, resume=args.resume,
                         log_every=args.log_every, eval_every=args.eval_every,

@@ -277,7 +277,8 @@ def test_form_run_settings_take_the_task_entry_then_the_preset_then_the_flags(mo
 
 def test_sampled_q_precision_reaches_the_learner_per_method():
   """FORM's learner computes the sampled actions' Q in bfloat16 unless --preset paper or
-  --no-sampled_q_bfloat16; the expert's in float32 (the paper's learner) unless asked."""
+  --no-sampled_q_bfloat16; an expert run of a task without a recipe (the default task,
+  cheetah_run; mjx_form/rl/recipes.py) in float32, the paper's learner, unless asked."""
   cli = load_script("run")
   def bfloat16(*argv):
     return cli.train_config(cli.parse_args(list(argv))).learner.sampled_q_bfloat16
@@ -292,7 +293,8 @@ def test_sampled_q_precision_reaches_the_learner_per_method():
 
 
 def test_policy_head_flag_reaches_the_config():
-  """--policy_head picks the policy's head for either method; without it, the paper's."""
+  """--policy_head picks the policy's head for either method; without it, the paper's (the
+  default task has no expert recipe; tests/test_recipes.py covers one that has)."""
   cli = load_script("run")
   head = lambda *argv: cli.train_config(cli.parse_args(list(argv))).policy_head
   assert head() == "paper" and head("--method", "expert") == "paper"
@@ -301,7 +303,8 @@ def test_policy_head_flag_reaches_the_config():
 
 
 def test_action_noise_correlation_flag_reaches_the_config():
-  """--action_noise_correlation sets the actors' noise correlation for either method; 0 without."""
+  """--action_noise_correlation sets the actors' noise correlation for either method; 0 without
+  (the default task has no expert recipe)."""
   cli = load_script("run")
   c = lambda *argv: cli.train_config(cli.parse_args(list(argv))).action_noise_correlation
   assert c() == 0.0 and c("--method", "expert") == 0.0

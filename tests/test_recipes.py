@@ -3,6 +3,8 @@
 import pytest
 from conftest import load_script
 
+from mjx_form.imitation import settings
+
 import tasks
 from mjx_form.rl import recipes
 from mjx_form.rl.learner import LearnerConfig
@@ -25,6 +27,11 @@ def test_recipes_name_real_tasks_and_valid_settings():
     assert recipe.get("policy_head", "paper") in POLICY_HEADS
     assert 0.0 <= recipe.get("action_noise_correlation", 0.0) < 1.0
     assert recipe.get("target_update_period", 1) >= 1
+
+
+def test_expert_and_form_presets_share_names():
+  """run.py offers one --preset for both methods (its choices are settings.PRESETS)."""
+  assert recipes.PRESETS == settings.PRESETS
 
 
 def test_default_preset_is_the_task_recipe_else_the_paper():
@@ -51,6 +58,21 @@ def test_run_applies_the_recipe_to_expert_runs_only_and_flags_win():
   assert mixed.learner.sampled_q_bfloat16 is False and mixed.policy_head == "acme"
   walker = config("--task", "walker_walk", "--method", "expert")  # no recipe: the paper's
   assert walker.learner == LearnerConfig() and walker.policy_head == "paper"
+  head = config("--task", "hopper_stand", "--method", "expert", "--policy_head", "paper")
+  assert head.policy_head == "paper" and head.action_noise_correlation == 0.9
   form = config("--task", "hopper_stand", "--method", "form")  # FORM has its own settings
   assert (form.policy_head, form.action_noise_correlation) == ("paper", 0.0)
   assert form.learner.target_update_period == 25
+
+
+def test_run_names_the_recipe_and_its_overrides(capsys):
+  cli = load_script("run")
+  line = cli.recipe_line(cli.parse_args(["--task", "hopper_stand", "--method", "expert"]))
+  assert "hopper_stand's expert recipe" in line and "target_update_period 100" in line
+  assert "overridden" not in line
+  line = cli.recipe_line(cli.parse_args(["--task", "hopper_stand", "--method", "expert",
+                                         "--target_update_period", "25"]))
+  assert "overridden by --target_update_period" in line
+  with pytest.raises(SystemExit):
+    cli.parse_args(["--method", "random", "--preset", "paper"])
+  assert "--preset apply to --method form and expert" in capsys.readouterr().err
