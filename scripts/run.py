@@ -35,6 +35,7 @@ import jax.numpy as jnp  # noqa: E402
 
 import tasks  # noqa: E402
 from mjx_form import mesh as mesh_lib  # noqa: E402
+from mjx_form.files import checkpoint  # noqa: E402
 from mjx_form.imitation import demonstrator as demonstrator_lib  # noqa: E402
 from mjx_form.imitation import pipeline, settings  # noqa: E402
 from mjx_form.rl import grid, recipes, runner  # noqa: E402
@@ -317,6 +318,17 @@ def recipe_line(args: argparse.Namespace) -> str:
           + "; --preset paper for the paper's settings")
 
 
+def recipe_hint(args: argparse.Namespace, error: ValueError) -> str:
+  """For a resumed expert run refused for another config where the task's recipe applied: runs
+  started before the recipe existed ran the paper's settings."""
+  if (args.method == "expert" and args.resume and args.preset is None
+      and args.task in recipes.PER_TASK and isinstance(error, checkpoint.CheckpointError)
+      and "was written with" in str(error)):
+    return (f" ({args.task}'s expert runs take its recipe, mjx_form/rl/recipes.py; a run "
+            "started with the paper's settings resumes with --preset paper)")
+  return ""
+
+
 def form_run_settings(args: argparse.Namespace) -> dict:
   """The FORM run's reward scale, reward clip, target period and sampled-Q precision: --preset's
   for the task, then the flags."""
@@ -432,7 +444,7 @@ def main(argv=None) -> int:
                         final_eval_envs=args.final_eval_envs, mesh=mesh, reward_source=source,
                         seeds=seeds, overrides=overrides, print_fn=say)
     except ValueError as e:  # bad settings or artefacts, an existing run, another config
-      print(f"error: {e}", file=sys.stderr)
+      print(f"error: {e}{recipe_hint(args, e)}", file=sys.stderr)
       return 2
     for seed, own, row, directory in zip(seeds, overrides, rows,
                                          runner.member_dirs(run_dir, seeds, overrides)):

@@ -15,7 +15,7 @@ from conftest import load_script
 import tasks
 from mjx_form import mesh as mesh_lib
 from mjx_form.files import checkpoint, policy_io
-from mjx_form.rl import runner
+from mjx_form.rl import recipes, runner
 from mjx_form.rl.learner import LearnerConfig
 from mjx_form.rl.train import TrainConfig, Trainer
 
@@ -256,7 +256,7 @@ def _cli_args(run_dir, *extra):
           *extra]
 
 
-def test_command_line_trains_resumes_and_refuses_mismatches(tmp_path, capsys):
+def test_command_line_trains_resumes_and_refuses_mismatches(tmp_path, capsys, monkeypatch):
   cli = load_script("run")
   run_dir = tmp_path / "run"
   curve = tmp_path / "curve.jsonl"
@@ -327,6 +327,16 @@ def test_command_line_trains_resumes_and_refuses_mismatches(tmp_path, capsys):
   assert cli.main(_cli_args(run_dir, "--env_steps", "120", "--resume", "--policy_head",
                             "acme")) == 2  # the network differs
   assert "policy_head" in capsys.readouterr().err
+  # Where the task has gained an expert recipe since the run started, the refusal says how to
+  # resume it (--preset paper), and --preset paper does.
+  monkeypatch.setitem(recipes.PER_TASK, "reacher_easy", {"action_noise_correlation": 0.5})
+  assert cli.main(_cli_args(run_dir, "--env_steps", "120", "--resume")) == 2
+  err = capsys.readouterr().err
+  assert "action_noise_correlation" in err and "resumes with --preset paper" in err
+  assert cli.main(_cli_args(run_dir, "--env_steps", "120", "--resume", "--seed", "1",
+                            "--preset", "paper")) == 2
+  assert "--preset paper)" not in capsys.readouterr().err  # no hint once it is given
+  monkeypatch.delitem(recipes.PER_TASK, "reacher_easy")
   # Resuming with more steps continues from the last checkpoint; the best policy so far is
   # replaced only by a better evaluation (here: one no evaluation can beat).
   best_meta = {k: v for k, v in best.items() if k not in ("format", "version", "sha256")}
