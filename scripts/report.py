@@ -370,7 +370,6 @@ def learning_table(records: list[dict], threshold: float = 800.0) -> str:
   runs = _expert_runs(records)
   if not runs:
     return "No learning results yet."
-  rows = [r for curve in runs.values() for r in curve]
   lines = [f"Expert runs (MPO + Retrace on the task reward, one seed each). Evaluation: mean "
            f"task return of {_eval_episodes(runs)} full episodes (a run's `--eval_envs`) "
            f"with the "

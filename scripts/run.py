@@ -274,12 +274,11 @@ def parse_args(argv=None) -> argparse.Namespace:
 
 def train_config(args: argparse.Namespace) -> TrainConfig:
   """The run's TrainConfig: the method's preset for the task, then the flags."""
-  if args.method == "form":
-    chosen = form_run_settings(args)
-    for k in ("policy_head", "action_noise_correlation"):  # the paper's unless told otherwise
-      chosen[k] = getattr(TrainConfig(), k) if getattr(args, k) is None else getattr(args, k)
+  if args.method == "form":  # FORM's learner settings; the paper's head and actor noise
+    chosen = {**recipes.PAPER, **form_run_settings(args)}
   else:
-    chosen = expert_run_settings(args)
+    chosen = recipes.expert_settings(args.task, args.preset or "default")
+  chosen.update({k: getattr(args, k) for k in recipes.KEYS if getattr(args, k) is not None})
   period, bfloat16 = chosen["target_update_period"], chosen["sampled_q_bfloat16"]
   learner = dataclasses.replace(
       LearnerConfig(), num_action_samples=args.num_action_samples,
@@ -299,12 +298,9 @@ def train_config(args: argparse.Namespace) -> TrainConfig:
                      stagger_episodes=not args.lockstep_episodes, learner=learner)
 
 
-def expert_run_settings(args: argparse.Namespace) -> dict:
-  """An expert run's policy head, actor noise correlation, target period and sampled-Q
-  precision: --preset's for the task (mjx_form/rl/recipes.py), then the flags."""
-  chosen = recipes.expert_settings(args.task, args.preset or "default")
-  chosen.update({k: getattr(args, k) for k in recipes.KEYS if getattr(args, k) is not None})
-  return chosen
+def recipe_applies(args: argparse.Namespace) -> bool:
+  """Whether an expert run takes its task's recipe (mjx_form/rl/recipes.py)."""
+  return args.method == "expert" and args.task in recipes.PER_TASK and args.preset != "paper"
 
 
 def recipe_line(args: argparse.Namespace) -> str:
@@ -321,8 +317,7 @@ def recipe_line(args: argparse.Namespace) -> str:
 def recipe_hint(args: argparse.Namespace, error: ValueError) -> str:
   """For a resumed expert run refused for another config where the task's recipe applied: runs
   started before the recipe existed ran the paper's settings."""
-  if (args.method == "expert" and args.resume and args.preset is None
-      and args.task in recipes.PER_TASK and isinstance(error, checkpoint.CheckpointError)
+  if (recipe_applies(args) and args.resume and isinstance(error, checkpoint.CheckpointError)
       and "was written with" in str(error)):
     return (f" ({args.task}'s expert runs take its recipe, mjx_form/rl/recipes.py; a run "
             "started with the paper's settings resumes with --preset paper)")
@@ -434,7 +429,7 @@ def main(argv=None) -> int:
     try:
       config = train_config(args)
       config.check(mesh.devices.size)
-      if args.method == "expert" and args.task in recipes.PER_TASK and args.preset != "paper":
+      if recipe_applies(args):
         say(recipe_line(args))
       source = form_source(args, run_dir, results_path, say) if args.method == "form" else None
       rows = runner.run(config, run_dir, args.env_steps, resume=args.resume,
