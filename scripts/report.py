@@ -8,7 +8,7 @@ benchmarks/results/*.jsonl and the shipped experts in tasks/experts/*.npz.
 Each table sits between `<!-- name:begin -->` and `<!-- name:end -->` markers. The README holds
 compact tables (FORM results, demonstrators, shipped experts, expert runs per task, parity per
 task, throughput per task); benchmarks/NOTES.md holds the full ones (every parity, throughput,
-solver-sweep, learning-run, training-loop and demonstrator record). The tables are never typed
+solver-sweep, learning-run, training-loop, population, scaling and demonstrator record). The tables are never typed
 by hand: each comes from the newest record per (task, mode, size, device) in the result files.
 """
 
@@ -813,7 +813,7 @@ def readme_tables(records: list[dict]) -> dict[str, str]:
   return {"form": form_table(records, best_per_task=True),
           "demonstrators": effect_model_table(records), "experts": experts_table(records),
           "learning_summary": learning_summary(records), "parity_summary": parity_summary(records),
-          "throughput_summary": throughput_summary(records), "scaling": scaling_table(records)}
+          "throughput_summary": throughput_summary(records)}
 
 
 def notes_tables(records: list[dict]) -> dict[str, str]:
@@ -822,7 +822,7 @@ def notes_tables(records: list[dict]) -> dict[str, str]:
           "train_throughput": train_throughput_table(records),
           "effect_models": effect_model_table(records, best_per_task=False),
           "form": form_table(records), "form_runs": form_runs_table(records),
-          "populations": population_table(records)}
+          "populations": population_table(records), "scaling": scaling_table(records)}
 
 
 TABLES = {README: readme_tables, NOTES: notes_tables}
