@@ -60,15 +60,34 @@ def mean_action_fn(expert: experts.Expert, action_size: int):
       policy.apply(expert.params, normalizer.normalize(expert.normalizer, obs)).mode(), -1, 1))
 
 
+def set_start(dm_env, qpos: np.ndarray, qvel: np.ndarray, act: np.ndarray, task: dict):
+  """Puts a reset dm_control environment at this start (qpos, qvel, act and our task's
+  variables: reacher's target) as its reset would have, and returns the first observation."""
+  physics = dm_env.physics
+  with physics.reset_context():
+    physics.data.qpos[:], physics.data.qvel[:], physics.data.act[:] = qpos, qvel, act
+    if "target" in task:
+      physics.named.model.geom_pos["target", :2] = task["target"]
+  return dm_env.task.get_observation(physics)
+
+
 def dm_control_returns(task: str, expert: experts.Expert, layout: dict[str, int],
-                       action_size: int, episodes: int, seed: int, steps: int) -> np.ndarray:
-  """[episodes] returns of the expert in dm_control, all episodes stepped together."""
+                       action_size: int, episodes: int, seed: int, steps: int,
+                       starts: dict | None = None) -> np.ndarray:
+  """[episodes] returns of the expert in dm_control, all episodes stepped together, from
+  dm_control's own resets or, with `starts` ({'qpos': [K, nq], 'qvel', 'act', 'task': {name:
+  [K, ...]}}), from those initial states."""
   envs = [parity.load_dm_control_env(task, seed + i) for i in range(episodes)]
   theirs = dm_control_layout(envs[0])
   if list(theirs.items()) != list(dict(layout).items()):  # order matters
     raise LayoutError(f"{task}: dm_control observes {theirs}, our task declares {dict(layout)}")
   act = mean_action_fn(expert, action_size)
   time_steps = [env.reset() for env in envs]
+  if starts is not None:
+    time_steps = [ts._replace(observation=set_start(
+        env, starts["qpos"][i], starts["qvel"][i], starts["act"][i],
+        {k: v[i] for k, v in starts["task"].items()})) for i, (env, ts) in
+                  enumerate(zip(envs, time_steps))]
   returns = np.zeros(episodes)
   for _ in range(steps):
     actions = np.asarray(act(flat_observations(time_steps)), np.float64)

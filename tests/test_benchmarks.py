@@ -117,6 +117,30 @@ def test_dm_control_transfer_runs_the_expert_in_dm_control(tmp_path):
     bench.dm_control_returns("reacher_easy", expert, swapped, task.action_size, 1, 0, 1)
 
 
+@pytest.mark.xdist_group("reacher")
+def test_same_starts_replays_one_start_in_dm_control_and_mjx(tmp_path):
+  """benchmarks/same_starts.py, 3 reacher_easy episodes of 100 steps: dm_control put at each MJX start
+  (its target included) scores what MJX with dm_control's solver settings scores, step for step
+  (reacher's reward is 0 or 1 per step); failures are counted per simulator; a start range that
+  no draw falls in is refused."""
+  bench = load_script("same_starts", folder="benchmarks")
+  out = tmp_path / "same.jsonl"
+  assert bench.main(["--tasks", "reacher_easy", "--episodes", "3", "--steps", "100",
+                     "--fail_below", "1", "--out", str(out)]) == 0
+  record, = [json.loads(line) for line in open(out)]
+  returns = {k: np.array(v) for k, v in record["returns"].items()}
+  assert set(returns) == {"dm_control", "mjx_fast", "mjx_parity"}
+  assert returns["dm_control"].min() > 5  # the expert reaches the target: a real comparison
+  np.testing.assert_allclose(returns["dm_control"], returns["mjx_parity"], atol=1.0)
+  assert record["failed"] == {k: int((v < 1).sum()) for k, v in returns.items()}
+  counts = bench.failures({"a": np.array([0., 9., 0., 9.]), "b": np.array([0., 0., 9., 9.])}, 1)
+  assert counts == {"failed": {"a": 2, "b": 2}, "failed_in_all": 1, "failed_in_a_only": 1,
+                    "failed_not_in_a": 1}
+  import tasks
+  with pytest.raises(ValueError, match="only 0 of"):
+    bench.draw_starts(tasks.make("reacher_easy"), jax.random.PRNGKey(0), 2, 0, 5.0, 6.0)
+
+
 def test_expert_eval_summarises_returns_and_refuses_another_tasks_policy(tmp_path, capsys):
   """benchmarks/expert_eval.py: mean, sd and standard error as numpy computes them, the bar at
   0.95x the paper's expert; a policy of another task is refused by name, with nothing written."""

@@ -158,3 +158,42 @@ def test_cheetah_settling_is_dm_controls():
       np.testing.assert_allclose(ours.qpos, physics.data.qpos, atol=1e-8)
       np.testing.assert_allclose(ours.qvel, physics.data.qvel, atol=1e-6)
       assert float(ours.time) == 0.0
+
+
+@pytest.mark.parametrize("name", [pytest.param("reacher_easy", marks=pytest.mark.xdist_group(
+    "reacher")), pytest.param("hopper_hop", marks=pytest.mark.xdist_group("hopper"))])
+def test_reset_to_gives_back_a_drawn_start(name):
+  """`reset_to` at the qpos/qvel/act and task variables `reset` drew: the same first state."""
+  env, states = our_resets(name)
+  n = 16
+  again = jax.jit(jax.vmap(env.reset_to))(
+      states.data.qpos[:n], states.data.qvel[:n], states.data.act[:n],
+      jax.tree.map(lambda x: x[:n], states.task), jax.random.split(jax.random.PRNGKey(0), n))
+  np.testing.assert_allclose(again.obs, states.obs[:n], atol=1e-6)
+  np.testing.assert_array_equal(again.data.qpos, states.data.qpos[:n])
+  assert np.all(np.asarray(again.reward) == 0) and np.all(np.asarray(again.info["step"]) == 0)
+
+
+@pytest.mark.xdist_group("hopper")
+def test_reset_to_starts_where_dm_control_is():
+  """A dm_control hopper state with velocities (random actions after its reset), set with
+  `reset_to`: dm_control's observation there, and the same rewards for the next steps."""
+  dm_env = parity.load_dm_control_env("hopper_stand", seed=5)
+  rng = np.random.RandomState(1)
+  dm_env.reset()
+  for _ in range(20):
+    dm_env.step(rng.uniform(-1, 1, dm_env.action_spec().shape))
+  d = dm_env.physics.data
+  assert np.abs(d.qvel).max() > 0.1  # the velocities are really tested
+  env = tasks.make("hopper_stand", physics="parity")
+  state = env.reset_to(np.array(d.qpos), np.array(d.qvel), np.array(d.act), {},
+                       jax.random.PRNGKey(0))
+  expected = parity.flat_observation(dm_env.task.get_observation(dm_env.physics))
+  np.testing.assert_allclose(state.obs, expected, atol=1e-5)
+  for _ in range(5):
+    action = rng.uniform(-1, 1, env.action_size)
+    theirs = dm_env.step(action)
+    state = env.step(state, jnp.asarray(action, jnp.float32))
+    np.testing.assert_allclose(state.obs, parity.flat_observation(theirs.observation),
+                               atol=1e-3)
+    np.testing.assert_allclose(state.reward, theirs.reward, atol=1e-4)

@@ -130,8 +130,25 @@ class Task(abc.ABC):
   def reset(self, key: jax.Array) -> State:
     """Draws a fresh initial state from dm_control's reset distribution."""
     key, init_key = jax.random.split(key)
+    data, task = self.initialize_episode(mjx.make_data(self.mjx_model), init_key)
+    return self._first_state(data, task, key)
+
+  @physics_lib.full_precision
+  def reset_to(self, qpos: jax.Array, qvel: jax.Array, act: jax.Array, task: dict,
+               key: jax.Array) -> State:
+    """The first state of an episode starting at these positions, velocities, actuator
+    activations and task variables (as `State.task` holds them): e.g. a dm_control episode's
+    start, replayed here. For a state `s` drawn by `reset`, `reset_to(s.data.qpos, s.data.qvel,
+    s.data.act, s.task, key)` is `s` again, but for the RNG key and the solver's warm start
+    (zero here; a reset that settles the model, as cheetah's, leaves one)."""
     data = mjx.make_data(self.mjx_model)
-    data, task = self.initialize_episode(data, init_key)
+    data = data.replace(qpos=jnp.asarray(qpos, data.qpos.dtype),
+                        qvel=jnp.asarray(qvel, data.qvel.dtype),
+                        act=jnp.asarray(act, data.act.dtype))
+    return self._first_state(data, dict(task), key)
+
+  def _first_state(self, data: mjx.Data, task: dict, key: jax.Array) -> State:
+    """An episode's first state from its initial qpos/qvel/act and task variables."""
     data = self.after_reset(data)
     obs_parts = self.get_observation(data, task)
     self.check_observation_layout(obs_parts)
