@@ -174,6 +174,10 @@ def parse_args(argv=None) -> argparse.Namespace:
                      help="the target critic's Q of the sampled actions in bfloat16 (half of an "
                           "update's time on a GPU is that Q; learning measured unchanged) or "
                           "float32, the paper's (default: see --preset)")
+  train.add_argument("--wrap_angles", action="store_true",
+                     help="the agent wraps the task's unbounded raw angles (hopper's and "
+                          "cheetah's pitch, reacher's shoulder) into [-pi, pi) before "
+                          "standardising them; by default it sees them raw, as the paper's")
   train.add_argument("--eval_envs", type=int, default=defaults.eval_envs)
   train.add_argument("--lockstep_episodes", action="store_true",
                      help="start every environment's first episode together (as runs before "
@@ -295,7 +299,8 @@ def train_config(args: argparse.Namespace) -> TrainConfig:
                      network_width=args.network_width, policy_head=chosen["policy_head"],
                      action_noise_correlation=chosen["action_noise_correlation"],
                      eval_envs=args.eval_envs, seed=seed,
-                     stagger_episodes=not args.lockstep_episodes, learner=learner)
+                     stagger_episodes=not args.lockstep_episodes,
+                     wrap_angles=args.wrap_angles, learner=learner)
 
 
 def recipe_applies(args: argparse.Namespace) -> bool:

@@ -20,6 +20,7 @@ class Cheetah(ControlSuiteTask):
 
   domain = "cheetah"
   observation_elements = (("position", 8), ("velocity", 9))
+  periodic_observations = ("position[1]",)  # rooty, the torso's pitch (no joint limit)
   task = "run"
   xml_file = "cheetah.xml"
   n_substeps = 1  # physics dt 0.01 = control dt

@@ -21,6 +21,7 @@ class Reacher(ControlSuiteTask):
 
   domain = "reacher"
   observation_elements = (("position", 2), ("to_target", 2), ("velocity", 2))
+  periodic_observations = ("position[0]",)  # the shoulder (no joint limit)
   xml_file = "reacher.xml"
   n_substeps = 1  # physics dt 0.02 = control dt
   fast_settings = physics_lib.SolverSettings()  # contacts are disabled: nothing to solve

@@ -148,3 +148,25 @@ def test_validation():
   for decay in (1.0, -0.1, 1.5):
     with pytest.raises(ValueError, match="decay"):
       normalizer.update(state, jnp.ones((4, 3)), decay=decay)
+
+
+def test_periodic_features_are_wrapped_before_statistics_and_standardisation():
+  """A feature with period 2 pi: values whole turns apart update and normalise alike (checked
+  against numpy's remainder into [-pi, pi)); the other features are untouched; no period leaves
+  everything as it was."""
+  rng = np.random.default_rng(0)
+  period = np.array([0.0, 2 * np.pi, 0.0], np.float32)
+  x = rng.uniform(-3, 3, size=(64, 3)).astype(np.float32)
+  turns = x + period * rng.integers(-3, 4, size=(64, 1))    # whole turns on feature 1 only
+  state = normalizer.init(3, period=period)
+  a, b = normalizer.update(state, x), normalizer.update(state, turns)
+  np.testing.assert_allclose(a.mean, b.mean, atol=1e-5)
+  np.testing.assert_allclose(normalizer.normalize(a, x), normalizer.normalize(a, turns), atol=1e-4)
+  expected = x.copy()
+  expected[:, 1] = np.remainder(turns[:, 1] + np.pi, 2 * np.pi) - np.pi
+  np.testing.assert_allclose(normalizer.wrap(state, turns), expected, atol=1e-5)
+  plain = normalizer.init(3)
+  np.testing.assert_array_equal(normalizer.wrap(plain, turns), turns)
+  assert not np.allclose(normalizer.update(plain, turns).mean, a.mean, atol=1e-3)
+  with pytest.raises(ValueError, match="period"):
+    normalizer.init(3, period=[0.0, -1.0, 0.0])

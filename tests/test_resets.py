@@ -197,3 +197,20 @@ def test_reset_to_starts_where_dm_control_is():
     np.testing.assert_allclose(state.obs, parity.flat_observation(theirs.observation),
                                atol=1e-3)
     np.testing.assert_allclose(state.reward, theirs.reward, atol=1e-4)
+
+
+@pytest.mark.parametrize("name", DOMAIN_TASKS)
+def test_periodic_observations_are_the_raw_unlimited_hinge_angles(name):
+  """A task declares as periodic exactly the observation dimensions that equal, at every drawn
+  start, the qpos of a hinge joint without limits (found from MuJoCo's model)."""
+  env, states = our_resets(name)
+  m = env.mj_model
+  unlimited = [int(m.jnt_qposadr[j]) for j in range(m.njnt)
+               if m.jnt_type[j] == mujoco.mjtJoint.mjJNT_HINGE and not m.jnt_limited[j]]
+  raw = {env.observation_names[d] for d in range(env.observation_size) for a in unlimited
+         if np.allclose(states.obs[:, d], states.data.qpos[:, a], atol=1e-6)}
+  assert set(env.periodic_observations) == raw
+  period = env.observation_period()
+  assert sorted(np.flatnonzero(period)) == sorted(
+      env.observation_names.index(n) for n in env.periodic_observations)
+  assert np.all(period[period > 0] == np.float32(2 * np.pi))

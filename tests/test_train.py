@@ -499,3 +499,39 @@ def test_actors_noise_is_correlated_within_episodes_and_fresh_after_an_end():
   assert (np.asarray(env.info["step"])[ends] == 15).all()
   plain = Trainer(CONFIG, mesh_lib.make_mesh(jax.devices()[:1]))
   assert plain.init(jax.random.PRNGKey(0)[None]).noise.shape == (CONFIG.num_envs, 0)
+
+
+def test_wrap_angles_reaches_the_agents_normaliser_and_its_policy_file(tmp_path, capsys):
+  """`wrap_angles`: the run's normaliser carries reacher's shoulder period (2 pi) and so does
+  the exported policy, whose user then sees a shoulder angle whole turns away as the same; off,
+  no period (files as before). scripts/wrap_angles.py adds the period to a policy trained
+  without it and refuses a used output, a policy that wraps already and a task without angles."""
+  from mjx_form.files import experts
+  from mjx_form.rl import normalizer
+  env = tasks.make("reacher_easy")
+  trainer = Trainer(dataclasses.replace(CONFIG, wrap_angles=True))
+  state = trainer.init(trainer.keys())
+  np.testing.assert_allclose(trainer.member(state.normalizer, 0).period, [2 * np.pi] + [0] * 5)
+  path = str(tmp_path / "policy.npz")
+  runner.export_policy(trainer, state, 0, path, {"env_steps": 0})
+  expert = experts.load_expert(path, env)
+  obs = jax.random.normal(jax.random.PRNGKey(0), (4, env.observation_size))
+  turned = obs.at[:, 0].add(2 * np.pi * jax.numpy.array([1, -1, 2, 3]))
+  np.testing.assert_allclose(normalizer.normalize(expert.normalizer, turned),
+                             normalizer.normalize(expert.normalizer, obs), atol=1e-4)
+  plain = Trainer(CONFIG)
+  runner.export_policy(plain, plain.init(plain.keys()), 0, str(tmp_path / "plain.npz"),
+                       {"env_steps": 0})
+  assert experts.load_expert(str(tmp_path / "plain.npz"), env).normalizer.period is None
+  script = load_script("wrap_angles")
+  out = str(tmp_path / "wrapped.npz")
+  assert script.main(["--policy", str(tmp_path / "plain.npz"), "--out", out]) == 0
+  wrapped = experts.load_expert(out, env)
+  np.testing.assert_allclose(wrapped.normalizer.period, [2 * np.pi] + [0] * 5)
+  assert wrapped.metadata["wrap_angles_added_after_training"] is True
+  for args, problem in ((["--policy", str(tmp_path / "plain.npz"), "--out", out], "exists"),
+                        (["--policy", out, "--out", str(tmp_path / "again.npz")], "already"),
+                        (["--policy", tasks.bundled_expert("walker_walk"),
+                          "--out", str(tmp_path / "w.npz")], "no unbounded angle")):
+    assert script.main(args) == 2
+    assert problem in capsys.readouterr().err

@@ -42,9 +42,13 @@ def load_expert(path: str, env: env_lib.Task) -> Expert:
   arrays, metadata = policy_io.load_policy(
       path, task=env.name, observation_size=env.observation_size, action_size=env.action_size,
       observation_layout=env.observation_layout)
-  norm = normalizer.NormalizerState(jnp.asarray(arrays["normalizer"]["mean"]),
-                                    jnp.asarray(arrays["normalizer"]["var"]),
-                                    jnp.asarray(1, jnp.int32))
+  stats = arrays["normalizer"]
+  norm = normalizer.NormalizerState(
+      jnp.asarray(stats["mean"]), jnp.asarray(stats["var"]), jnp.asarray(1, jnp.int32),
+      None if "period" not in stats else jnp.asarray(stats["period"]))  # wrapped angles
+  if norm.period is not None and norm.period.shape != norm.mean.shape:
+    raise policy_io.PolicyFileError(f"{path}: normalizer/period has shape {norm.period.shape}, "
+                                    f"normalizer/mean {norm.mean.shape}")
   return Expert(jax.tree.map(jnp.asarray, arrays["policy"]), norm, metadata)
 
 

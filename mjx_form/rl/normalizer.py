@@ -12,6 +12,11 @@ a_t = (1 - d) / (1 - d**t); the variance is combined as
 (1 - a) var + a batch_var + a (1 - a) (batch_mean - mean)**2, which equals the EMA second
 moment minus the squared mean without its cancellation. Batch statistics are plain `jnp`
 reductions over all leading axes, so they are global when the batch is sharded over devices.
+
+Periodic features (`period` [D], 0 where a feature is not periodic; e.g. 2 pi for an unbounded
+hinge angle that an observation gives raw) are wrapped into [-period/2, period/2) before
+anything else, by `update` and `normalize` alike: states that differ by whole turns then look
+the same to the agent.
 """
 
 from __future__ import annotations
@@ -20,20 +25,39 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 
 class NormalizerState(NamedTuple):
   mean: jax.Array   # [D]
   var: jax.Array    # [D], population variance (ddof=0)
   count: jax.Array  # int32 []: number of updates so far
+  period: jax.Array | None = None  # [D]: each feature's period, 0 if none; None: no periodic one
 
 
-def init(size: int, dtype=jnp.float32) -> NormalizerState:
-  """Statistics of `size` features before any update: mean 0, var 1 (normalize is identity-ish)."""
+def init(size: int, dtype=jnp.float32, period=None) -> NormalizerState:
+  """Statistics of `size` features before any update: mean 0, var 1 (normalize is identity-ish);
+  `period` [size] (0 where a feature is not periodic) or None."""
   if isinstance(size, bool) or not isinstance(size, int) or size < 1:
     raise ValueError(f"size must be a positive integer, got {size!r}")
+  if period is not None:
+    period = np.asarray(period, np.float64)  # a constant of the run, checked before tracing
+    if period.shape != (size,) or np.any(period < 0):
+      raise ValueError(f"period must be [{size}] values >= 0, got {period}")
+    period = jnp.asarray(period, dtype)
   return NormalizerState(jnp.zeros((size,), dtype), jnp.ones((size,), dtype),
-                         jnp.zeros((), jnp.int32))
+                         jnp.zeros((), jnp.int32), period)
+
+
+def wrap(state: NormalizerState, x: jax.Array) -> jax.Array:
+  """x [..., D] with each periodic feature wrapped into [-period/2, period/2)."""
+  if state.period is None:
+    return x
+  p = state.period
+  periodic = p > 0
+  safe = jnp.where(periodic, p, 1.0)
+  wrapped = x - safe * jnp.floor((x + safe / 2) / safe)
+  return jnp.where(periodic, wrapped, x)
 
 
 def _check(state: NormalizerState, x: jax.Array, what: str) -> None:
@@ -52,7 +76,7 @@ def update(state: NormalizerState, batch: jax.Array, decay: float = 0.99,
   _check(state, batch, "batch")
   if isinstance(decay, (int, float)) and not 0.0 <= decay < 1.0:
     raise ValueError(f"decay must be in [0, 1), got {decay}")
-  batch = jnp.asarray(batch, state.mean.dtype)
+  batch = wrap(state, jnp.asarray(batch, state.mean.dtype))
   axes = tuple(range(batch.ndim - 1))
   if mask is None:
     batch_mean = jnp.mean(batch, axis=axes)                                # [D]
@@ -71,7 +95,7 @@ def update(state: NormalizerState, batch: jax.Array, decay: float = 0.99,
   delta = batch_mean - state.mean
   mean = state.mean + rate * delta
   var = (1 - rate) * state.var + rate * batch_var + rate * (1 - rate) * jnp.square(delta)
-  updated = NormalizerState(mean, jnp.maximum(var, 0), count)
+  updated = NormalizerState(mean, jnp.maximum(var, 0), count, state.period)
   if mask is None:
     return updated
   return jax.tree.map(lambda new, old: jnp.where(rows > 0, new, old), updated, state)
@@ -79,7 +103,8 @@ def update(state: NormalizerState, batch: jax.Array, decay: float = 0.99,
 
 def normalize(state: NormalizerState, x: jax.Array, clip: float | None = None,
               eps: float = 1e-6) -> jax.Array:
-  """(x - mean) / sqrt(var + eps) for x [..., D], optionally clipped to [-clip, clip]."""
+  """(x - mean) / sqrt(var + eps) for x [..., D] (periodic features wrapped first), optionally
+  clipped to [-clip, clip]."""
   _check(state, x, "x")
-  out = (x - state.mean) / jnp.sqrt(state.var + eps)
+  out = (wrap(state, x) - state.mean) / jnp.sqrt(state.var + eps)
   return out if clip is None else jnp.clip(out, -clip, clip)

@@ -46,7 +46,8 @@ RESUMABLE = ("total_env_steps", "log_every", "eval_every", "checkpoint_every")
 # before them: a checkpoint whose config lacks one resumes only with that value.
 ADDED_SETTINGS = {"learner.mpo.action_penalty": False, "learner.mpo.epsilon_penalty": 1e-3,
                   "learner.clip_critic_actions": False, "learner.sampled_q_bfloat16": False,
-                  "policy_head": "paper", "action_noise_correlation": 0.0}
+                  "policy_head": "paper", "action_noise_correlation": 0.0,
+                  "wrap_angles": False}
 
 
 # Columns that not every row has (evaluation rows; devices that report memory).
@@ -404,7 +405,8 @@ def export_policy(trainer: Trainer, state, member: int, path: str, row: dict) ->
   env, cfg = trainer.env, trainer.member_config(member)
   norm = trainer.member(state.normalizer, member)
   arrays = {"policy": jax.device_get(trainer.member(state.learner.policy, member)),
-            "normalizer": {"mean": np.asarray(norm.mean), "var": np.asarray(norm.var)}}
+            "normalizer": {"mean": np.asarray(norm.mean), "var": np.asarray(norm.var),
+                           **({} if norm.period is None else {"period": np.asarray(norm.period)})}}
   metadata = {"task": cfg.task, "observation_size": env.observation_size,
               "action_size": env.action_size,
               "observation_layout": [[k, v] for k, v in env.observation_layout.items()],

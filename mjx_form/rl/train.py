@@ -71,6 +71,10 @@ class TrainConfig:
   # marginal still the policy's Gaussian.
   action_noise_correlation: float = 0.0
   normalizer_decay: float = 0.99  # observation EMA decay per iteration
+  # The agent wraps the task's unbounded raw angles (`Task.periodic_observations`) into
+  # [-pi, pi) before standardising them (the observation normaliser's `period`); off: it sees
+  # them raw, as the paper's agent does.
+  wrap_angles: bool = False
   eval_envs: int = 16
   seed: int = 0
   stagger_episodes: bool = True  # first episodes start at random phases (see module docstring)
@@ -298,7 +302,9 @@ class Trainer:
     state = TrainState(
         learner=learner_lib.init(self.networks, self._init_learner, learner_key,
                                  self.env.observation_size, self.env.action_size),
-        normalizer=normalizer.init(self.env.observation_size),
+        normalizer=normalizer.init(
+            self.env.observation_size,
+            period=self.env.observation_period() if cfg.wrap_angles else None),
         replay=replay.ReplayState(storage, jnp.zeros((), jnp.int32), jnp.zeros((), jnp.int32)),
         env=None, episode_return=None,
         source=self.source.init(source_key, self.env.observation_size, self.env.action_size),

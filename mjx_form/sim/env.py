@@ -49,6 +49,10 @@ class Task(abc.ABC):
   # traced (tracing a reset to learn them cost seconds per task object); every reset and step
   # checks `get_observation` against it while tracing (`check_observation_layout`).
   observation_elements: tuple[tuple[str, int], ...] = ()
+  # Observation dimensions that are unbounded hinge angles given raw (qpos of a joint without
+  # limits, e.g. a planar body's pitch), named as `observation_names` names them: whole turns
+  # apart they are the same state. The agent may wrap them (`TrainConfig.wrap_angles`).
+  periodic_observations: tuple[str, ...] = ()
   # Fast-mode solver settings for this domain; see mjx_form.sim.physics and the README's tables.
   fast_settings: physics_lib.SolverSettings = physics_lib.PARITY
 
@@ -114,6 +118,20 @@ class Task(abc.ABC):
   def observation_layout(self) -> dict[str, int]:
     """Names and sizes of the observation elements, in flattening order."""
     return dict(self.observation_elements)
+
+  @property
+  def observation_names(self) -> list[str]:
+    """One name per flat observation dimension: 'height' for a size-1 element, 'position[1]'
+    for the second entry of a larger one."""
+    return [name if size == 1 else f"{name}[{i}]"
+            for name, size in self.observation_layout.items() for i in range(size)]
+
+  def observation_period(self) -> np.ndarray:
+    """[D] float32: 2 pi at each of `periodic_observations`, 0 elsewhere."""
+    period = np.zeros(self.observation_size, np.float32)
+    for name in self.periodic_observations:
+      period[self.observation_names.index(name)] = 2 * np.pi
+    return period
 
   def check_observation_layout(self, parts: dict[str, Any]) -> None:
     """Raises ValueError where `get_observation`'s elements differ from the declared layout."""
