@@ -49,3 +49,14 @@ def test_demonstrations_from_the_shipped_reacher_expert(tmp_path):
   # The arm moves towards the target: finger-to-target distance shrinks over the episode.
   to_target = np.linalg.norm(loaded.observations[:, :, 2:4], axis=-1)  # obs 'to_target'
   assert to_target[:, -100:].mean() < 0.5 * to_target[:, 0].mean()
+
+
+def test_the_shipped_hopper_expert_wraps_its_pitch():
+  """hopper_stand's expert (a network trained on raw pitches, wrapped afterwards by
+  scripts/wrap_angles.py; benchmarks/NOTES.md, session 25) wraps position[1] only."""
+  expert = experts.load_expert(SHIPPED["hopper_stand"], tasks.make("hopper_stand"))
+  period = np.zeros(15, np.float32)
+  period[1] = 2 * np.pi
+  np.testing.assert_allclose(expert.normalizer.period, period)
+  assert expert.metadata["wrap_angles"] == ["position[1]"]
+  assert expert.metadata["wrap_angles_added_after_training"] is True
