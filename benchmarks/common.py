@@ -80,8 +80,3 @@ def best_call_time(exe, fn_args: tuple, repeats: int, feed_output: bool = True) 
     holder[0] = jax.block_until_ready(exe(*args))
   return best_time(call, repeats)
 
-
-def dimension_names(layout) -> list[str]:
-  """One name per observation dimension: 'position[3]' from the layout {'position': 8, ...}."""
-  return [f"{key}[{i}]" if size > 1 else key for key, size in layout.items()
-          for i in range(size)]

@@ -47,6 +47,7 @@ import tasks  # noqa: E402
 from mjx_form import paper as paper_lib  # noqa: E402
 from mjx_form.files import experts  # noqa: E402
 from mjx_form.rl import normalizer  # noqa: E402
+from mjx_form.sim import env as env_lib  # noqa: E402
 
 
 def summary(returns: np.ndarray, task: str) -> dict:
@@ -65,7 +66,7 @@ def summary(returns: np.ndarray, task: str) -> dict:
 def start_dimension(layout: dict[str, int], name: str) -> int:
   """The index of observation dimension `name` ('position[1]', or 'height' for a size-1 entry)
   in `layout` ({'position': 6, ...}); a clear error naming the valid ones."""
-  names = common.dimension_names(layout)
+  names = env_lib.observation_names(layout)
   if name not in names:
     raise ValueError(f"unknown observation dimension {name!r} (valid: {', '.join(names)})")
   return names.index(name)

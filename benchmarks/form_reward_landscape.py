@@ -36,12 +36,12 @@ import numpy as np  # noqa: E402
 from scipy import stats  # noqa: E402
 
 import tasks  # noqa: E402
-from common import dimension_names  # noqa: E402
 from mjx_form.files import effect_models, experts, results  # noqa: E402
 from mjx_form.imitation import effect_model as em  # noqa: E402
 from mjx_form.imitation import pipeline  # noqa: E402
 from mjx_form.rl import normalizer  # noqa: E402
 from mjx_form.sim import env as env_lib  # noqa: E402
+from mjx_form.sim.env import observation_names as dimension_names  # noqa: E402
 
 
 def rollout(env, agent, noise, key, episodes):

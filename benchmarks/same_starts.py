@@ -29,7 +29,6 @@ from mjx_form.cpu import configure_cpu_xla  # noqa: E402
 configure_cpu_xla()
 
 import jax  # noqa: E402
-import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
 import dm_control_transfer  # noqa: E402
@@ -37,7 +36,6 @@ import expert_eval  # noqa: E402
 import tasks  # noqa: E402
 from mjx_form import paper as paper_lib  # noqa: E402
 from mjx_form.files import experts  # noqa: E402
-from mjx_form.rl import normalizer  # noqa: E402
 from mjx_form.sim import env as env_lib  # noqa: E402
 
 
@@ -64,36 +62,35 @@ def draw_starts(env: env_lib.Task, key: jax.Array, episodes: int, dimension: int
 def mjx_returns(env: env_lib.Task, expert: experts.Expert, starts: dict,
                 steps: int = env_lib.EPISODE_LENGTH) -> np.ndarray:
   """[K] returns of the expert's mean action (clipped to [-1, 1]) from `starts` in `env`."""
-  policy = experts.policy_network(expert.metadata, env.action_size)
+  act = dm_control_transfer.mean_action_fn(expert, env.action_size)  # the same policy as there
 
   @jax.jit
-  def run(params, norm, qpos, qvel, act, task):
+  def run(qpos, qvel, actuation, task):
     keys = jax.random.split(jax.random.PRNGKey(0), qpos.shape[0])
-    states = jax.vmap(env.reset_to)(qpos, qvel, act, task, keys)
+    states = jax.vmap(env.reset_to)(qpos, qvel, actuation, task, keys)
 
     def step(states, _):
-      pi = policy.apply(params, normalizer.normalize(norm, states.obs))
-      states = jax.vmap(env.step)(states, jnp.clip(pi.mode(), -1.0, 1.0))
+      states = jax.vmap(env.step)(states, act(states.obs))
       return states, states.reward
 
     _, rewards = jax.lax.scan(step, states, None, length=steps)
     return rewards.sum(axis=0)
 
-  return np.asarray(run(expert.params, expert.normalizer, starts["qpos"], starts["qvel"],
-                        starts["act"], starts["task"]))
+  return np.asarray(run(starts["qpos"], starts["qvel"], starts["act"], starts["task"]))
 
 
 def failures(returns: dict[str, np.ndarray], fail_below: float) -> dict:
   """Per simulator ({name: [K] returns}) the episodes it fails (return < fail_below), and the
   episodes failed in the first simulator named only, in the others only, and in all."""
   failed = {name: r < fail_below for name, r in returns.items()}
-  first, *others = failed.values()
+  (name, first), *others = failed.items()
+  others = [f for _, f in others]
   others_all = np.logical_and.reduce(others) if others else np.ones_like(first)
   others_any = np.logical_or.reduce(others) if others else np.zeros_like(first)
-  return {"failed": {name: int(f.sum()) for name, f in failed.items()},
+  return {"failed": {n: int(f.sum()) for n, f in failed.items()},
           "failed_in_all": int((first & others_all).sum()),
-          f"failed_in_{next(iter(failed))}_only": int((first & ~others_any).sum()),
-          f"failed_not_in_{next(iter(failed))}": int((~first & others_any).sum())}
+          f"failed_in_{name}_only": int((first & ~others_any).sum()),
+          f"failed_not_in_{name}": int((~first & others_any).sum())}
 
 
 def main(argv=None) -> int:

@@ -25,6 +25,13 @@ from mjx_form.sim import physics as physics_lib
 EPISODE_LENGTH = 1000  # control steps; no Control Suite task terminates early
 
 
+def observation_names(layout: dict[str, int]) -> list[str]:
+  """One name per flat observation dimension of `layout` ({'position': 8, 'height': 1, ...}):
+  'height' for a size-1 element, 'position[1]' for the second entry of a larger one."""
+  return [name if size == 1 else f"{name}[{i}]" for name, size in layout.items()
+          for i in range(size)]
+
+
 @struct.dataclass
 class State:
   """One environment's state. Batched states carry a leading batch axis on every leaf."""
@@ -121,10 +128,7 @@ class Task(abc.ABC):
 
   @property
   def observation_names(self) -> list[str]:
-    """One name per flat observation dimension: 'height' for a size-1 element, 'position[1]'
-    for the second entry of a larger one."""
-    return [name if size == 1 else f"{name}[{i}]"
-            for name, size in self.observation_layout.items() for i in range(size)]
+    return observation_names(self.observation_layout)
 
   def observation_period(self) -> np.ndarray:
     """[D] float32: 2 pi at each of `periodic_observations`, 0 elsewhere."""
