@@ -567,9 +567,10 @@ def form_runs_table(records: list[dict]) -> str:
     return "No FORM learning runs yet."
   lines = ["FORM learning runs, one row per run and seed (periodic evaluations: mean task "
            "return of the run's `--eval_envs` episodes; fresh: the final policy over "
-           "`--final_eval_envs` episodes, `-` where the run was stopped by `--max_seconds` "
-           "before it; learner updates: MPO/Retrace updates per member at the last evaluation, "
-           "the paper's Figure 1 shows an agent after 5M). Wall clock includes start-up "
+           "`--final_eval_envs` episodes after training or where `--max_seconds` stopped it, "
+           "`-` where a run has none (`scripts/evaluate_run.py` adds them); learner updates: MPO/Retrace "
+           "updates per member at the last evaluation, the paper's Figure 1 shows an agent "
+           "after 5M). Wall clock includes start-up "
            "(demonstrations, compiling):", "",
            "| task | device | reward, T, effect models | envs | updates / iteration | seed | "
            "env steps | learner updates | wall clock | last eval | best eval | fresh eval | "

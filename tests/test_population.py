@@ -172,3 +172,45 @@ def test_memory_check_refuses_a_program_larger_than_the_device():
     train_lib.check_memory(compiled, mesh_lib.make_mesh(), "population of 3", limit=needed - 1)
   train_lib.check_memory(compiled, mesh_lib.make_mesh(), "population of 3", limit=needed)
   train_lib.check_memory(compiled, mesh_lib.make_mesh(), "population of 3")
+
+
+def test_evaluate_run_scores_a_stopped_population_afterwards(tmp_path, capsys):
+  """scripts/evaluate_run.py: a population stopped by its time budget without fresh
+  evaluations gets them afterwards, each member's records placed in its own run."""
+  cli, evaluate_run = load_script("run"), load_script("evaluate_run")
+  run_dir, curve = tmp_path / "pop", tmp_path / "curve.jsonl"
+  grid = ("--grid", "target_update_period=2", "--grid", "learning_rate=0.001",
+          "--grid", "action_noise_correlation=0.9")  # the CLI test's programs
+  assert cli.main(_cli_args(run_dir, "--seeds", "0,1", *grid, "--env_steps", "80",
+                            "--max_seconds", "0.001", "--final_eval_envs", "0",
+                            "--results", str(curve))) == 0  # stops after iteration 1
+  capsys.readouterr()
+  trained = [json.loads(line) for line in open(curve)]
+  assert [r["kind"] for r in trained] == ["learning_curve"] * 2
+  # A curve file without seed 1's records is refused before anything is written.
+  partial = tmp_path / "partial.jsonl"
+  partial.write_text(json.dumps(trained[0]) + "\n")
+  assert evaluate_run.main(["--run_dir", str(run_dir), "--curve", str(partial),
+                            "--episodes", "2", "--chunk", "2"]) == 2
+  assert "no learning-curve records" in capsys.readouterr().err
+  assert partial.read_text() == json.dumps(trained[0]) + "\n"
+  truncated = tmp_path / "truncated.jsonl"
+  truncated.write_text(json.dumps(trained[0])[:50] + "\n")
+  assert evaluate_run.main(["--run_dir", str(run_dir), "--curve", str(truncated)]) == 2
+  assert "line 1 is not JSON" in capsys.readouterr().err
+
+  assert evaluate_run.main(["--run_dir", str(run_dir), "--curve", str(curve),
+                            "--episodes", "2", "--chunk", "2"]) == 0
+  finals = [json.loads(line) for line in open(curve)][2:]
+  assert [(r["kind"], r["seed"], r["policy"]) for r in finals] == [
+      ("final_return", s, p) for s in SEEDS for p in ("final", "best")]
+  for r in finals:
+    own = next(t for t in trained if t["seed"] == r["seed"])
+    assert r["settings"] == own["settings"] and r["device"] == own["device"]
+    assert (r["env_steps"], r["policy_env_steps"], r["finished"], r["episodes"]) == (
+        40, 40, False, 2)
+    assert r["population"] == 2 and r["method"] == "expert" and np.isfinite(r["final_return"])
+    member = run_dir / (f"seed{r['seed']}_action_noise_correlation0.9_learning_rate0.001"
+                        "_target_update_period2")
+    name = "policy.npz" if r["policy"] == "final" else "best_policy.npz"
+    assert r["policy_sha256"] == policy_io.load_policy(member / name)[1]["sha256"]

@@ -281,10 +281,12 @@ def test_command_line_trains_resumes_and_refuses_mismatches(tmp_path, capsys, mo
   assert all(r["eval_return"] != "" for r in rows)  # both evaluated (the stop, then the end)
   assert float(rows[1]["wall_s"]) > float(rows[0]["wall_s"]) > 0
   records = [json.loads(line) for line in open(curve)]
-  # The finished run evaluated its final and its best policy afresh (--final_eval_envs 2).
+  # The run evaluated its final and its best policy afresh (--final_eval_envs 2) where its
+  # time budget stopped it, marked unfinished, and again at its end.
   finals = [r for r in records if r["kind"] == "final_return"]
-  assert [(r["policy"], r["method"], r["episodes"], r["env_steps"]) for r in finals] == [
-      ("final", "expert", 2, 80), ("best", "expert", 2, 80)]
+  assert [(r["policy"], r["method"], r["episodes"], r["env_steps"], r["finished"])
+          for r in finals] == [("final", "expert", 2, 40, False), ("best", "expert", 2, 40, False),
+                               ("final", "expert", 2, 80, True), ("best", "expert", 2, 80, True)]
   assert all(np.isfinite(r["final_return"]) for r in finals)
   records = [r for r in records if r["kind"] != "final_return"]
   assert [(r["kind"], r["task"], r["iteration"], r["env_steps"]) for r in records] == [

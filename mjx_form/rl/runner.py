@@ -152,8 +152,9 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
   `reward_source`: where the learner's rewards come from (default: the task reward, by
   `config.reward_source`); its `settings()` are part of the run's checked configuration.
   `final_eval_envs`: once training is finished, the final and the best policy are evaluated
-  afresh on this many episodes and written as `kind: final_return` records (0: not). A run
-  stopped by `max_seconds` gets them by resuming with `total_env_steps` where it stopped.
+  afresh on this many episodes and written as `kind: final_return` records (0: not); a run
+  stopped by `max_seconds` gets them too, where it stopped (`finished: false` in them: a
+  time-budgeted run's result), and again at its end if resumed.
   `max_seconds`: stop once this process has run that long (checked after each iteration);
   the state is checkpointed and the policy exported, so `resume=True` continues the run.
   `results_path`: where `kind: learning_curve` records (one per evaluation) are appended.
@@ -220,6 +221,7 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
   # Each member's last row; a run resumed at its end (no iteration left) keeps where it stopped.
   rows = [{"iteration": start_iteration, "env_steps": start_iteration * steps_per_iteration,
            "wall_s": wall_offset} for _ in dirs]
+  stopped = False  # by max_seconds, before total_env_steps
   while int(state.iteration) < total_iterations:
     t0 = time.perf_counter()
     state, metrics = trainer.iteration(state)
@@ -270,21 +272,23 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
     if out_of_time and not finished:
       print_fn(f"stopped after {max_seconds:.0f}s at iteration {iteration}/{total_iterations} "
                f"(checkpointed; continue with --resume)")
+      stopped = True
       break
 
   if int(state.iteration) > start_iteration:
     for i, d in enumerate(dirs):
       export_policy(trainer, state, i, os.path.join(d, "policy.npz"), rows[i])
-  if final_eval_envs and int(state.iteration) == total_iterations:
+  if final_eval_envs and (stopped or int(state.iteration) == total_iterations):
     _final_evaluation(trainer, state, best_paths, rows, final_eval_envs, curve,
-                      total_env_steps, labels, print_fn)
+                      total_env_steps, labels, print_fn, finished=not stopped)
   return rows
 
 
 def _final_evaluation(trainer: Trainer, state, best_paths: list[str], rows: list[dict],
                       episodes: int, curve, total_env_steps: int, labels: list[str],
-                      print_fn) -> None:
-  """Every member's final and best policy on `episodes` fresh episodes: kind final_return."""
+                      print_fn, finished: bool = True) -> None:
+  """Every member's final and best policy on `episodes` fresh episodes: kind final_return
+  (`finished`: False where `max_seconds` stopped the run before `total_env_steps`)."""
   bests = [experts.load_expert(path, trainer.env) for path in best_paths]
   best_policy = jax.tree.map(lambda *x: jnp.stack(x), *[b.params for b in bests])
   best_norm = jax.tree.map(lambda *x: jnp.stack(x), *[b.normalizer for b in bests])
@@ -301,7 +305,7 @@ def _final_evaluation(trainer: Trainer, state, best_paths: list[str], rows: list
         curve.write(**_record_base(trainer, i), kind="final_return", policy=name,
                     final_return=float(returns[i].mean()),
                     final_return_std=float(returns[i].std()), episodes=int(returns.shape[1]),
-                    env_steps=rows[i]["env_steps"], wall_s=rows[i]["wall_s"],
+                    env_steps=rows[i]["env_steps"], wall_s=rows[i]["wall_s"], finished=finished,
                     settings=_record_settings(trainer, i, total_env_steps))
 
 

@@ -1,0 +1,142 @@
+#!/usr/bin/env python3
+"""Fresh evaluation of a training run's final and best policies, after the run: `kind:
+final_return` records, as the run writes them itself with `--final_eval_envs`.
+
+For a run that ended without them (its machine taken back before its end, or stopped by
+`--max_seconds` before runs evaluated there too): each member's `policy.npz` and
+`best_policy.npz` are evaluated over `--episodes` fresh episodes (policy mean action, as the
+run's own evaluation), here, e.g. on the CPU. Each record copies the member's learning-curve
+record at the run's end (task, method, seed, settings, the training device, env steps, wall
+clock), adds the returns, `policy_env_steps` (where the policy was exported: the best one's is
+earlier), `finished` (whether the run reached its env steps) and `eval_device` (where this
+evaluation ran), and is appended to the run's curve file.
+
+  python scripts/evaluate_run.py --run_dir runs/rh_form --episodes 1024
+  python scripts/evaluate_run.py --run_dir runs/rh_form --curve benchmarks/results/X.jsonl
+
+A member is matched to its learning-curve records by its policy file's settings (seed and the
+member's own overrides) and env steps; no match, or more than one, is an error (exit 2).
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+import os
+import sys
+
+sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+
+from mjx_form.cpu import configure_cpu_xla  # noqa: E402
+
+configure_cpu_xla()
+
+import jax  # noqa: E402
+import numpy as np  # noqa: E402
+
+import tasks  # noqa: E402
+from mjx_form.files import experts, policy_io, results  # noqa: E402
+from mjx_form.rl import runner  # noqa: E402
+
+
+class RunFilesError(ValueError):
+  """A run directory or curve file that cannot be evaluated as asked."""
+
+
+def _read_json_lines(path: str) -> list[dict]:
+  out = []
+  with open(path) as f:
+    for n, line in enumerate(f, 1):
+      if line.strip():
+        try:
+          out.append(json.loads(line))
+        except json.JSONDecodeError as e:
+          raise RunFilesError(f"{path}: line {n} is not JSON ({e.msg})") from None
+  return out
+
+
+def member_record(records: list[dict], policy_meta: dict, path: str) -> dict:
+  """The last learning-curve record of the member whose exported policy has `policy_meta`:
+  same env steps, and every setting of its train config equal to the record's."""
+  config = policy_meta.get("train_config") or {}
+  matches = [r for r in records if r.get("kind") == "learning_curve"
+             and r.get("env_steps") == policy_meta.get("env_steps")
+             and all(r.get("settings", {}).get(k) == v for k, v in config.items())]
+  if len(matches) > 1:  # members differing only in their reward settings: by the last return
+    matches = [r for r in matches if r.get("eval_return") == policy_meta.get("eval_return")]
+  if len(matches) != 1:
+    raise RunFilesError(f"{path}: {len(matches) or 'no'} learning-curve records of the curve "
+                        f"file match this policy (seed {config.get('seed')}, "
+                        f"{policy_meta.get('env_steps')} env steps)")
+  return matches[0]
+
+
+def evaluate(path: str, episodes: int, chunk: int, seed: int) -> tuple[np.ndarray, dict]:
+  """Returns [episodes] of the policy file at `path` (mean action) and its metadata."""
+  _, meta = policy_io.load_policy(path)
+  task = meta.get("task")
+  if task not in tasks.TASKS:
+    raise RunFilesError(f"{path}: unknown task {task!r}")
+  env = tasks.make(task, physics=meta.get("physics", "fast"))
+  policy = experts.load_expert(path, env)
+  _, _, returns = experts.record_demonstrations(env, policy, jax.random.PRNGKey(seed), episodes,
+                                                chunk, print_fn=lambda line: None)
+  return returns, meta
+
+
+def main(argv=None) -> int:
+  parser = argparse.ArgumentParser(description=__doc__,
+                                   formatter_class=argparse.RawDescriptionHelpFormatter)
+  parser.add_argument("--run_dir", required=True, help="a run directory of scripts/run.py")
+  parser.add_argument("--curve", default=None, help="the run's learning-curve file, where the "
+                      "records are appended (default: <run_dir>/learning_curve.jsonl)")
+  parser.add_argument("--episodes", type=int, default=256)
+  parser.add_argument("--chunk", type=int, default=512, help="episodes run at once")
+  parser.add_argument("--seed", type=int, default=0)
+  args = parser.parse_args(argv)
+  if args.episodes <= 0 or args.chunk <= 0:
+    parser.error("--episodes and --chunk must be positive")
+  curve = args.curve or os.path.join(args.run_dir, "learning_curve.jsonl")
+  try:
+    with open(os.path.join(args.run_dir, "config.json")) as f:
+      config = json.load(f)
+    seeds = tuple(config.get("seeds") or (config["seed"],))
+    dirs = runner.member_dirs(args.run_dir, seeds, tuple(config.get("overrides") or
+                                                         ({} for _ in seeds)))
+    records = _read_json_lines(curve)
+    out = []
+    for d in dirs:
+      end = None  # the member's last record: the run's end, where both records are placed
+      for name in ("final", "best"):
+        path = os.path.join(d, f"{'best_' if name == 'best' else ''}policy.npz")
+        returns, meta = evaluate(path, args.episodes, args.chunk, args.seed)
+        own = member_record(records, meta, path)  # the policy's own point of the run
+        end = end or own
+        total = end.get("settings", {}).get("total_env_steps")
+        out.append({
+            **{k: end[k] for k in ("task", "method", "physics", "num_envs", "seed",
+                                  "learner_preset", "population", "device", "versions",
+                                  "physics_matmul_precision") if k in end},
+            "kind": "final_return", "policy": name, "final_return": float(returns.mean()),
+            "final_return_std": float(returns.std()), "episodes": int(returns.size),
+            "env_steps": end["env_steps"], "wall_s": end["wall_s"],
+            "finished": total is not None and end["env_steps"] >= total,
+            "settings": end["settings"], "policy_env_steps": own["env_steps"],
+            "eval_device": results.device_name(), "policy_sha256": meta["sha256"],
+            "time": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")})
+        print(f"{os.path.relpath(path, args.run_dir)}: {returns.mean():.1f} +- {returns.std():.1f}"
+              f" over {returns.size} episodes (policy of {own['env_steps']:,} env steps)",
+              flush=True)
+  except (OSError, KeyError, ValueError) as e:  # RunFilesError, policy and task checks
+    print(f"error: {e}", file=sys.stderr)
+    return 2
+  with open(curve, "a") as f:  # all members evaluated before anything is written
+    for record in out:
+      f.write(json.dumps(record) + "\n")
+  print(f"{len(out)} final_return records appended to {curve}")
+  return 0
+
+
+if __name__ == "__main__":
+  sys.exit(main())
