@@ -25,14 +25,15 @@ SEEDS = (0, 1)
 # them): it copies its targets every 2 updates where CONFIG (and member 0) copy every 3, learns
 # 10x faster, penalises actions outside the bounds, and its actors' noise is correlated in time
 # where member 0's is independent (as a single run's at 0, though the population keeps a noise
-# state and the penalty's dual for both).
+# state and the penalty's dual for both), and it wraps reacher's shoulder angle where member 0
+# sees it raw (as a single run without the wrap, though its normaliser has a period of zeros).
 OVERRIDES = ({"target_update_period": CONFIG.learner.target_update_period,
               "learning_rate": CONFIG.learner.learning_rate, "action_noise_correlation": 0.0,
-              "action_penalty": False},
+              "action_penalty": False, "wrap_angles": False},
              {"target_update_period": 2, "learning_rate": 1e-3, "action_noise_correlation": 0.9,
-              "action_penalty": True})
+              "action_penalty": True, "wrap_angles": True})
 MEMBER_CONFIGS = (CONFIG, dataclasses.replace(
-    CONFIG, seed=1, action_noise_correlation=0.9,
+    CONFIG, seed=1, action_noise_correlation=0.9, wrap_angles=True,
     learner=dataclasses.replace(
         CONFIG.learner, target_update_period=2, learning_rate=1e-3,
         mpo=dataclasses.replace(CONFIG.learner.mpo, action_penalty=True))))
@@ -71,12 +72,19 @@ def test_members_are_the_runs_their_seeds_and_settings_give_alone(population):
       np.testing.assert_allclose(np.asarray(ours[path]), np.asarray(b), rtol=2e-4, atol=2e-5,
                                  err_msg=f"seed {seed}{jax.tree_util.keystr(path)}")
     # What the member holds beyond its single run: member 0's penalty dual (and its optimiser's
-    # moments), at their initial values since its flag is off.
+    # moments), at their initial values since its flag is off, and its normaliser's period of
+    # zeros (it wraps nothing).
     extra = {jax.tree_util.keystr(p): np.asarray(v) for p, v in ours.items() if p not in theirs}
-    assert i == 1 or (extra and all("log_penalty_temperature" in p for p in extra)), extra
+    assert i == 1 or (extra and all("log_penalty_temperature" in p or ".period" in p
+                                    for p in extra)
+                      and any(".period" in p for p in extra)), extra
     for p, v in extra.items():
       expected = CONFIG.learner.mpo.init_log_temperature if ".duals." in p else 0.0
       np.testing.assert_array_equal(v, expected, err_msg=p)
+    if i == 1:  # member 1 wraps the shoulder (reacher's position[0]) as its single run does
+      period = np.asarray(ours[next(p for p in ours if ".period" in jax.tree_util.keystr(p))])
+      np.testing.assert_array_equal(period, single.env.observation_period())
+      assert period[0] == np.float32(2 * np.pi) and not period[1:].any()
     n = CONFIG.num_envs
     np.testing.assert_allclose(pop_state.env.obs[i * n:(i + 1) * n], state.env.obs,
                                rtol=1e-4, atol=1e-5)

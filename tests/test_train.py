@@ -525,6 +525,15 @@ def test_wrap_angles_reaches_the_agents_normaliser_and_its_policy_file(tmp_path,
   runner.export_policy(plain, plain.init(plain.keys()), 0, str(tmp_path / "plain.npz"),
                        {"env_steps": 0})
   assert experts.load_expert(str(tmp_path / "plain.npz"), env).normalizer.period is None
+  # In a population whose members differ in the setting, each member's file is as its own
+  # run's (the member that does not wrap holds a period of zeros, and its file none).
+  mixed = Trainer(CONFIG, seeds=(0, 1), overrides=({"wrap_angles": False}, {"wrap_angles": True}))
+  mixed_state = mixed.init(mixed.keys())
+  for i, period in enumerate((None, [2 * np.pi] + [0] * 5)):
+    member = str(tmp_path / f"member{i}.npz")
+    runner.export_policy(mixed, mixed_state, i, member, {"env_steps": 0})
+    loaded = experts.load_expert(member, env).normalizer.period
+    assert (loaded is None) if period is None else np.allclose(loaded, period), (i, loaded)
   script = load_script("wrap_angles")
   out = str(tmp_path / "wrapped.npz")
   assert script.main(["--policy", str(tmp_path / "plain.npz"), "--out", out]) == 0

@@ -11,7 +11,9 @@ its value where a single run's holds a constant (`learner_config`), so a member 
 single run with its settings computes. (The actors' noise correlation is one: a member at 0
 draws exactly what a single run's independent draw gives, while the population keeps a noise
 state for every member. The action penalty is another: its dual is in every member's state
-if any member penalises, and stays at its initial value in a member that does not.)
+if any member penalises, and stays at its initial value in a member that does not. And
+`wrap_angles`: every member's normaliser has a period if any member wraps, zeros in a member
+that does not, which wraps nothing.)
 
 A member is a seed and its overrides, e.g. (0, {"target_update_period": 25}); a grid
 (`expand`) is every combination of the seeds and the listed values.
@@ -40,8 +42,10 @@ LEARNER = {
     "action_penalty": (("mpo", "action_penalty"), bool),
     "epsilon_penalty": (("mpo", "epsilon_penalty"), float),
 }
-# name -> type: settings of the actors' draw (TrainConfig fields).
-ACTOR = {"action_noise_correlation": float}
+# name -> type: TrainConfig fields: the actors' draw, and whether the agent wraps the task's raw
+# angles (realised as each member's observation-normaliser `period` at init, zeros in a member
+# that does not wrap: normalizer.wrap leaves its features as they are).
+ACTOR = {"action_noise_correlation": float, "wrap_angles": bool}
 # name -> type: settings a reward source lists in its `variable_settings` (FORM's
 # standardise_reward and reward_clip); the source's `specialise(values)` gives a member's source.
 SOURCE = {"standardise_reward": bool, "reward_clip": float}

@@ -410,7 +410,8 @@ def export_policy(trainer: Trainer, state, member: int, path: str, row: dict) ->
   norm = trainer.member(state.normalizer, member)
   arrays = {"policy": jax.device_get(trainer.member(state.learner.policy, member)),
             "normalizer": {"mean": np.asarray(norm.mean), "var": np.asarray(norm.var),
-                           **({} if norm.period is None else {"period": np.asarray(norm.period)})}}
+                           # (a member that does not wrap, beside ones that do, has zeros)
+                           **({"period": np.asarray(norm.period)} if cfg.wrap_angles else {})}}
   metadata = {"task": cfg.task, "observation_size": env.observation_size,
               "action_size": env.action_size,
               "observation_layout": [[k, v] for k, v in env.observation_layout.items()],

@@ -302,9 +302,7 @@ class Trainer:
     state = TrainState(
         learner=learner_lib.init(self.networks, self._init_learner, learner_key,
                                  self.env.observation_size, self.env.action_size),
-        normalizer=normalizer.init(
-            self.env.observation_size,
-            period=self.env.observation_period() if cfg.wrap_angles else None),
+        normalizer=normalizer.init(self.env.observation_size),  # `_init` sets its period
         replay=replay.ReplayState(storage, jnp.zeros((), jnp.int32), jnp.zeros((), jnp.int32)),
         env=None, episode_return=None,
         source=self.source.init(source_key, self.env.observation_size, self.env.action_size),
@@ -314,6 +312,11 @@ class Trainer:
   def _init(self, keys: jax.Array) -> TrainState:
     """Fresh members from their keys [P, 2] (`keys()`)."""
     members, env_keys, start = jax.vmap(self._init_member)(keys)
+    wraps = [self.member_config(i).wrap_angles for i in range(self.members)]
+    if any(wraps):  # each member's period [P, D]; zeros in a member that wraps nothing
+      period = jnp.asarray(self.env.observation_period(), jnp.float32)
+      members = members._replace(normalizer=members.normalizer._replace(period=jnp.stack(
+          [period if w else jnp.zeros_like(period) for w in wraps])))
     env_state = self.auto_reset.reset_from_keys(env_keys.reshape(-1, 2))  # [P * N]
     start = start.reshape(-1)
     episode_return = jnp.zeros(start.shape, jnp.float32)
