@@ -115,40 +115,6 @@ def throughput_table(records: list[dict]) -> str:
   return "\n".join(lines).rstrip()
 
 
-def throughput_summary(records: list[dict], physics: str = "fast",
-                       sizes: tuple[int, ...] = (2048, 8192)) -> str:
-  """One row per task: `AutoReset(task).step` steps per second of `physics` mode on the GPU at
-  each of `sizes` envs, and its ratio to the plain `mjx.step` loop (the full table is
-  `throughput_table`)."""
-  rows = [r for r in records if r.get("kind") == "env_throughput" and r["physics"] == physics
-          and r["device"].startswith("gpu") and r["num_envs"] in sizes]
-  if not rows:
-    return "No throughput results yet."
-  newest = _newest(rows, lambda r: (r["device"], r["task"], r["num_envs"]))
-  lines = []
-  for device in sorted({r["device"] for r in newest.values()}):
-    sel = {(task, n): r for (d, task, n), r in newest.items() if d == device}
-    versions = next(iter(sel.values())).get("versions", {})
-    lines += [f"Control steps per second of `AutoReset(task).step` with random actions "
-              f"(observations, rewards, NaN checks and auto-reset included), `{physics}` physics, "
-              f"on `{device}` (jax {versions.get('jax')}, mujoco {versions.get('mujoco')}); "
-              f"/raw: its ratio to a plain `mjx.step` loop on the same model and settings; rows "
-              f"marked TF32 ran the physics' matmuls in TF32, the others in float32. Parity "
-              f"mode and MuJoCo Playground's speed: `benchmarks/NOTES.md`.", "",
-              "| task | solver | " + " | ".join(f"{n} envs | /raw" for n in sizes) + " |",
-              "|---|---|" + "---|---|" * len(sizes)]
-    for task in sorted({task for task, _ in sel}, key=_order):
-      cells = []
-      for n in sizes:
-        r = sel.get((task, n))
-        cells += ([f"{_k(r['sps'])}{' TF32' if _matmuls(r) == 'TF32' else ''}",
-                   f"{r['ratio_to_raw']:.2f}"] if r else ["-", "-"])
-      solver = _solver(next(r for (t, _), r in sel.items() if t == task)["settings"]["solver"])
-      lines.append(f"| {task} | {solver} | " + " | ".join(cells) + " |")
-    lines.append("")
-  return "\n".join(lines).rstrip()
-
-
 def parity_table(records: list[dict]) -> str:
   rows = [r for r in records if r.get("kind") == "parity"]
   if not rows:
@@ -813,8 +779,7 @@ def effect_model_table(records: list[dict], best_per_task: bool = True) -> str:
 def readme_tables(records: list[dict]) -> dict[str, str]:
   return {"form": form_table(records, best_per_task=True),
           "demonstrators": effect_model_table(records), "experts": experts_table(records),
-          "learning_summary": learning_summary(records), "parity_summary": parity_summary(records),
-          "throughput_summary": throughput_summary(records)}
+          "learning_summary": learning_summary(records), "parity_summary": parity_summary(records)}
 
 
 def notes_tables(records: list[dict]) -> dict[str, str]:

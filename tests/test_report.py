@@ -20,7 +20,7 @@ def test_readme_tables_are_generated_from_results():
 
 def test_report_detects_a_hand_edited_table():
   records = report.read_records()
-  for path, marker in ((report.README, "throughput_summary"), (report.NOTES, "throughput")):
+  for path, marker in ((report.README, "parity_summary"), (report.NOTES, "throughput")):
     with open(path) as f:
       text = f.read()
     begin = f"<!-- {marker}:begin -->\n"
