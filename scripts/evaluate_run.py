@@ -6,7 +6,7 @@ For a run that ended without them (its machine taken back before its end, or sto
 `--max_seconds` before runs evaluated there too): each member's `policy.npz` and
 `best_policy.npz` are evaluated over `--episodes` fresh episodes (policy mean action, as the
 run's own evaluation), here, e.g. on the CPU. Each record copies the member's learning-curve
-record at the run's end (task, method, seed, settings, the training device, env steps, wall
+record where its final policy was exported, the run's end (task, method, seed, settings, the training device, env steps, wall
 clock), adds the returns, `policy_env_steps` (where the policy was exported: the best one's is
 earlier), `finished` (whether the run reached its env steps) and `eval_device` (where this
 evaluation ran), and is appended to the run's curve file.
@@ -15,7 +15,8 @@ evaluation ran), and is appended to the run's curve file.
   python scripts/evaluate_run.py --run_dir runs/rh_form --curve benchmarks/results/X.jsonl
 
 A member is matched to its learning-curve records by its policy file's settings (seed and the
-member's own overrides) and env steps; no match, or more than one, is an error (exit 2).
+member's own overrides, its reward settings from the run's config.json) and env steps; a member
+without a match is an error (exit 2), and nothing is written.
 """
 
 from __future__ import annotations
@@ -37,7 +38,7 @@ import numpy as np  # noqa: E402
 
 import tasks  # noqa: E402
 from mjx_form.files import experts, policy_io, results  # noqa: E402
-from mjx_form.rl import runner  # noqa: E402
+from mjx_form.rl import grid, runner  # noqa: E402
 
 
 class RunFilesError(ValueError):
@@ -50,26 +51,32 @@ def _read_json_lines(path: str) -> list[dict]:
     for n, line in enumerate(f, 1):
       if line.strip():
         try:
-          out.append(json.loads(line))
+          record = json.loads(line)
         except json.JSONDecodeError as e:
           raise RunFilesError(f"{path}: line {n} is not JSON ({e.msg})") from None
+        if not isinstance(record, dict) or not isinstance(record.get("settings", {}), dict):
+          raise RunFilesError(f"{path}: line {n} is not a result record")
+        out.append(record)
   return out
 
 
-def member_record(records: list[dict], policy_meta: dict, path: str) -> dict:
-  """The last learning-curve record of the member whose exported policy has `policy_meta`:
-  same env steps, and every setting of its train config equal to the record's."""
+def member_record(records: list[dict], policy_meta: dict, path: str,
+                  reward_overrides: dict) -> dict:
+  """The learning-curve record of the member whose exported policy has `policy_meta`, at the
+  policy's env steps: every setting of its train config equal to the record's, and its own
+  reward settings (`reward_overrides`, a population's grid of them) too; the last such record
+  where a resumed run wrote one twice."""
   config = policy_meta.get("train_config") or {}
   matches = [r for r in records if r.get("kind") == "learning_curve"
              and r.get("env_steps") == policy_meta.get("env_steps")
-             and all(r.get("settings", {}).get(k) == v for k, v in config.items())]
-  if len(matches) > 1:  # members differing only in their reward settings: by the last return
-    matches = [r for r in matches if r.get("eval_return") == policy_meta.get("eval_return")]
-  if len(matches) != 1:
-    raise RunFilesError(f"{path}: {len(matches) or 'no'} learning-curve records of the curve "
-                        f"file match this policy (seed {config.get('seed')}, "
-                        f"{policy_meta.get('env_steps')} env steps)")
-  return matches[0]
+             and all(r.get("settings", {}).get(k) == v for k, v in config.items())
+             and all((r.get("settings", {}).get("reward") or {}).get(k) == v
+                     for k, v in reward_overrides.items())]
+  if not matches:
+    raise RunFilesError(f"{path}: no learning-curve records of the curve file match this "
+                        f"policy (seed {config.get('seed')}, {policy_meta.get('env_steps')} env "
+                        f"steps)")
+  return matches[-1]
 
 
 def evaluate(path: str, episodes: int, chunk: int, seed: int) -> tuple[np.ndarray, dict]:
@@ -102,16 +109,20 @@ def main(argv=None) -> int:
     with open(os.path.join(args.run_dir, "config.json")) as f:
       config = json.load(f)
     seeds = tuple(config.get("seeds") or (config["seed"],))
-    dirs = runner.member_dirs(args.run_dir, seeds, tuple(config.get("overrides") or
-                                                         ({} for _ in seeds)))
+    overrides = tuple(config.get("overrides") or ({} for _ in seeds))
+    if len(overrides) != len(seeds):
+      raise RunFilesError(f"{args.run_dir}/config.json: {len(seeds)} seeds but "
+                          f"{len(overrides)} members' overrides")
+    dirs = runner.member_dirs(args.run_dir, seeds, overrides)
     records = _read_json_lines(curve)
     out = []
-    for d in dirs:
-      end = None  # the member's last record: the run's end, where both records are placed
+    for d, own_settings in zip(dirs, overrides):
+      reward_overrides = grid.split(own_settings)[2]
+      end = None  # the final policy's record: where the run ended, both records are placed
       for name in ("final", "best"):
         path = os.path.join(d, f"{'best_' if name == 'best' else ''}policy.npz")
         returns, meta = evaluate(path, args.episodes, args.chunk, args.seed)
-        own = member_record(records, meta, path)  # the policy's own point of the run
+        own = member_record(records, meta, path, reward_overrides)  # the policy's point
         end = end or own
         total = end.get("settings", {}).get("total_env_steps")
         out.append({

@@ -226,7 +226,8 @@ def _member(record: dict) -> str:
   settings = record.get("settings", {})
   reward = settings.get("reward", {})
   return json.dumps([settings.get("learner"), reward.get("standardise_reward"),
-                     reward.get("reward_clip", 0.0)], sort_keys=True)
+                     reward.get("reward_clip", 0.0), settings.get("action_noise_correlation", 0.0),
+                     settings.get("wrap_angles", False)], sort_keys=True)
 
 
 def _learner_notes(record: dict, with_period: bool = True) -> list[str]:
@@ -247,6 +248,8 @@ def _learner_notes(record: dict, with_period: bool = True) -> list[str]:
   correlation = settings.get("action_noise_correlation", 0.0)
   if correlation:
     notes.append(f"actor noise correlated {correlation:g}")
+  if settings.get("wrap_angles"):
+    notes.append("angles wrapped")
   return notes
 
 
@@ -689,7 +692,8 @@ def form_table(records: list[dict], expert_returns: dict[str, float] | None = No
              "seeds, else the highest mean return: "
              if best_per_task else "FORM (`--method form`): ")
   lines = [caption + "return of the final policy in a fresh evaluation after "
-           "training (`--final_eval_envs` episodes per seed, policy mean action), mean +- "
+           "training, or where the run's time budget stopped it (`stopped` beside its env "
+           "steps; `--final_eval_envs` episodes per seed, policy mean action), mean +- "
            "standard deviation over seeds (each seed: its mean over the episodes); best: the "
            "same for the policy of each run's best periodic evaluation. Expert: the mean return "
            "of the demonstrations the run's demonstrator was trained on (1000 episodes of the "
@@ -719,11 +723,12 @@ def form_table(records: list[dict], expert_returns: dict[str, float] | None = No
     expert = targets.pop() if len(targets) == 1 and None not in targets else (
         expert_returns.get(task))
     spread = f" +- {std:.1f}" if len(final) > 1 else ""
+    stopped = " stopped" if any(r.get("finished") is False for r in final) else ""
     fraction = f"{mean / expert:.2f}" if expert else "-"
     paper = (f"{PAPER_FORM[task] / PAPER_EXPERT[task]:.2f}"
              if task in PAPER_FORM and task in PAPER_EXPERT else "-")
     lines.append(f"| {task} | `{device}` | {physics} | {num_envs} | {variant} | {len(final)} | "
-                 f"{'/'.join(str(e) for e in episodes)} | {env_steps / 1e6:.1f}M | "
+                 f"{'/'.join(str(e) for e in episodes)} | {env_steps / 1e6:.1f}M{stopped} | "
                  f"{_duration(wall)} | {mean:.1f}{spread} | {best_text} | "
                  f"{'-' if expert is None else f'{expert:.1f}'} | {fraction} | {paper} |"
                  + (f" {configurations[task]} |" if best_per_task else ""))

@@ -247,7 +247,8 @@ def parse_args(argv=None) -> argparse.Namespace:
                     help="held-out evaluations without improvement before it stops")
   train.add_argument("--final_eval_envs", type=int, default=256,
                      help="episodes of the fresh evaluation of the final and the best policy "
-                          "once training is finished or stopped by --max_seconds (0: none)")
+                          "once training is finished or stopped by --max_seconds (0: none; "
+                          "after the time budget, compiling it included)")
   args = parser.parse_args(argv)
   if args.list:
     return args

@@ -206,6 +206,9 @@ def test_evaluate_run_scores_a_stopped_population_afterwards(tmp_path, capsys):
   truncated.write_text(json.dumps(trained[0])[:50] + "\n")
   assert evaluate_run.main(["--run_dir", str(run_dir), "--curve", str(truncated)]) == 2
   assert "line 1 is not JSON" in capsys.readouterr().err
+  truncated.write_text("[1]\n")
+  assert evaluate_run.main(["--run_dir", str(run_dir), "--curve", str(truncated)]) == 2
+  assert "line 1 is not a result record" in capsys.readouterr().err
 
   assert evaluate_run.main(["--run_dir", str(run_dir), "--curve", str(curve),
                             "--episodes", "2", "--chunk", "2"]) == 0
@@ -222,3 +225,18 @@ def test_evaluate_run_scores_a_stopped_population_afterwards(tmp_path, capsys):
                         "_target_update_period2")
     name = "policy.npz" if r["policy"] == "final" else "best_policy.npz"
     assert r["policy_sha256"] == policy_io.load_policy(member / name)[1]["sha256"]
+
+
+def test_final_evaluation_of_members_that_differ_in_the_wrap(population, tmp_path):
+  """The fresh evaluation of the best policies stacks the members' files: member 0's has no
+  period (it does not wrap), member 1's has one."""
+  from mjx_form.rl import runner
+  state = population.init(population.keys())
+  paths = [str(tmp_path / f"best{i}.npz") for i in range(2)]
+  for i, path in enumerate(paths):
+    runner.export_policy(population, state, i, path, {"env_steps": 0})
+  rows = [{"env_steps": 0, "wall_s": 0.0} for _ in paths]
+  runner._final_evaluation(population, state, paths, rows, CONFIG.eval_envs, None, 0,
+                           ["seed 0", "seed 1"], print_fn=lambda *_: None)
+  for row in rows:  # the best policies are the state's own: the same returns as the final ones
+    np.testing.assert_allclose(row["best_policy_return"], row["final_policy_return"], rtol=1e-5)

@@ -88,6 +88,10 @@ def test_form_table_averages_the_final_policy_over_seeds():
   table = report.form_table([clip], expert_returns={"cheetah_run": 875.0},
                             demonstration_returns={})
   assert "| standardised clipped at 3 sd, T - | 1 |" in table, table
+  # A run its time budget stopped (finished: false) says so beside its env steps.
+  table = report.form_table([_final_return(0, 440.0, finished=False)],
+                            expert_returns={"cheetah_run": 875.0}, demonstration_returns={})
+  assert "| 256 | 20.0M stopped | 10.0 min | 440.0 |" in table, table
   unknown = report.form_table([_final_return(0, 500.0)], expert_returns={},
                               demonstration_returns={})
   assert "| 500.0 | - | - | - | 0.89 |" in unknown

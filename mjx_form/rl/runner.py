@@ -291,7 +291,11 @@ def _final_evaluation(trainer: Trainer, state, best_paths: list[str], rows: list
   (`finished`: False where `max_seconds` stopped the run before `total_env_steps`)."""
   bests = [experts.load_expert(path, trainer.env) for path in best_paths]
   best_policy = jax.tree.map(lambda *x: jnp.stack(x), *[b.params for b in bests])
-  best_norm = jax.tree.map(lambda *x: jnp.stack(x), *[b.normalizer for b in bests])
+  norms = [b.normalizer for b in bests]
+  if state.normalizer.period is not None:  # members that wrap beside ones that do not (zeros)
+    norms = [n if n.period is not None else n._replace(period=jnp.zeros_like(n.mean))
+             for n in norms]
+  best_norm = jax.tree.map(lambda *x: jnp.stack(x), *norms)
   keys = trainer.keys(2)
   for name, policy, norm in (("final", state.learner.policy, state.normalizer),
                              ("best", best_policy, best_norm)):
