@@ -41,7 +41,6 @@ from mjx_form.imitation import effect_model as em  # noqa: E402
 from mjx_form.imitation import pipeline  # noqa: E402
 from mjx_form.rl import normalizer  # noqa: E402
 from mjx_form.sim import env as env_lib  # noqa: E402
-from mjx_form.sim.env import observation_names as dimension_names  # noqa: E402
 
 
 def rollout(env, agent, noise, key, episodes):
@@ -104,7 +103,7 @@ def main(argv=None) -> int:
   behaviours += [(f"expert + noise {s}", float(s), expert) for s in args.noise.split(",")
                  if float(s) != 0]
   behaviours += [("uniform random", None, expert)] + [(n, 0.0, p) for n, p in others]
-  names = dimension_names(env.observation_layout)
+  names = env_lib.observation_names(env.observation_layout)
   reference = None
   all_returns, all_scores = [], []
   print(f"{args.task}: demonstrator {path} (held-out log p at offset 1: "

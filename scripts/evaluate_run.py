@@ -6,10 +6,10 @@ For a run that ended without them (its machine taken back before its end, or sto
 `--max_seconds` before runs evaluated there too): each member's `policy.npz` and
 `best_policy.npz` are evaluated over `--episodes` fresh episodes (policy mean action, as the
 run's own evaluation), here, e.g. on the CPU. Each record copies the member's learning-curve
-record where its final policy was exported, the run's end (task, method, seed, settings, the training device, env steps, wall
-clock), adds the returns, `policy_env_steps` (where the policy was exported: the best one's is
-earlier), `finished` (whether the run reached its env steps) and `eval_device` (where this
-evaluation ran), and is appended to the run's curve file.
+record where its final policy was exported, the run's end (task, method, seed, settings, the
+training device, env steps, wall clock), adds the returns, `policy_env_steps` (where the
+policy was exported: the best one's is earlier), `finished` (whether the run reached its env
+steps) and `eval_device` (where this evaluation ran), and is appended to the run's curve file.
 
   python scripts/evaluate_run.py --run_dir runs/rh_form --episodes 1024
   python scripts/evaluate_run.py --run_dir runs/rh_form --curve benchmarks/results/X.jsonl
@@ -37,7 +37,7 @@ import jax  # noqa: E402
 import numpy as np  # noqa: E402
 
 import tasks  # noqa: E402
-from mjx_form.files import experts, policy_io, results  # noqa: E402
+from mjx_form.files import experts, results  # noqa: E402
 from mjx_form.rl import grid, runner  # noqa: E402
 
 
@@ -79,17 +79,13 @@ def member_record(records: list[dict], policy_meta: dict, path: str,
   return matches[-1]
 
 
-def evaluate(path: str, episodes: int, chunk: int, seed: int) -> tuple[np.ndarray, dict]:
-  """Returns [episodes] of the policy file at `path` (mean action) and its metadata."""
-  _, meta = policy_io.load_policy(path)
-  task = meta.get("task")
-  if task not in tasks.TASKS:
-    raise RunFilesError(f"{path}: unknown task {task!r}")
-  env = tasks.make(task, physics=meta.get("physics", "fast"))
-  policy = experts.load_expert(path, env)
+def evaluate(path: str, env, episodes: int, chunk: int, seed: int) -> tuple[np.ndarray, dict]:
+  """Returns [episodes] of the policy file at `path` (mean action) in `env`, the run's task
+  (one task object for every file: its compiled rollout serves them all), and its metadata."""
+  policy = experts.load_expert(path, env)  # refuses a file of another task, by name
   _, _, returns = experts.record_demonstrations(env, policy, jax.random.PRNGKey(seed), episodes,
                                                 chunk, print_fn=lambda line: None)
-  return returns, meta
+  return returns, policy.metadata
 
 
 def main(argv=None) -> int:
@@ -114,6 +110,9 @@ def main(argv=None) -> int:
       raise RunFilesError(f"{args.run_dir}/config.json: {len(seeds)} seeds but "
                           f"{len(overrides)} members' overrides")
     dirs = runner.member_dirs(args.run_dir, seeds, overrides)
+    if config.get("task") not in tasks.TASKS:
+      raise RunFilesError(f"{args.run_dir}/config.json: unknown task {config.get('task')!r}")
+    env = tasks.make(config["task"], physics=config.get("physics", "fast"))
     records = _read_json_lines(curve)
     out = []
     for d, own_settings in zip(dirs, overrides):
@@ -121,7 +120,7 @@ def main(argv=None) -> int:
       end = None  # the final policy's record: where the run ended, both records are placed
       for name in ("final", "best"):
         path = os.path.join(d, f"{'best_' if name == 'best' else ''}policy.npz")
-        returns, meta = evaluate(path, args.episodes, args.chunk, args.seed)
+        returns, meta = evaluate(path, env, args.episodes, args.chunk, args.seed)
         own = member_record(records, meta, path, reward_overrides)  # the policy's point
         end = end or own
         total = end.get("settings", {}).get("total_env_steps")

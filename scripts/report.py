@@ -7,9 +7,9 @@ benchmarks/results/*.jsonl and the shipped experts in tasks/experts/*.npz.
 
 Each table sits between `<!-- name:begin -->` and `<!-- name:end -->` markers. The README holds
 compact tables (FORM results, demonstrators, shipped experts, expert runs per task, parity per
-task, throughput per task); benchmarks/NOTES.md holds the full ones (every parity, throughput,
-solver-sweep, learning-run, training-loop, population, scaling and demonstrator record). The tables are never typed
-by hand: each comes from the newest record per (task, mode, size, device) in the result files.
+task); benchmarks/NOTES.md holds the full ones (every parity, throughput, solver-sweep,
+learning-run, training-loop, population, scaling and demonstrator record). The tables are never
+typed by hand: each comes from the newest record per (task, mode, size, device) in the result files.
 """
 
 from __future__ import annotations
@@ -537,10 +537,9 @@ def form_runs_table(records: list[dict]) -> str:
   lines = ["FORM learning runs, one row per run and seed (periodic evaluations: mean task "
            "return of the run's `--eval_envs` episodes; fresh: the final policy over "
            "`--final_eval_envs` episodes after training or where `--max_seconds` stopped it, "
-           "`-` where a run has none (`scripts/evaluate_run.py` adds them); learner updates: MPO/Retrace "
-           "updates per member at the last evaluation, the paper's Figure 1 shows an agent "
-           "after 5M). Wall clock includes start-up "
-           "(demonstrations, compiling):", "",
+           "`-` where a run has none (`scripts/evaluate_run.py` adds them); learner updates: "
+           "MPO/Retrace updates per member at the last evaluation, the paper's Figure 1 shows "
+           "an agent after 5M). Wall clock includes start-up (demonstrations, compiling):", "",
            "| task | device | reward, T, effect models | envs | updates / iteration | seed | "
            "env steps | learner updates | wall clock | last eval | best eval | fresh eval | "
            "log pD at the end | result file |",

@@ -41,16 +41,6 @@ def test_train_throughput_measures_the_learner_settings_it_is_given():
   assert bf16.learner.sampled_q_bfloat16 and bf16.to_dict()["learner"]["sampled_q_bfloat16"]
 
 
-def test_form_reward_landscape_names_each_observation_dimension():
-  """Its posture report names dimensions by the task's observation layout, in order."""
-  bench = load_script("form_reward_landscape", folder="benchmarks")
-  assert bench.dimension_names({"orientations": 2, "height": 1, "velocity": 2}) == [
-      "orientations[0]", "orientations[1]", "height", "velocity[0]", "velocity[1]"]
-  import tasks
-  layout = tasks.make("cheetah_run").observation_layout
-  assert len(bench.dimension_names(layout)) == sum(layout.values())
-
-
 def test_scaling_measures_weak_scaling_and_builds_populations_over_the_devices(tmp_path, capsys):
   """benchmarks/scaling.py on the 2 forced host devices, tiny sizes: weak scaling measured (one
   record, amounts per device scaled, each phase printed as it ends); the population it would

@@ -188,3 +188,13 @@ def test_physics_matmuls_run_at_full_precision():
   assert precisions, "expected matrix products in the physics"
   highest = (jax.lax.Precision.HIGHEST, jax.lax.Precision.HIGHEST)
   assert all(p == highest for p in precisions), set(map(str, precisions))
+
+
+def test_observation_names_name_each_dimension_in_layout_order():
+  """The names reports and `--by_start` use for observation dimensions (the reward landscape's
+  posture report, expert_eval's start split, `Task.periodic_observations`)."""
+  from mjx_form.sim import env as env_lib
+  assert env_lib.observation_names({"orientations": 2, "height": 1, "velocity": 2}) == [
+      "orientations[0]", "orientations[1]", "height", "velocity[0]", "velocity[1]"]
+  layout = tasks.make("cheetah_run").observation_layout
+  assert len(env_lib.observation_names(layout)) == sum(layout.values())
