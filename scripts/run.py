@@ -165,10 +165,11 @@ def parse_args(argv=None) -> argparse.Namespace:
                      help="MPO's penalty on sampled actions outside [-1, 1] (multi-objective "
                           "MPO, epsilon 1e-3; on by default in Acme, not stated in the paper): "
                           "keeps the policy's mean from drifting out of the action bounds")
-  train.add_argument("--clip_critic_actions", action="store_true",
+  train.add_argument("--clip_critic_actions", action=argparse.BooleanOptionalAction,
+                     default=None,
                      help="the critic sees clip(a, -1, 1), the action the environment applies "
-                          "(Acme's control-suite MPO); by default tanh of the unclipped sample, "
-                          "as the paper")
+                          "(Acme's control-suite MPO), or tanh of the unclipped sample, as the "
+                          "paper (default: see --preset)")
   train.add_argument("--sampled_q_bfloat16", action=argparse.BooleanOptionalAction,
                      default=None,
                      help="the target critic's Q of the sampled actions in bfloat16 (half of an "
@@ -222,9 +223,10 @@ def parse_args(argv=None) -> argparse.Namespace:
                           "(default: standardised, clipped at 3 sd, 25, bfloat16, "
                           "mjx_form/imitation/settings.py; paper: raw, unclipped, 200, "
                           "float32). For expert: the policy head, actor noise correlation, "
-                          "target period and sampled-Q precision (default: the task's recipe "
-                          "in mjx_form/rl/recipes.py where it has one, else the paper's: "
-                          "paper head, 0, 200, float32). Single flags win")
+                          "target period, sampled-Q precision and the critic's view of actions "
+                          "(default: the task's recipe in mjx_form/rl/recipes.py where it has "
+                          "one, else the paper's: paper head, 0, 200, float32, tanh). Single "
+                          "flags win")
   form.add_argument("--standardise_reward", dest="reward_scale", action="store_const",
                     const="standardised", help=argparse.SUPPRESS)  # before --reward_scale
   form.add_argument("--reward_scale", default=None, choices=("standardised", "raw"),
@@ -287,7 +289,7 @@ def train_config(args: argparse.Namespace) -> TrainConfig:
   period, bfloat16 = chosen["target_update_period"], chosen["sampled_q_bfloat16"]
   learner = dataclasses.replace(
       LearnerConfig(), num_action_samples=args.num_action_samples,
-      target_update_period=period, clip_critic_actions=args.clip_critic_actions,
+      target_update_period=period, clip_critic_actions=chosen["clip_critic_actions"],
       sampled_q_bfloat16=bfloat16,
       mpo=dataclasses.replace(LearnerConfig().mpo, action_penalty=args.action_penalty))
   seed = args.seeds[0] if args.seeds else args.seed

@@ -15,8 +15,10 @@ from mjx_form.rl.train import TrainConfig
 def test_paper_preset_is_the_paper_learner_and_actor():
   paper = recipes.expert_settings("hopper_stand", "paper")
   assert paper == {"policy_head": "paper", "action_noise_correlation": 0.0,
-                   "target_update_period": 200, "sampled_q_bfloat16": False}
+                   "target_update_period": 200, "sampled_q_bfloat16": False,
+                   "clip_critic_actions": False}
   assert paper["target_update_period"] == LearnerConfig().target_update_period
+  assert paper["clip_critic_actions"] == LearnerConfig().clip_critic_actions
   assert paper["policy_head"] == TrainConfig().policy_head
 
 
@@ -37,7 +39,10 @@ def test_expert_and_form_presets_share_names():
 def test_default_preset_is_the_task_recipe_else_the_paper():
   assert recipes.expert_settings("hopper_stand") == {
       "policy_head": "acme", "action_noise_correlation": 0.9, "target_update_period": 100,
-      "sampled_q_bfloat16": True}
+      "sampled_q_bfloat16": True, "clip_critic_actions": False}
+  assert recipes.expert_settings("walker_run") == {
+      "policy_head": "paper", "action_noise_correlation": 0.0, "target_update_period": 25,
+      "sampled_q_bfloat16": True, "clip_critic_actions": True}
   assert recipes.expert_settings("cheetah_run") == recipes.expert_settings("cheetah_run", "paper")
   with pytest.raises(ValueError, match="unknown preset 'fast'"):
     recipes.expert_settings("hopper_stand", "fast")
@@ -58,6 +63,18 @@ def test_run_applies_the_recipe_to_expert_runs_only_and_flags_win():
   assert mixed.learner.sampled_q_bfloat16 is False and mixed.policy_head == "acme"
   walker = config("--task", "walker_walk", "--method", "expert")  # no recipe: the paper's
   assert walker.learner == LearnerConfig() and walker.policy_head == "paper"
+  run = config("--task", "walker_run", "--method", "expert")
+  assert (run.learner.target_update_period, run.learner.clip_critic_actions) == (25, True)
+  unclipped = config("--task", "walker_run", "--method", "expert", "--no-clip_critic_actions")
+  assert unclipped.learner.clip_critic_actions is False
+  assert unclipped.learner.target_update_period == 25
+  assert config("--task", "walker_run", "--method", "expert", "--preset", "paper").learner == (
+      LearnerConfig())
+  # FORM takes the paper's view of actions unless the flag asks for the clip.
+  form = config("--task", "walker_walk", "--method", "form")
+  assert form.learner.clip_critic_actions is False
+  assert config("--task", "walker_walk", "--method", "form",
+                "--clip_critic_actions").learner.clip_critic_actions is True
   head = config("--task", "hopper_stand", "--method", "expert", "--policy_head", "paper")
   assert head.policy_head == "paper" and head.action_noise_correlation == 0.9
   form = config("--task", "hopper_stand", "--method", "form")  # FORM has its own settings

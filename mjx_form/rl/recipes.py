@@ -1,10 +1,11 @@
 """Expert recipes: the learner and actor settings `--method expert` trains each task with.
 
 `--preset paper` is the paper's MPO for every task: its learner (`LearnerConfig`'s defaults:
-targets copied every 200 updates, float32), its policy head and independent action noise. The
-default preset is a task's measured recipe where PER_TASK has one, else the paper's: a recipe is
-kept only where a GPU learning curve showed it beats the paper's settings on that task (the
-entry names the records). Flags (`--target_update_period`, `--policy_head`, ...) win over both.
+targets copied every 200 updates, float32, the critic sees tanh of the sampled action), its
+policy head and independent action noise. The default preset is a task's measured recipe where
+PER_TASK has one, else the paper's: a recipe is kept only where a GPU learning curve showed it
+beats the paper's settings on that task (the entry names the records). Flags
+(`--target_update_period`, `--policy_head`, ...) win over both.
 
 The scale of a run (environments, updates per iteration, env steps) stays on the command line;
 each entry's comment gives the one that was measured.
@@ -16,12 +17,14 @@ from mjx_form.rl.learner import LearnerConfig
 from mjx_form.rl.train import TrainConfig
 
 PRESETS = ("default", "paper")
-KEYS = ("policy_head", "action_noise_correlation", "target_update_period", "sampled_q_bfloat16")
+KEYS = ("policy_head", "action_noise_correlation", "target_update_period", "sampled_q_bfloat16",
+        "clip_critic_actions")
 
 PAPER = {"policy_head": TrainConfig().policy_head,
          "action_noise_correlation": TrainConfig().action_noise_correlation,
          "target_update_period": LearnerConfig().target_update_period,
-         "sampled_q_bfloat16": LearnerConfig().sampled_q_bfloat16}
+         "sampled_q_bfloat16": LearnerConfig().sampled_q_bfloat16,
+         "clip_critic_actions": LearnerConfig().clip_critic_actions}
 
 PER_TASK: dict[str, dict] = {
     # hopper_stand. The paper's settings plateau at ~330-360 (standing from some starts only;
@@ -38,6 +41,22 @@ PER_TASK: dict[str, dict] = {
     #     the experts issue's bar is 917.5 (0.95x the paper's 965.8).
     "hopper_stand": {"policy_head": "acme", "action_noise_correlation": 0.9,
                      "target_update_period": 100, "sampled_q_bfloat16": True},
+    # walker_run. Measured at 512 envs, 128 updates per iteration. The paper's settings: 308 at
+    # 9.2M steps, 609 at 15.4M, 641-667 from 15.9M to 19.7M (one seed, 2026-11-22
+    # ..._512envs_128upi). T 25 with the critic clipping actions: 556.5 / 468.1 at 7.2M
+    # against 466.6 / 361.8 without the clip (2026-11-23 ..._expert_t25_clip_grid_cut); with
+    # the sampled Q in bf16 too, seeds 0-2 as one population: 595 / 599 / 611 at 9.2M, fresh
+    # finals 662.5 / 692.3 / 700.3 at 15.4M (22 min on one H100; 2026-11-25_learning_curve_
+    # h100_walker_run_t25_clip_bf16_seeds012). Ahead of the paper's at every step count,
+    # reaching its ~650-700 plateau 4-5M steps earlier; the bar is 904.5, not reached.
+    "walker_run": {"target_update_period": 25, "clip_critic_actions": True,
+                   "sampled_q_bfloat16": True},
+    # quadruped_walk. Same scale. The paper's settings: 187 at 8.7M, best 539.8 at 14.4M (one
+    # seed, 2026-11-22 ..._512envs_128upi). T 25, critic clipping actions, sampled Q in bf16,
+    # seeds 0-2: fresh finals 333.7 / 523.3 / 683.7 at 8.6M (14 min on one H100; 2026-11-25_
+    # learning_curve_h100_quadruped_walk_t25_clip_bf16_seeds012). The bar is 923.8.
+    "quadruped_walk": {"target_update_period": 25, "clip_critic_actions": True,
+                       "sampled_q_bfloat16": True},
 }
 
 
