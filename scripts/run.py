@@ -315,7 +315,8 @@ def recipe_line(args: argparse.Namespace) -> str:
   """What an expert run prints when its task's recipe applies: the recipe, and the flags that
   override it."""
   recipe = recipes.PER_TASK[args.task]
-  flags = [f"--{k}" for k in recipes.KEYS if getattr(args, k) is not None]
+  flags = [f"--{'no-' if getattr(args, k) is False else ''}{k}" for k in recipes.KEYS
+           if getattr(args, k) is not None]
   return (f"{args.task}'s expert recipe (mjx_form/rl/recipes.py): "
           + ", ".join(f"{k} {v}" for k, v in recipe.items())
           + (f"; overridden by {', '.join(flags)}" if flags else "")
