@@ -332,6 +332,26 @@ def test_learning_tables_show_expert_runs_only():
   assert "990.0" not in report.learning_table([*curve, fast, form])
 
 
+def test_expert_runs_tell_members_apart_by_every_grid_setting():
+  """A population's members share the file, task and seed; _member keeps them apart by the
+  learner, the reward settings, the actor noise and the wrap, and a member's records together."""
+  settings = {"learner": {"target_update_period": 25}, "reward": {},
+              "action_noise_correlation": 0.0, "wrap_angles": False}
+  base = {"kind": "learning_curve", "task": "hopper_stand", "seed": 0, "_file": "a.jsonl"}
+  variants = [settings, dict(settings, wrap_angles=True),
+              dict(settings, action_noise_correlation=0.9),
+              dict(settings, learner={"target_update_period": 100}),
+              dict(settings, reward={"standardise_reward": True}),
+              dict(settings, reward={"reward_clip": 3.0})]
+  records = [dict(base, settings=v, env_steps=s) for v in variants for s in (1, 2)]
+  runs = report._expert_runs(records)
+  assert len(runs) == len(variants)
+  assert all([r["env_steps"] for r in curve] == [1, 2] for curve in runs.values())
+  # Records written before a setting existed read as its default: the same member.
+  old = dict(base, settings={"learner": {"target_update_period": 25}, "reward": {}})
+  assert report._member(old) == report._member(dict(base, settings=settings))
+
+
 def test_learning_summary_sets_cheetah_against_brax_ppo_cold_and_warm():
   base = {"kind": "learning_curve", "task": "cheetah_run", "seed": 0, "num_envs": 512,
           "method": "expert", "device": "gpu:X", "settings": {"eval_episodes": 32}}
