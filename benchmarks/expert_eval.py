@@ -24,6 +24,11 @@ The split also gives the share of each bin's episodes with any reward (`rewarded
 `--stochastic` the actions are sampled from the policy's Gaussian (clipped, as the learner's
 actors act) instead of its mean: how often the policy's exploration finds reward, and from where;
 `--action_noise_correlation C` samples them as a run with that setting does.
+
+`--by_turn` splits the returns by whether one of the task's raw unbounded angles
+(`Task.periodic_observations`: reacher's shoulder, hopper's and cheetah's pitch) leaves
+[-pi, pi) during the episode, in the observations the environment gives (before any wrap of the
+agent's): how a policy does in the episodes where it turns past pi, and how far it turns there.
 """
 
 from __future__ import annotations
@@ -89,6 +94,27 @@ def returns_by_start(values: np.ndarray, returns: np.ndarray, bins: int,
           **{name: means(x) for name, x in per_episode.items()}}
 
 
+def returns_by_turn(observations: np.ndarray, period: np.ndarray,
+                    returns: np.ndarray) -> dict:
+  """Returns [K] split by whether a periodic dimension (`period` [D] > 0) of the episode's
+  observations [K, T, D] leaves [-period / 2, period / 2): per group ("turned", "stayed") the
+  episodes, the mean return and the share rewarded (None where empty), and the turned episodes'
+  median largest |angle| over their periodic dimensions."""
+  periodic = period > 0
+  raw, half = observations[..., periodic], period[periodic] / 2  # [K, T, P], [P]
+  turned = ((raw < -half) | (raw >= half)).any(axis=(1, 2))
+  angles = np.abs(raw)
+
+  def group(mask):
+    n = int(mask.sum())
+    return {"episodes": n, "mean_return": float(returns[mask].mean()) if n else None,
+            "rewarded": float((returns[mask] > 0).mean()) if n else None}
+
+  return {"turned": group(turned), "stayed": group(~turned),
+          "turned_median_max_angle": (float(np.median(angles[turned].max(axis=(1, 2))))
+                                      if turned.any() else None)}
+
+
 def exploration(mean: np.ndarray, scale: np.ndarray) -> dict[str, np.ndarray]:
   """How much the policy explores along each episode, from its Gaussian's mean and scale
   [K, T, A] at the visited states: `policy_scale` [K], the mean scale; `beyond_bounds` [K],
@@ -125,6 +151,9 @@ def main(argv=None) -> int:
   parser.add_argument("--by_start", default=None, metavar="NAME",
                       help="split the returns by this dimension of the first observation")
   parser.add_argument("--bins", type=int, default=8, help="bins of --by_start")
+  parser.add_argument("--by_turn", action="store_true",
+                      help="split the returns by whether a raw unbounded angle of the task "
+                      "leaves [-pi, pi) during the episode")
   parser.add_argument("--stochastic", action="store_true",
                       help="sample the actions from the policy (as its actors act) instead of "
                       "taking its mean")
@@ -158,6 +187,11 @@ def main(argv=None) -> int:
     except ValueError as e:
       print(f"error: {task}: {e}", file=sys.stderr)
       return 2
+    period = np.asarray(env.observation_period())
+    if args.by_turn and not period.any():
+      print(f"error: --by_turn: {task} observes no unbounded angle (Task.periodic_observations "
+            "is empty)", file=sys.stderr)
+      return 2
     start = time.perf_counter()
     observations, _, returns = experts.record_demonstrations(
         env, expert, jax.random.PRNGKey(args.seed), args.episodes, args.chunk,
@@ -170,6 +204,9 @@ def main(argv=None) -> int:
       numbers["by_start"] = {"dimension": args.by_start, **returns_by_start(
           observations[:, 0, dimension], returns, args.bins, **exploration(loc, scale),
           rewarded=(returns > 0).astype(np.float64))}
+    if args.by_turn:
+      numbers["by_turn"] = {"dimensions": list(env.periodic_observations),
+                            **returns_by_turn(np.asarray(observations), period, returns)}
     writer.write(kind="expert_eval", task=task, physics=env.physics,
                  policy_file=args.policy or os.path.basename(path),
                  policy_sha256=expert.metadata["sha256"],
@@ -196,6 +233,18 @@ def main(argv=None) -> int:
                  f"{split['rewarded'][i]:.0%} of episodes rewarded")
         print(f"  {args.by_start} in [{low:.3f}, {high:.3f}]: {count} episodes, mean return "
               f"{'-' if mean is None else f'{mean:.1f}'}{extra}", flush=True)
+    if args.by_turn:
+      turn = numbers["by_turn"]
+      for name in ("turned", "stayed"):
+        g = turn[name]
+        print(f"  {name} {'past' if name == 'turned' else 'within'} [-pi, pi) "
+              f"({', '.join(turn['dimensions'])}): {g['episodes']} episodes"
+              + ("" if g["mean_return"] is None else
+                 f", mean return {g['mean_return']:.1f}, {g['rewarded']:.0%} rewarded"),
+              flush=True)
+      if turn["turned_median_max_angle"] is not None:
+        print(f"  turned episodes' largest |angle|, median: "
+              f"{turn['turned_median_max_angle']:.2f}", flush=True)
   print(f"results appended to {out}")
   return 0
 

@@ -185,6 +185,35 @@ def test_expert_eval_splits_returns_by_the_start():
   assert gap["other"] == [1.5, None, None, 4.0]
 
 
+def test_expert_eval_splits_returns_by_turns_past_pi(tmp_path, capsys):
+  """--by_turn: an episode turned if a periodic dimension leaves [-pi, pi) at any step (pi
+  itself is outside, -pi inside; other dimensions never count); a task without unbounded
+  angles is refused before any rollout."""
+  bench = load_script("expert_eval", folder="benchmarks")
+  period = np.array([2 * np.pi, 0.0], np.float32)
+  obs = np.zeros((5, 3, 2), np.float32)  # [K, T, D]
+  obs[0, 1, 0] = 3.2          # past pi: turned
+  obs[1, 2, 0] = -np.pi       # -pi is inside: stayed
+  obs[2, 0, 0] = np.pi        # pi is outside: turned
+  obs[3, :, 1] = 100.0        # a non-periodic dimension: stayed
+  obs[4, :, 0] = [-1.0, -7.5, -4.0]  # turned, largest |angle| 7.5
+  returns = np.array([10.0, 20.0, 0.0, 40.0, 30.0])
+  split = bench.returns_by_turn(obs, period, returns)
+  turned = np.array([True, False, True, False, True])
+  assert split["turned"] == {"episodes": 3, "mean_return": pytest.approx(returns[turned].mean()),
+                             "rewarded": pytest.approx(2 / 3)}
+  assert split["stayed"] == {"episodes": 2, "mean_return": 30.0, "rewarded": 1.0}
+  assert split["turned_median_max_angle"] == pytest.approx(3.2)  # median of 3.2, pi, 7.5
+  none = bench.returns_by_turn(obs[[1, 3]], period, returns[[1, 3]])
+  assert none["turned"] == {"episodes": 0, "mean_return": None, "rewarded": None}
+  assert none["turned_median_max_angle"] is None
+  out = tmp_path / "turn.jsonl"
+  assert bench.main(["--tasks", "walker_stand", "--episodes", "2", "--by_turn",
+                     "--out", str(out)]) == 2
+  assert "walker_stand observes no unbounded angle" in capsys.readouterr().err
+  assert not out.exists()
+
+
 def test_expert_eval_measures_exploration_along_episodes():
   """`exploration` against a direct count: an action explores next to nothing where its mean
   lies more than 2 scales beyond [-1, 1] (on either side); `policy_at` gives, chunk by chunk,
