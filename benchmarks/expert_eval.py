@@ -171,6 +171,12 @@ def main(argv=None) -> int:
   if args.action_noise_correlation and not args.stochastic:
     parser.error("--action_noise_correlation needs --stochastic (it is the sampling noise's)")
   out = args.out or common.default_results_path(f"expert_eval_{jax.default_backend()}")
+  if args.by_turn:  # every task checked before any record is written
+    flat = [task for task in names if not tasks.make(task).periodic_observations]
+    if flat:
+      print(f"error: --by_turn: {', '.join(flat)} observe(s) no unbounded angle "
+            "(Task.periodic_observations is empty)", file=sys.stderr)
+      return 2
   writer = common.ResultWriter(out)
   for task in names:
     try:
@@ -188,10 +194,6 @@ def main(argv=None) -> int:
       print(f"error: {task}: {e}", file=sys.stderr)
       return 2
     period = np.asarray(env.observation_period())
-    if args.by_turn and not period.any():
-      print(f"error: --by_turn: {task} observes no unbounded angle (Task.periodic_observations "
-            "is empty)", file=sys.stderr)
-      return 2
     start = time.perf_counter()
     observations, _, returns = experts.record_demonstrations(
         env, expert, jax.random.PRNGKey(args.seed), args.episodes, args.chunk,

@@ -317,6 +317,7 @@ def recipe_line(args: argparse.Namespace) -> str:
   recipe = recipes.PER_TASK[args.task]
   flags = [f"--{'no-' if getattr(args, k) is False else ''}{k}" for k in recipes.KEYS
            if getattr(args, k) is not None]
+  flags += [f"--grid {k}" for k in recipes.KEYS if k in (args.grid or {})]
   return (f"{args.task}'s expert recipe (mjx_form/rl/recipes.py): "
           + ", ".join(f"{k} {v}" for k, v in recipe.items())
           + (f"; overridden by {', '.join(flags)}" if flags else "")

@@ -29,6 +29,8 @@ def test_recipes_name_real_tasks_and_valid_settings():
     assert recipe.get("policy_head", "paper") in POLICY_HEADS
     assert 0.0 <= recipe.get("action_noise_correlation", 0.0) < 1.0
     assert recipe.get("target_update_period", 1) >= 1
+    assert all(isinstance(recipe.get(k, False), bool)
+               for k in ("clip_critic_actions", "sampled_q_bfloat16")), task
 
 
 def test_expert_and_form_presets_share_names():
@@ -70,10 +72,10 @@ def test_run_applies_the_recipe_to_expert_runs_only_and_flags_win():
   assert unclipped.learner.target_update_period == 25
   assert config("--task", "walker_run", "--method", "expert", "--preset", "paper").learner == (
       LearnerConfig())
-  # FORM takes the paper's view of actions unless the flag asks for the clip.
-  form = config("--task", "walker_walk", "--method", "form")
+  # FORM takes the paper's view of actions, not walker_run's recipe, unless the flag asks.
+  form = config("--task", "walker_run", "--method", "form")
   assert form.learner.clip_critic_actions is False
-  assert config("--task", "walker_walk", "--method", "form",
+  assert config("--task", "walker_run", "--method", "form",
                 "--clip_critic_actions").learner.clip_critic_actions is True
   head = config("--task", "hopper_stand", "--method", "expert", "--policy_head", "paper")
   assert head.policy_head == "paper" and head.action_noise_correlation == 0.9
@@ -93,6 +95,9 @@ def test_run_names_the_recipe_and_its_overrides(capsys):
   line = cli.recipe_line(cli.parse_args(["--task", "walker_run", "--method", "expert",
                                          "--no-clip_critic_actions"]))
   assert "clip_critic_actions True" in line and "overridden by --no-clip_critic_actions;" in line
+  line = cli.recipe_line(cli.parse_args(["--task", "walker_run", "--method", "expert",
+                                         "--seeds", "0", "--grid", "clip_critic_actions=0,1"]))
+  assert "overridden by --grid clip_critic_actions;" in line
   with pytest.raises(SystemExit):
     cli.parse_args(["--method", "random", "--preset", "paper"])
   assert "--preset apply to --method form and expert" in capsys.readouterr().err

@@ -347,7 +347,7 @@ def test_expert_runs_tell_members_apart_by_every_grid_setting():
   runs = report._expert_runs(records)
   assert len(runs) == len(variants)
   assert all([r["env_steps"] for r in curve] == [1, 2] for curve in runs.values())
-  # Records written before a setting existed read as its default: the same member.
+  # Records written before the noise and the wrap were settings read as their defaults.
   old = dict(base, settings={"learner": {"target_update_period": 25}, "reward": {}})
   assert report._member(old) == report._member(dict(base, settings=settings))
 

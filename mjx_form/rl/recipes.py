@@ -51,10 +51,12 @@ PER_TASK: dict[str, dict] = {
     # reaching its ~650-700 plateau 4-5M steps earlier; the bar is 904.5, not reached.
     "walker_run": {"target_update_period": 25, "clip_critic_actions": True,
                    "sampled_q_bfloat16": True},
-    # quadruped_walk. Same scale. The paper's settings: 187 at 8.7M, best 539.8 at 14.4M (one
-    # seed, 2026-11-22 ..._512envs_128upi). T 25, critic clipping actions, sampled Q in bf16,
-    # seeds 0-2: fresh finals 333.7 / 523.3 / 683.7 at 8.6M (14 min on one H100; 2026-11-25_
-    # learning_curve_h100_quadruped_walk_t25_clip_bf16_seeds012). The bar is 923.8.
+    # quadruped_walk. Same scale. The paper's settings: 203 at 6.1M, 187 at 8.7M, best 539.8 at
+    # 13.8M (one seed, 2026-11-22 ..._512envs_128upi). T 25, critic clipping actions, sampled Q
+    # in bf16, seeds 0-2: 140 / 253 / 551 at 6.1M, fresh finals 333.7 / 523.3 / 683.7 at 8.6M
+    # (14 min on one H100; 2026-11-25_learning_curve_h100_quadruped_walk_t25_clip_bf16_
+    # seeds012): every seed ahead from 7M on, a short comparison (8.6M against one seed's
+    # 14.4M). The bar is 923.8.
     "quadruped_walk": {"target_update_period": 25, "clip_critic_actions": True,
                        "sampled_q_bfloat16": True},
 }
