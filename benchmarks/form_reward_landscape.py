@@ -10,7 +10,9 @@ mean log pD within the behaviour (does the reward prefer its better episodes?), 
 the policy's mean outside [-1, 1] and its median scale (not for random actions), the
 observation dimensions furthest from the noiseless expert's (in its standard deviations: where
 a policy's posture differs), and the same rank correlation over all episodes; appends
-`kind: form_reward_landscape` records.
+`kind: form_reward_landscape` records. For a task with raw unbounded angles
+(`Task.periodic_observations`), log pD is also split by whether the transition's next
+observation has them within [-pi, pi) or turned past (`log_pd_by_turn`).
 
   python benchmarks/form_reward_landscape.py --task cheetah_run --episodes 8 \\
       --policy runs/cheetah_run_form_seed0/policy.npz \\
@@ -71,6 +73,18 @@ def rollout(env, agent, noise, key, episodes):
   return jax.device_get(run(key))
 
 
+def log_pd_by_turn(obs: np.ndarray, period: np.ndarray, log_d: np.ndarray) -> dict:
+  """log pD [K, T] of transitions split by whether the next observation (obs [K, T+1, D]) has
+  every periodic dimension (`period` [D] > 0) within [-period / 2, period / 2): the mean of
+  each group (None where empty) and the share turned past."""
+  periodic = period > 0
+  nxt, half = obs[:, 1:, periodic], period[periodic] / 2  # [K, T, P], [P]
+  turned = ((nxt < -half) | (nxt >= half)).any(axis=-1)  # [K, T]
+  return {"within": float(log_d[~turned].mean()) if (~turned).any() else None,
+          "turned": float(log_d[turned].mean()) if turned.any() else None,
+          "turned_share": float(turned.mean())}
+
+
 def main(argv=None) -> int:
   parser = argparse.ArgumentParser(description=__doc__,
                                    formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -127,12 +141,19 @@ def main(argv=None) -> int:
     # How far this behaviour's mean observation sits from the noiseless expert's.
     shift = (flat.mean(axis=0) - reference[0]) / reference[1]
     far = np.argsort(-np.abs(shift))[:3]
+    period = np.asarray(env.observation_period())
+    turn = log_pd_by_turn(obs, period, log_d) if period.any() else None
     print(f"  {name:22s} return {returns.mean():7.1f}  log pD per transition: mean "
           f"{log_d.mean():9.2f}  p5/p50/p95 {q[0]:9.2f} {q[1]:8.2f} {q[2]:8.2f}  "
           f"rank corr. with return {within:5.2f}  "
           + "".join(f"{k.replace('_', ' ')} {v:.2f}  " for k, v in policy_stats.items())
           + "furthest from the expert: "
           + ", ".join(f"{names[d]} {shift[d]:+.1f} sd" for d in far))
+    if turn is not None:
+      print(f"  {'':22s} log pD within [-pi, pi): "
+            + ("-" if turn["within"] is None else f"{turn['within']:.2f}")
+            + f", turned past ({turn['turned_share']:.0%} of transitions): "
+            + ("-" if turn["turned"] is None else f"{turn['turned']:.2f}"))
     if writer:
       writer.write(kind="form_reward_landscape", task=args.task, method="form",
                    behaviour=name, noise=noise, episodes=args.episodes,
@@ -140,6 +161,7 @@ def main(argv=None) -> int:
                    log_pd_percentiles={"p5": q[0], "p50": q[1], "p95": q[2]},
                    spearman_return_log_pd=None if np.isnan(within) else within,
                    shift_from_expert={names[d]: float(shift[d]) for d in far}, **policy_stats,
+                   **({} if turn is None else {"log_pd_by_turn": turn}),
                    demonstrator_sha256=file.metadata["sha256"])
   rho = stats.spearmanr(all_returns, all_scores).statistic
   print(f"  rank correlation of episode return and mean log pD over all episodes: {rho:.2f}")

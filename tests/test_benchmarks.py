@@ -214,6 +214,27 @@ def test_expert_eval_splits_returns_by_turns_past_pi(tmp_path, capsys):
   assert not out.exists()
 
 
+def test_form_reward_landscape_splits_log_pd_by_the_next_observations_turn():
+  """log_pd_by_turn: a transition counts as turned when its next observation has a periodic
+  dimension outside [-pi, pi) (pi outside, -pi inside; the first observation and other
+  dimensions never count), against a direct computation."""
+  bench = load_script("form_reward_landscape", folder="benchmarks")
+  period = np.array([0.0, 2 * np.pi], np.float32)
+  obs = np.zeros((2, 4, 2), np.float32)  # [K, T+1, D]
+  obs[0, 0, 1] = 5.0      # the first observation: no transition ends there
+  obs[0, 2, 1] = np.pi    # transition (0, 1) turned
+  obs[1, 3, 1] = -np.pi   # inside
+  obs[1, 1, 0] = 50.0     # not periodic
+  obs[1, 2, 1] = -3.5     # transition (1, 1) turned
+  log_d = np.arange(6.0).reshape(2, 3)
+  split = bench.log_pd_by_turn(obs, period, log_d)
+  turned = np.array([[False, True, False], [False, True, False]])
+  assert split == {"within": pytest.approx(log_d[~turned].mean()),
+                   "turned": pytest.approx(log_d[turned].mean()), "turned_share": 2 / 6}
+  calm = bench.log_pd_by_turn(np.zeros((1, 3, 2), np.float32), period, np.ones((1, 2)))
+  assert calm == {"within": 1.0, "turned": None, "turned_share": 0.0}
+
+
 def test_expert_eval_measures_exploration_along_episodes():
   """`exploration` against a direct count: an action explores next to nothing where its mean
   lies more than 2 scales beyond [-1, 1] (on either side); `policy_at` gives, chunk by chunk,
