@@ -1,5 +1,5 @@
 """What the benchmarks share: result records (JSON Lines under benchmarks/results/), timing,
-and the names of observation dimensions."""
+and where observations turn past a raw angle's [-pi, pi)."""
 
 from __future__ import annotations
 
@@ -40,6 +40,15 @@ def expert_tasks(parser, args) -> list[str]:
 def default_results_path(what: str) -> str:
   day = datetime.date.today().isoformat()
   return os.path.join(RESULTS_DIR, f"{day}_{what}.jsonl")
+
+
+def turned_past(observations, period):
+  """[...] bool: whether a periodic dimension (`period` [D] > 0, the task's
+  `observation_period()`) of observations [..., D] lies outside [-period / 2, period / 2)
+  (pi itself outside, -pi inside): a raw unbounded angle that has turned past pi."""
+  periodic = period > 0
+  raw, half = observations[..., periodic], period[periodic] / 2  # [..., P], [P]
+  return ((raw < -half) | (raw >= half)).any(axis=-1)
 
 
 def best_time(fn, repeats: int) -> float:

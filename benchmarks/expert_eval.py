@@ -100,10 +100,8 @@ def returns_by_turn(observations: np.ndarray, period: np.ndarray,
   observations [K, T, D] leaves [-period / 2, period / 2): per group ("turned", "stayed") the
   episodes, the mean return and the share rewarded (None where empty), and the turned episodes'
   median largest |angle| over their periodic dimensions."""
-  periodic = period > 0
-  raw, half = observations[..., periodic], period[periodic] / 2  # [K, T, P], [P]
-  turned = ((raw < -half) | (raw >= half)).any(axis=(1, 2))
-  angles = np.abs(raw)
+  turned = common.turned_past(observations, period).any(axis=1)  # [K]
+  angles = np.abs(observations[..., period > 0])  # [K, T, P]
 
   def group(mask):
     n = int(mask.sum())
@@ -193,7 +191,6 @@ def main(argv=None) -> int:
     except ValueError as e:
       print(f"error: {task}: {e}", file=sys.stderr)
       return 2
-    period = np.asarray(env.observation_period())
     start = time.perf_counter()
     observations, _, returns = experts.record_demonstrations(
         env, expert, jax.random.PRNGKey(args.seed), args.episodes, args.chunk,
@@ -208,7 +205,8 @@ def main(argv=None) -> int:
           rewarded=(returns > 0).astype(np.float64))}
     if args.by_turn:
       numbers["by_turn"] = {"dimensions": list(env.periodic_observations),
-                            **returns_by_turn(np.asarray(observations), period, returns)}
+                            **returns_by_turn(np.asarray(observations),
+                                              np.asarray(env.observation_period()), returns)}
     writer.write(kind="expert_eval", task=task, physics=env.physics,
                  policy_file=args.policy or os.path.basename(path),
                  policy_sha256=expert.metadata["sha256"],

@@ -28,6 +28,7 @@ import sys
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
+import common  # noqa: E402
 from mjx_form.cpu import configure_cpu_xla  # noqa: E402  (before JAX starts)
 
 configure_cpu_xla()
@@ -77,9 +78,7 @@ def log_pd_by_turn(obs: np.ndarray, period: np.ndarray, log_d: np.ndarray) -> di
   """log pD [K, T] of transitions split by whether the next observation (obs [K, T+1, D]) has
   every periodic dimension (`period` [D] > 0) within [-period / 2, period / 2): the mean of
   each group (None where empty) and the share turned past."""
-  periodic = period > 0
-  nxt, half = obs[:, 1:, periodic], period[periodic] / 2  # [K, T, P], [P]
-  turned = ((nxt < -half) | (nxt >= half)).any(axis=-1)  # [K, T]
+  turned = common.turned_past(obs[:, 1:], period)  # [K, T]
   return {"within": float(log_d[~turned].mean()) if (~turned).any() else None,
           "turned": float(log_d[turned].mean()) if turned.any() else None,
           "turned_share": float(turned.mean())}
@@ -118,6 +117,7 @@ def main(argv=None) -> int:
                  if float(s) != 0]
   behaviours += [("uniform random", None, expert)] + [(n, 0.0, p) for n, p in others]
   names = env_lib.observation_names(env.observation_layout)
+  period = np.asarray(env.observation_period())  # [D]: 2 pi at raw unbounded angles
   reference = None
   all_returns, all_scores = [], []
   print(f"{args.task}: demonstrator {path} (held-out log p at offset 1: "
@@ -141,7 +141,6 @@ def main(argv=None) -> int:
     # How far this behaviour's mean observation sits from the noiseless expert's.
     shift = (flat.mean(axis=0) - reference[0]) / reference[1]
     far = np.argsort(-np.abs(shift))[:3]
-    period = np.asarray(env.observation_period())
     turn = log_pd_by_turn(obs, period, log_d) if period.any() else None
     print(f"  {name:22s} return {returns.mean():7.1f}  log pD per transition: mean "
           f"{log_d.mean():9.2f}  p5/p50/p95 {q[0]:9.2f} {q[1]:8.2f} {q[2]:8.2f}  "
