@@ -8,7 +8,9 @@ Modes (`--modes`):
               over the devices (the mesh of mjx_form/mesh.py: parameters replicated, gradients
               reduced over devices);
   population  `--members_per_device` members per device (`Trainer(..., seeds=range(P))`), each
-              with `--envs_per_member` environments split over the devices.
+              with `--envs_per_member` environments; by default whole members per device
+              (layout "members"), with `--layout environments` each member's environments,
+              replay and batches split over the devices (mjx_form.rl.train.LAYOUTS).
 Each measurement is the best of `--repeats` calls after a warm-up (compile times apart) and is
 printed as it ends, so a run cut off by a time limit still says what it measured; each writes
 a `kind: scaling` record (devices, mode, total env steps/s of the iteration and of env-only
@@ -40,7 +42,7 @@ import tasks  # noqa: E402
 from mjx_form import mesh as mesh_lib  # noqa: E402
 from mjx_form.files import results  # noqa: E402
 from mjx_form.rl.learner import LearnerConfig  # noqa: E402
-from mjx_form.rl.train import Trainer, TrainConfig  # noqa: E402
+from mjx_form.rl.train import LAYOUTS, Trainer, TrainConfig  # noqa: E402
 from mjx_form.sim.physics import DEFAULT_PHYSICS, PHYSICS_MODES  # noqa: E402
 from train_throughput import env_only_fn, time_iterations  # noqa: E402
 
@@ -63,13 +65,15 @@ def trainer_for(mode: str, task: str, devices: int, args) -> Trainer:
                            target_update_period=args.target_update_period,
                            sampled_q_bfloat16=args.sampled_q_bfloat16))
   members = args.members_per_device * devices if mode == "population" else 1
-  return Trainer(config, mesh, seeds=tuple(range(members)))
+  return Trainer(config, mesh, seeds=tuple(range(members)),
+                 layout=args.layout if mode == "population" else None)
 
 
 def measure(trainer: Trainer, mode: str, args, writer, key) -> dict:
   """Env-only stepping and the whole iteration of `trainer`: one record, printed by phase."""
   config, members, devices = trainer.config, trainer.members, trainer.mesh.devices.size
-  label = f"{config.task} {mode} on {devices} device(s)"
+  label = f"{config.task} {mode} on {devices} device(s)" + (
+      f" ({trainer.layout})" if mode == "population" and devices > 1 else "")
   steps, per_iteration = config.unroll_length, config.env_steps_per_iteration * members
   env_only, start = env_only_fn(trainer, steps, key)
   env_sps, env_compile_s = common.time_compiled(env_only, (start, key), steps,
@@ -77,7 +81,7 @@ def measure(trainer: Trainer, mode: str, args, writer, key) -> dict:
   print(f"{label}: env only {env_sps:,.0f} steps/s (compile {env_compile_s:.0f}s)", flush=True)
   state = trainer.init(trainer.keys())
   iteration_s, compile_s, _ = time_iterations(trainer, state, args.repeats)
-  record = {"mode": mode, "devices": devices, "members": members,
+  record = {"mode": mode, "devices": devices, "members": members, "layout": trainer.layout,
             "num_envs": config.num_envs, "total_envs": config.num_envs * members,
             "sps": per_iteration / iteration_s, "env_sps": env_sps,
             "iteration_s": iteration_s,
@@ -106,6 +110,9 @@ def main(argv=None) -> int:
   parser.add_argument("--envs_per_device", type=int, default=2048, help="weak scaling")
   parser.add_argument("--members_per_device", type=int, default=2, help="population")
   parser.add_argument("--envs_per_member", type=int, default=512, help="population")
+  parser.add_argument("--layout", default=None, choices=LAYOUTS,
+                      help="population: how its members lie on the devices (default: whole "
+                           "members per device)")
   parser.add_argument("--physics", default=DEFAULT_PHYSICS, choices=PHYSICS_MODES)
   parser.add_argument("--unroll_length", type=int, default=defaults.unroll_length)
   parser.add_argument("--batch_size", type=int, default=defaults.batch_size,

@@ -17,7 +17,10 @@ after a warm-up call; compile times are recorded apart.
 With `--members 1 2 4 8 16` it measures populations (`Trainer(..., seeds=range(P))`: P runs of
 `--num_envs` environments each in one program) and writes `kind: population_throughput`
 records: total env steps per second of the whole iteration over all members, the env-only
-rollout of all P x N environments, and the split into collection and updates.
+rollout of all P x N environments, and the split into collection and updates. Over several
+devices (all visible ones; `CUDA_VISIBLE_DEVICES=0` for one GPU of the same host) the
+population takes the trainer's default layout, whole members per device where they split
+evenly (`--layout` chooses: mjx_form.rl.train.LAYOUTS); the records say which.
 """
 
 from __future__ import annotations
@@ -42,7 +45,7 @@ from mjx_form import mesh as mesh_lib  # noqa: E402
 from mjx_form.files import results  # noqa: E402
 from mjx_form.sim.physics import DEFAULT_PHYSICS, PHYSICS_MODES  # noqa: E402
 from mjx_form.rl.learner import LearnerConfig  # noqa: E402
-from mjx_form.rl.train import Trainer, TrainConfig  # noqa: E402
+from mjx_form.rl.train import LAYOUTS, Trainer, TrainConfig  # noqa: E402
 from mjx_form.sim.wrappers import AutoReset  # noqa: E402
 
 
@@ -107,7 +110,8 @@ def measure(trainer: Trainer, label: str, kind: str, args, writer, key) -> None:
       "env_compile_s": env_compile_s, "collect_compile_s": collect_compile_s}
   settings = {**config.to_dict(), "updates_per_env_step": config.updates_per_env_step,
               "replay_ratio": config.replay_ratio, "repeats": args.repeats}
-  fields = {"members": members} if kind == "population_throughput" else {}
+  fields = ({"members": members, "devices": trainer.mesh.devices.size,
+             "layout": trainer.layout} if kind == "population_throughput" else {})
   writer.write(kind=kind, task=config.task, method="expert", physics=config.physics,
                num_envs=config.num_envs, settings=settings, **fields, **result)
   memory = result["peak_memory_bytes"]
@@ -141,6 +145,9 @@ def parse_args(argv=None) -> argparse.Namespace:
                       "phases, whose resets then run in every iteration)")
   parser.add_argument("--members", nargs="*", type=int, default=None,
                       help="population sizes to measure (kind population_throughput)")
+  parser.add_argument("--layout", default=None, choices=LAYOUTS,
+                      help="how a population lies on several devices (default: whole members "
+                           "per device where they split evenly)")
   parser.add_argument("--sampled_q_bfloat16", action="store_true",
                       help="the learner's Q of the sampled actions in bfloat16 (LearnerConfig)")
   parser.add_argument("--repeats", type=int, default=3)
@@ -159,8 +166,15 @@ def main(argv=None) -> int:
   for name in args.tasks:
     for num_envs in args.num_envs:
       for members in args.members or [1]:
-        trainer = Trainer(train_config(args, name, num_envs), seeds=tuple(range(members)))
-        label = f"{name} {num_envs} envs" + (f" x {members} members" if args.members else "")
+        try:
+          trainer = Trainer(train_config(args, name, num_envs), seeds=tuple(range(members)),
+                            layout=args.layout)
+        except ValueError as e:  # e.g. members that do not split over the devices
+          print(f"error: {name} {num_envs} envs x {members} members: {e}", file=sys.stderr)
+          return 2
+        label = f"{name} {num_envs} envs" + (
+            f" x {members} members ({trainer.layout} over {trainer.mesh.devices.size} "
+            "device(s))" if args.members else "")
         measure(trainer, label, kind, args, writer, key)
   print(f"results appended to {args.out}")
   return 0

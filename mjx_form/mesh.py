@@ -33,6 +33,11 @@ def member_batch_sharding(mesh: Mesh) -> NamedSharding:
   return NamedSharding(mesh, PartitionSpec(None, BATCH_AXIS))
 
 
+def member_sharding(mesh: Mesh) -> NamedSharding:
+  """A population's per-member state [P, ...]: the member axis split over the mesh."""
+  return NamedSharding(mesh, PartitionSpec(BATCH_AXIS))
+
+
 def replicated(mesh: Mesh) -> NamedSharding:
   return NamedSharding(mesh, PartitionSpec())
 

@@ -567,30 +567,47 @@ def population_table(records: list[dict]) -> str:
   if not rows:
     return "No population throughput results yet."
   key = lambda r, p: (r.get("_file", ""), r["task"], r["device"], r["num_envs"], p,
-                      r["settings"]["updates_per_iteration"], _learner_label(r))
+                      r["settings"]["updates_per_iteration"], _learner_label(r), _layout(r))
   newest = _newest(rows, lambda r: key(r, r["members"]))
+  # The same population on one device of the same model (the newest such record; from the
+  # same result file where it has one), for rows measured over several devices.
+  one_device = lambda r: (r["task"], _device_model(r["device"]) + " x1", r["num_envs"],
+                          r["members"], r["settings"]["updates_per_iteration"],
+                          _learner_label(r))
+  alone = {}
+  for r in sorted(newest.values(), key=lambda r: r.get("time", "")):
+    if r.get("devices", 1) == 1:
+      alone[one_device(r)] = alone[(r.get("_file", ""), *one_device(r))] = r
   lines = ["Populations (`Trainer(..., seeds=range(P))`, `benchmarks/train_throughput.py "
            "--members`): total env steps per second of the whole training iteration over all "
            "P members, its speed-up over P = 1 measured in the same result file, and the "
            "iteration's split into collection (all members' environments and policies) and "
            "updates (each member's `updates_per_iteration` MPO/Retrace updates, side by side); "
            "peak device memory of the process (each member's replay of 10,000 unrolls "
-           "included); learner: its settings that differ from the paper's:", "",
+           "included); learner: its settings that differ from the paper's. Over several "
+           "devices, the layout (whole members per device, or each member's environments, "
+           "replay and batches split over the devices) and the speed-up over the same "
+           "population on one device of the same model:", "",
            "| task | device | envs / member | updates / iteration | learner | P | total steps/s | "
-           "speed-up over P = 1 | iteration | collection | updates | ms / update / member | "
-           "peak memory | result file |",
-           "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+           "speed-up over P = 1 | layout | over one device | iteration | collection | updates | "
+           "ms / update / member | peak memory | result file |",
+           "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
   ordered = sorted(newest.values(), key=lambda r: (_order(r["task"]), r["device"],
                                                    r["num_envs"], r.get("_file", ""),
-                                                   r["members"]))
+                                                   r["members"], _layout(r)))
   # Where a result file has no P = 1, the newest P = 1 of the same task, device and settings
   # from another file stands in, marked with an asterisk.
   elsewhere = {k[1:]: r for k, r in sorted(newest.items(), key=lambda kr: kr[1].get("time", ""))
                if r["members"] == 1}
   starred = False
   for r in ordered:
-    one = newest.get(key(r, 1))
+    one = newest.get(key(r, 1)) or (newest.get(key(r, 1)[:-1] + ("environments",))
+                                    if r.get("devices", 1) > 1 else None)
     speedup = f"{r['sps'] / one['sps']:.2f}x" if one else "-"
+    over_one = "-"
+    if r.get("devices", 1) > 1:
+      same = alone.get((r.get("_file", ""), *one_device(r))) or alone.get(one_device(r))
+      over_one = f"{r['sps'] / same['sps']:.2f}x" if same else "-"
     if one is None and key(r, 1)[1:] in elsewhere:
       speedup = f"{r['sps'] / elsewhere[key(r, 1)[1:]]['sps']:.2f}x*"
       starred = True
@@ -601,13 +618,26 @@ def population_table(records: list[dict]) -> str:
     lines.append(f"| {r['task']} | `{r['device']}` | {r['num_envs']} | "
                  f"{r['settings']['updates_per_iteration']} | {_learner_label(r)} | "
                  f"{r['members']} | {_k(r['sps'])} | "
-                 f"{speedup} | {r['iteration_s']:.2f} s | {r['collect_s']:.2f} s | "
+                 f"{speedup} | {_layout(r)} | {over_one} | {r['iteration_s']:.2f} s | "
+                 f"{r['collect_s']:.2f} s | "
                  f"{updates_s:.2f} s | {per_member:.2f} | "
                  f"{'-' if memory is None else f'{memory / 2**30:.1f} GiB'} | {label} |")
   if starred:
     lines += ["", "\\* over P = 1 of another result file (same task, device, environments, "
               "updates and learner settings)."]
   return "\n".join(lines)
+
+
+def _device_model(device: str) -> str:
+  """'gpu:NVIDIA H200 x2' -> 'gpu:NVIDIA H200' (the count a record's device string ends with)."""
+  model, _, count = device.rpartition(" x")
+  return model if model and count.isdigit() else device
+
+
+def _layout(record: dict) -> str:
+  """How a record's members lay on its devices: '-' on one device (where it makes no
+  difference); records from before layouts existed split environments."""
+  return "-" if record.get("devices", 1) == 1 else record.get("layout", "environments")
 
 
 def scaling_table(records: list[dict]) -> str:
@@ -619,28 +649,34 @@ def scaling_table(records: list[dict]) -> str:
             "only).")
   per_device = lambda r: (r["total_envs"] // r["devices"], r["members"] // r["devices"]
                           if r["mode"] == "population" else r["members"])
-  key = lambda r, n: (r["task"], r["mode"], r["device"], *per_device(r),
-                      r["settings"]["updates_per_iteration"], _learner_label(r), n)
-  newest = _newest(rows, lambda r: key(r, r["devices"]))
+  # The host: the device model without the count ("gpu:NVIDIA H200 x2" -> "gpu:NVIDIA H200"),
+  # so that N devices compare with one of the same model.
+  host = lambda r: _device_model(r["device"])
+  key = lambda r, n, layout: (r["task"], r["mode"], host(r), *per_device(r),
+                              r["settings"]["updates_per_iteration"], _learner_label(r), n,
+                              layout)
+  newest = _newest(rows, lambda r: key(r, r["devices"], _layout(r)))
   lines = ["Scaling over the devices of one host (`benchmarks/scaling.py`): total env steps per "
            "second of the whole training iteration (and of env-only stepping) on N devices; "
            "efficiency = steps/s on N devices / (N x steps/s on one device of the same host, "
            "same amounts per device). weak: one run, its environments, learner batch and "
-           "replay per device fixed; population: members per device fixed, each member's "
-           "environments split over the devices:", "",
+           "replay per device fixed; population: members per device fixed, laid out whole "
+           "members per device (members) or each member's environments, replay and batches "
+           "split over the devices (environments):", "",
            "| task | mode | device | learner | envs / device | updates / iteration | members | N | "
-           "iteration steps/s | efficiency | env-only steps/s | efficiency | iteration | peak "
-           "memory |", "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
-  ordered = sorted(newest.values(), key=lambda r: (_order(r["task"]), r["mode"], r["device"],
-                                                   _learner_label(r), r["devices"]))
+           "layout | iteration steps/s | efficiency | env-only steps/s | efficiency | iteration | "
+           "peak memory |", "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+  ordered = sorted(newest.values(), key=lambda r: (_order(r["task"]), r["mode"], host(r),
+                                                   _learner_label(r), r["devices"],
+                                                   _layout(r)))
   for r in ordered:
-    one = newest.get(key(r, 1))
+    one = newest.get(key(r, 1, "-"))
     n = r["devices"]
     eff = lambda field: f"{r[field] / (n * one[field]):.2f}" if one else "-"
     memory = r.get("peak_memory_bytes")
     lines.append(f"| {r['task']} | {r['mode']} | `{r['device']}` | {_learner_label(r)} | "
                  f"{r['total_envs'] // n} | {r['settings']['updates_per_iteration']} | "
-                 f"{r['members']} | {n} | {_k(r['sps'])} | "
+                 f"{r['members']} | {n} | {_layout(r)} | {_k(r['sps'])} | "
                  f"{eff('sps')} | {_k(r['env_sps'])} | {eff('env_sps')} | "
                  f"{r['iteration_s']:.2f} s | "
                  f"{'-' if memory is None else f'{memory / 2**30:.1f} GiB'} |")

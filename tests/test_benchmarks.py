@@ -31,6 +31,19 @@ def test_train_throughput_env_only_runs_over_the_loops_devices():
   exe(end, key).obs.block_until_ready()
 
 
+def test_train_throughput_refuses_a_population_that_does_not_split_over_the_devices(tmp_path,
+                                                                                  capsys):
+  """--layout members with 3 members on the 2 devices: exit 2 naming the sizes, before any
+  compile, nothing written."""
+  bench = load_script("train_throughput", folder="benchmarks")
+  out = tmp_path / "out.jsonl"
+  assert bench.main(["--tasks", "reacher_easy", "--num_envs", "4", "--members", "3",
+                     "--layout", "members", "--out", str(out)]) == 2
+  assert "'members' needs the members (3) to be a multiple of the devices (2)" in (
+      capsys.readouterr().err)
+  assert not out.exists()
+
+
 def test_train_throughput_measures_the_learner_settings_it_is_given():
   """--sampled_q_bfloat16 reaches the measured learner (and its records' settings); without
   it the learner is the default one."""
@@ -56,7 +69,8 @@ def test_scaling_measures_weak_scaling_and_builds_populations_over_the_devices(t
   args = argparse.Namespace(
       physics="fast", envs_per_device=2, members_per_device=2, envs_per_member=2,
       unroll_length=10, batch_size=2, replay_capacity=6, updates_per_iteration=2,
-      network_width=32, num_action_samples=4, target_update_period=3, sampled_q_bfloat16=False)
+      network_width=32, num_action_samples=4, target_update_period=3, sampled_q_bfloat16=False,
+      layout=None)
   assert bench.trainer_for("weak", "reacher_easy", 2, args).config == CONFIG
   bf16 = argparse.Namespace(**{**vars(args), "sampled_q_bfloat16": True})
   assert bench.trainer_for("weak", "reacher_easy", 2, bf16).config.learner.sampled_q_bfloat16
@@ -70,9 +84,14 @@ def test_scaling_measures_weak_scaling_and_builds_populations_over_the_devices(t
   assert weak["total_envs"] == 4 and weak["settings"]["batch_size"] == 4
   assert weak["settings"]["replay_capacity"] == 12
   assert weak["sps"] > 0 and weak["env_sps"] > 0 and 0 < weak["iteration_s"] < 60
+  assert weak["layout"] == "environments"
   population = bench.trainer_for("population", "reacher_easy", 2, args)
   assert population.members == 4 and population.config.num_envs == 2
   assert population.mesh.devices.size == 2 and population.config.batch_size == 2
+  assert population.layout == "members"  # whole members per device, unless asked otherwise
+  split = argparse.Namespace(**{**vars(args), "layout": "environments"})
+  assert bench.trainer_for("population", "reacher_easy", 2, split).layout == "environments"
+  assert bench.trainer_for("weak", "reacher_easy", 2, split).layout == "environments"
   one = bench.trainer_for("weak", "reacher_easy", 1, args)
   assert one.mesh.devices.size == 1 and one.config.num_envs == 2
   # A device count the host lacks is refused before anything runs.

@@ -5,6 +5,8 @@ devices)."""
 import csv
 import dataclasses
 import json
+import math
+import re
 
 import jax
 import jax.numpy as jnp
@@ -95,6 +97,56 @@ def test_members_are_the_runs_their_seeds_and_settings_give_alone(population):
   # The members differ from each other (their seeds do).
   assert not np.allclose(pop_state.env.obs[:CONFIG.num_envs],
                          pop_state.env.obs[CONFIG.num_envs:2 * CONFIG.num_envs])
+
+
+def _exchanged(compiled) -> dict[str, int]:
+  """{collective: largest number of elements one op of it moves} in a compiled program's HLO."""
+  largest = {}
+  for line in compiled.as_text().splitlines():
+    m = re.search(r"= (.+?) (all-reduce|all-gather|all-to-all|collective-permute|"
+                  r"reduce-scatter)(?:-start)?\(", line)
+    if m:
+      sizes = [math.prod(int(d) for d in dims.split(",") if d)
+               for dims in re.findall(r"\[([\d,]*)\]", m.group(1))]
+      largest[m.group(2)] = max(largest.get(m.group(2), 0), sum(sizes))
+  return largest
+
+
+def test_whole_members_per_device_compute_the_same_and_exchange_no_gradients(population):
+  """Two members on two devices lie one per device by default ("members"): each member's
+  learner, normaliser and replay sit on one device, its updates exchange nothing with the other
+  device (only the predicate of the auto-reset's branch and the [P] metrics cross, where the
+  other layout averages gradients), and the iterations compute what the layout that splits
+  each member's environments over both devices computes."""
+  assert population.layout == "members"
+  split = Trainer(CONFIG, mesh_lib.make_mesh(), seeds=SEEDS, overrides=OVERRIDES,
+                  layout="environments")
+  ours = _exchanged(population.iteration.lower(population.abstract_state).compile())
+  theirs = _exchanged(split.iteration.lower(split.abstract_state).compile())
+  assert max(ours.values()) <= population.members, ours
+  assert max(theirs.values()) > 1000, theirs  # the critic's gradients, for one
+  a, _ = run_iterations(population, population.init(population.keys()), 3)
+  b, _ = run_iterations(split, split.init(split.keys()), 3)
+  weights = jax.tree.leaves(a.learner.policy)[0]
+  held = sorted((shard.index[0].start, shard.device.id) for shard in weights.addressable_shards)
+  assert held == [(0, 0), (1, 1)] and all(shard.data.shape[0] == 1
+                                          for shard in weights.addressable_shards)
+  for (path, x), y in zip(jax.tree_util.tree_leaves_with_path(
+      (a.learner, a.normalizer, a.replay, a.episode_return)),
+      jax.tree.leaves((b.learner, b.normalizer, b.replay, b.episode_return))):
+    np.testing.assert_allclose(np.asarray(x), np.asarray(y), rtol=2e-4, atol=2e-5,
+                               err_msg=jax.tree_util.keystr(path))
+
+
+def test_layouts_are_checked():
+  three = Trainer(CONFIG, mesh_lib.make_mesh(), seeds=(0, 1, 2))
+  assert three.layout == "environments"  # 3 members do not split over 2 devices
+  with pytest.raises(ValueError, match=r"'members' needs the members \(3\) to be a multiple"):
+    Trainer(CONFIG, mesh_lib.make_mesh(), seeds=(0, 1, 2), layout="members")
+  with pytest.raises(ValueError, match="unknown layout 'rows'; valid layouts: environments, "
+                                       "members"):
+    Trainer(CONFIG, mesh_lib.make_mesh(), seeds=(0, 1), layout="rows")
+  assert Trainer(CONFIG, mesh_lib.make_mesh()).layout == "environments"  # a single run
 
 
 def test_a_failing_member_leaves_the_others_alone(population):

@@ -235,9 +235,9 @@ def test_population_table_gives_the_speed_up_over_one_member_of_the_same_file_or
                                    record(4, 100_000, 2.0, 0.8, later, bf16)])
   rows = [line for line in table.splitlines() if line.startswith("| cheetah_run")]
   # P = 8: 4.00x; updates 1.2 s over 100 updates and 8 members = 1.50 ms each.
-  assert rows[1] == ("| cheetah_run | `gpu:X` | 512 | 100 | - | 8 | 200k | 4.00x | 2.00 s | "
-                     "0.80 s | 1.20 s | 1.50 | 8.0 GiB | 2026-12-01 |"), rows
-  assert "| 1 | 50k | 1.00x | 1.00 s | 0.40 s | 0.60 s | 6.00 | 1.0 GiB |" in rows[0], rows
+  assert rows[1] == ("| cheetah_run | `gpu:X` | 512 | 100 | - | 8 | 200k | 4.00x | - | - | "
+                     "2.00 s | 0.80 s | 1.20 s | 1.50 | 8.0 GiB | 2026-12-01 |"), rows
+  assert "| 1 | 50k | 1.00x | - | - | 1.00 s | 0.40 s | 0.60 s | 6.00 | 1.0 GiB |" in rows[0], rows
   # The later file's P = 4 is against its own P = 1 (40k), not the other file's (50k); its
   # learner's departure from the paper's is named.
   assert rows[3].startswith("| cheetah_run | `gpu:X` | 512 | 100 | sampled Q in bf16 | 4 | 100k | "
@@ -259,6 +259,24 @@ def test_population_table_gives_the_speed_up_over_one_member_of_the_same_file_or
   assert "| 8 | 100k | - |" in rows["T 25"], rows
   assert table.endswith("\\* over P = 1 of another result file (same task, device, "
                         "environments, updates and learner settings)."), table
+
+  # Over two devices: each layout's speed-up over the same population on one device of the
+  # same model (here from another file) and over P = 1 on the two devices (a single run
+  # splits its environments, whatever the population's layout).
+  two = "2026-12-04_population_throughput_two_gpus.jsonl"
+  on = lambda r, devices, layout: r | {"device": f"gpu:X x{devices}", "devices": devices,
+                                       "layout": layout}
+  table = report.population_table([
+      on(record(8, 200_000, 2.0, 0.8, later), 1, "environments") | {"time": "1"},
+      on(record(8, 300_000, 2.0, 0.8, later), 1, "environments") | {"time": "0"},
+      on(record(1, 60_000, 1.0, 0.4, two), 2, "environments"),
+      on(record(8, 380_000, 2.0, 0.8, two), 2, "members"),
+      on(record(8, 250_000, 2.0, 0.8, two), 2, "environments")])
+  rows = {tuple(line.split(" | ")[5:10]): line for line in table.splitlines()
+          if line.startswith("| cheetah_run")}
+  assert ("8", "380k", "6.33x", "members", "1.90x") in rows, rows  # the newest one-device 200k
+  assert ("8", "250k", "4.17x", "environments", "1.25x") in rows, rows
+  assert ("8", "200k", "-", "-", "-") in rows, rows
 
 
 def test_learner_label_names_what_differs_from_the_paper():
@@ -287,12 +305,24 @@ def test_scaling_table_gives_the_efficiency_against_one_device():
                                 record(1, 25_000, 500_000, learner=bf16),
                                 record(8, 150_000, 3_600_000, learner=bf16)])
   rows = [line for line in table.splitlines() if line.startswith("| humanoid_run")]
-  assert "| 8 | 144k | 0.90 | 3.60M | 0.90 | 1.50 s | 2.0 GiB |" in rows[1], rows
-  assert "| 1 | 20k | 1.00 | 500k | 1.00 |" in rows[0], rows
+  assert "| 8 | environments | 144k | 0.90 | 3.60M | 0.90 | 1.50 s | 2.0 GiB |" in rows[1], rows
+  assert "| 1 | - | 20k | 1.00 | 500k | 1.00 |" in rows[0], rows
   # a bf16 learner's rows keep their own one-device row (25k, not the float32 run's 20k)
   assert rows[3].startswith("| humanoid_run | weak | `gpu:H x8` | sampled Q in bf16 | 2048 | 128 "
-                            "| 1 | 8 | 150k | 0.75 |"), rows
-  assert "| 8 | 100k | - | 1.00M | - |" in rows[4], rows  # no one-device row on that host
+                            "| 1 | 8 | environments | 150k | 0.75 |"), rows
+  assert "| 8 | environments | 100k | - | 1.00M | - |" in rows[4], rows  # no one-device row there
+  # A population over two devices, in each layout, against one device of the same model (its
+  # record says x1: measured with one device visible).
+  def population(devices, sps, layout=None, device="gpu:H x2"):
+    return record(devices, sps, 1e6, mode="population", device=device) | {
+        "members": 2 * devices, "total_envs": 1024 * devices, "layout": layout}
+  table = report.scaling_table([population(1, 200_000, "environments", "gpu:H x1"),
+                                population(2, 380_000, "members"),
+                                population(2, 240_000, "environments")])
+  rows = [line for line in table.splitlines() if line.startswith("| humanoid_run")]
+  assert "| 2 | 1 | - | 200k | 1.00 |" in rows[0], rows
+  assert "| 4 | 2 | environments | 240k | 0.60 |" in rows[1], rows
+  assert "| 4 | 2 | members | 380k | 0.95 |" in rows[2], rows
 
 
 def test_demonstrator_tables_show_the_held_out_likelihood():

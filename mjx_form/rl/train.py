@@ -10,9 +10,13 @@ One call of `Trainer.iteration` (a single jitted program) does, for every member
      from the replay and relabelled by the reward source.
 Python only loops over iterations (logging, evaluation, checkpoints).
 
-Sharding: environments, replay slots and sampled batches are split over the mesh's batch
-axis (within each member); parameters, optimiser states and normaliser are replicated; XLA
-averages gradients.
+Sharding (`LAYOUTS`): the environments' batch [P * N] is split over the mesh's batch axis.
+A single run, or a population whose members do not split evenly over the devices, splits its
+replay slots and sampled batches over the devices within each member too ("environments");
+parameters, optimiser states and normaliser are replicated and XLA averages gradients. A
+population of P members on D devices with D dividing P puts whole members on each device
+("members": every member-axis leaf split over the devices), so a member's updates run on one
+device with no gradient exchange.
 Every random draw is made on global arrays, so a run does not depend on the device count
 beyond float rounding.
 
@@ -50,6 +54,9 @@ from mjx_form.rl.reward_sources import make_reward_source
 from mjx_form.sim import env as env_lib
 from mjx_form.sim import physics as physics_lib
 from mjx_form.sim.wrappers import AutoReset
+
+# How a population's state lies on the devices of the mesh (`Trainer(layout=...)`).
+LAYOUTS = ("environments", "members")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -166,11 +173,13 @@ class Trainer:
 
   def __init__(self, config: TrainConfig, mesh=None, reward_source=None,
                seeds: tuple[int, ...] | None = None,
-               overrides: tuple[dict, ...] | None = None):
+               overrides: tuple[dict, ...] | None = None, layout: str | None = None):
     """`reward_source` overrides the source named by `config.reward_source` (see
     mjx_form.rl.reward_sources for the interface); `seeds`: the members' seeds (default:
     `config.seed` alone); `overrides`: each member's own values of settings that may differ
-    between members (mjx_form.rl.grid; default: none), one dict per seed."""
+    between members (mjx_form.rl.grid; default: none), one dict per seed; `layout`: one of
+    `LAYOUTS` (default: "members" where the members split evenly over several devices, else
+    "environments")."""
     self.mesh = mesh if mesh is not None else mesh_lib.make_mesh()
     config.check(self.mesh.devices.size)
     self.seeds = tuple(seeds) if seeds is not None else (config.seed,)
@@ -189,8 +198,16 @@ class Trainer:
     self.members = len(self.seeds)
     self.config = config
     self.env = tasks.make(config.task, physics=config.physics)
+    self.layout = self._choose_layout(layout)
+    # [P * N, ...] environments: split over the devices (whole members per device when the
+    # members split evenly over them: member i's environments are [i * N, (i + 1) * N)).
     self._batch = mesh_lib.batch_sharding(self.mesh)
-    self._member_batch = mesh_lib.member_batch_sharding(self.mesh)
+    self._replicated = mesh_lib.replicated(self.mesh)
+    if self.layout == "members":  # [P, ...] leaves split by member
+      self._member = self._member_batch = mesh_lib.member_sharding(self.mesh)
+    else:  # [P, ...] replicated, [P, N, ...] batches split within each member
+      self._member = self._replicated
+      self._member_batch = mesh_lib.member_batch_sharding(self.mesh)
     self.auto_reset = AutoReset(self.env, self._batch)
     self.networks = networks_lib.make_networks(self.env.action_size, config.network_width,
                                                config.policy_head)
@@ -216,7 +233,6 @@ class Trainer:
     # (a member whose flag is off leaves it at its initial value).
     self._init_learner = grid.learner_config(config.learner, {"action_penalty": any(
         self.member_config(i).learner.mpo.action_penalty for i in range(self.members))})
-    self._replicated = mesh_lib.replicated(self.mesh)
     abstract = jax.eval_shape(self._init, self.keys(0))
     self.state_sharding = self._shardings(abstract)
     self.abstract_state = jax.tree.map(  # shapes, dtypes, shardings
@@ -228,6 +244,18 @@ class Trainer:
                              out_shardings=(self.state_sharding, self._replicated))
     self.evaluate = jax.jit(self._evaluate, static_argnames="num_envs",
                             out_shardings=self._replicated)
+
+  def _choose_layout(self, layout: str | None) -> str:
+    devices = self.mesh.devices.size
+    even = self.members % devices == 0
+    if layout is None:
+      return "members" if devices > 1 and even else "environments"
+    if layout not in LAYOUTS:
+      raise ValueError(f"unknown layout {layout!r}; valid layouts: {', '.join(LAYOUTS)}")
+    if layout == "members" and not even:
+      raise ValueError(f"layout 'members' needs the members ({self.members}) to be a multiple "
+                       f"of the devices ({devices})")
+    return layout
 
   def _default(self, name: str):
     """The run's own value of a setting that members may override."""
@@ -338,16 +366,16 @@ class Trainer:
         settings=grid.arrays(self._settings, self._setting_names))
 
   def _shardings(self, abstract: TrainState) -> TrainState:
-    rep = lambda tree: jax.tree.map(lambda _: self._replicated, tree)
+    per_member = lambda tree: jax.tree.map(lambda _: self._member, tree)  # [P, ...]
     bat = lambda tree: jax.tree.map(lambda _: self._batch, tree)
     return TrainState(
-        learner=rep(abstract.learner), normalizer=rep(abstract.normalizer),
+        learner=per_member(abstract.learner), normalizer=per_member(abstract.normalizer),
         replay=replay.ReplayState(jax.tree.map(lambda _: self._member_batch,
                                                abstract.replay.data),
-                                  self._replicated, self._replicated),
-        env=bat(abstract.env), episode_return=self._batch, source=rep(abstract.source),
-        noise=self._batch, key=self._replicated, iteration=self._replicated,
-        settings=rep(abstract.settings))
+                                  self._member, self._member),
+        env=bat(abstract.env), episode_return=self._batch, source=per_member(abstract.source),
+        noise=self._batch, key=self._member, iteration=self._replicated,
+        settings=per_member(abstract.settings))
 
   # --- one iteration ----------------------------------------------------------------------
 
