@@ -80,8 +80,10 @@ def _random_rollout(step, num_envs: int, action_size: int, steps: int):
   return jax.jit(run, donate_argnums=0)
 
 
-def ours_fn(env, num_envs: int, steps: int):
-  return _random_rollout(AutoReset(env).step, num_envs, env.action_size, steps)
+def ours_fn(env, num_envs: int, steps: int, auto_reset: AutoReset | None = None):
+  """`AutoReset(env).step` (or `auto_reset`'s, e.g. one over a device mesh)."""
+  step = (auto_reset or AutoReset(env)).step
+  return _random_rollout(step, num_envs, env.action_size, steps)
 
 
 def step_fn(env, num_envs: int, steps: int):

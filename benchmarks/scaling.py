@@ -13,11 +13,13 @@ Modes (`--modes`):
               replay and batches split over the devices (mjx_form.rl.train.LAYOUTS).
 Each measurement is the best of `--repeats` calls after a warm-up (compile times apart) and is
 printed as it ends, so a run cut off by a time limit still says what it measured; each writes
-a `kind: scaling` record (devices, mode, total env steps/s of the iteration and of env-only
-stepping, peak memory of the busiest device so far in this process: run one device count per
-process for a clean peak). The iteration's split into collection and updates on one device:
-benchmarks/train_throughput.py. Efficiency (steps/s on N devices
-over N x one device's) is computed where the table is made (scripts/report.py).
+a `kind: scaling` record: devices, mode, layout, total env steps/s of the iteration and of
+env-only stepping (each device stepping its own environments, as the loop does; with
+`--whole_batch_env_steps` also the batch stepped as one, for what that costs), peak memory of
+the busiest device so far in this process (run one device count per process for a clean
+peak). The iteration's split into collection and updates: benchmarks/train_throughput.py.
+Efficiency (steps/s on N devices over N x one device's) is computed where the table is made
+(scripts/report.py).
 
   python benchmarks/scaling.py --tasks humanoid_run cheetah_run --devices 1 2 4 8
 """
@@ -79,6 +81,13 @@ def measure(trainer: Trainer, mode: str, args, writer, key) -> dict:
   env_sps, env_compile_s = common.time_compiled(env_only, (start, key), steps,
                                                 config.num_envs * members, args.repeats)
   print(f"{label}: env only {env_sps:,.0f} steps/s (compile {env_compile_s:.0f}s)", flush=True)
+  whole = {}
+  if args.whole_batch_env_steps and devices > 1:  # what stepping the batch as one costs
+    env_only, start = env_only_fn(trainer, steps, key, per_device=False)
+    whole["env_whole_batch_sps"], _ = common.time_compiled(
+        env_only, (start, key), steps, config.num_envs * members, args.repeats)
+    print(f"{label}: env only, the batch stepped as one: {whole['env_whole_batch_sps']:,.0f} "
+          "steps/s", flush=True)
   state = trainer.init(trainer.keys())
   iteration_s, compile_s, _ = time_iterations(trainer, state, args.repeats)
   record = {"mode": mode, "devices": devices, "members": members, "layout": trainer.layout,
@@ -86,7 +95,7 @@ def measure(trainer: Trainer, mode: str, args, writer, key) -> dict:
             "sps": per_iteration / iteration_s, "env_sps": env_sps,
             "iteration_s": iteration_s,
             "peak_memory_bytes": results.peak_memory_bytes(), "compile_s": compile_s,
-            "env_compile_s": env_compile_s}
+            "env_compile_s": env_compile_s, **whole}
   settings = {**config.to_dict(), "repeats": args.repeats}
   writer.write(kind="scaling", task=config.task, method="expert", physics=config.physics,
                settings=settings, **record)
@@ -130,6 +139,10 @@ def main(argv=None) -> int:
   parser.add_argument("--sampled_q_bfloat16", action="store_true",
                       help="the target critic's Q of the sampled actions in bfloat16 (FORM's "
                            "default learner); by default float32, the paper's")
+  parser.add_argument("--whole_batch_env_steps", action="store_true",
+                      help="on several devices, also env-only stepping with the batch stepped as "
+                           "one program-wide (every solver iteration and restart branch agreed "
+                           "over all devices), as the loop did before 2026-11-25")
   parser.add_argument("--repeats", type=int, default=3)
   parser.add_argument("--out", default=common.default_results_path("scaling"))
   args = parser.parse_args(argv)

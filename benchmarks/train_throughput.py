@@ -49,13 +49,15 @@ from mjx_form.rl.train import LAYOUTS, Trainer, TrainConfig  # noqa: E402
 from mjx_form.sim.wrappers import AutoReset  # noqa: E402
 
 
-def env_only_fn(trainer: Trainer, steps: int, key):
+def env_only_fn(trainer: Trainer, steps: int, key, per_device: bool = True):
   """(jitted `run(state, key)`, start state): `steps` calls of `AutoReset(task).step` with
   random actions for the trainer's environments (all members'), split over its mesh as the
-  loop's are."""
+  loop's are; each device stepping its own part (as the loop does), or with `per_device=False`
+  the whole batch as one (mjx_form.sim.wrappers.AutoReset)."""
   num_envs, mesh = trainer.config.num_envs * trainer.members, trainer.mesh
   start = jax.jit(lambda k: AutoReset(trainer.env).reset(k, num_envs))(key)
-  run = jax.jit(ours_fn(trainer.env, num_envs, steps), donate_argnums=0,
+  auto_reset = AutoReset(trainer.env, mesh_lib.batch_sharding(mesh), per_device=per_device)
+  run = jax.jit(ours_fn(trainer.env, num_envs, steps, auto_reset), donate_argnums=0,
                 in_shardings=(mesh_lib.batch_sharding(mesh), mesh_lib.replicated(mesh)),
                 out_shardings=mesh_lib.batch_sharding(mesh))
   return run, mesh_lib.shard_batch(start, mesh)

@@ -42,6 +42,20 @@ def replicated(mesh: Mesh) -> NamedSharding:
   return NamedSharding(mesh, PartitionSpec())
 
 
+def per_device(fn, sharding: NamedSharding | None):
+  """`fn` of arguments batched as `sharding` splits them, run by each device of its mesh on its
+  own part of the batch (`jax.shard_map`; `fn` itself where there is one device or no mesh).
+
+  For independent environments: a loop over a batch (MJX's solver iterations, a restart branch)
+  then ends when the device's own environments are done, where over the whole batch the devices
+  would agree at every iteration on whether any environment anywhere goes on."""
+  mesh = getattr(sharding, "mesh", None)
+  if mesh is None or mesh.devices.size == 1:
+    return fn
+  return jax.shard_map(fn, mesh=mesh, in_specs=sharding.spec, out_specs=sharding.spec,
+                       check_vma=False)  # (MJX is not written for shard_map's type check)
+
+
 def shard_batch(tree, mesh: Mesh):
   """Places every leaf of a batched pytree with its leading axis split over the mesh."""
   return jax.device_put(tree, batch_sharding(mesh))

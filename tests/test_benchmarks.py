@@ -75,8 +75,9 @@ def test_scaling_measures_weak_scaling_and_builds_populations_over_the_devices(t
   bf16 = argparse.Namespace(**{**vars(args), "sampled_q_bfloat16": True})
   assert bench.trainer_for("weak", "reacher_easy", 2, bf16).config.learner.sampled_q_bfloat16
   assert bench.main(["--tasks", "reacher_easy", "--devices", "2", "--modes", "weak", *sizes,
-                     "--repeats", "1", "--out", str(out)]) == 0
+                     "--repeats", "1", "--whole_batch_env_steps", "--out", str(out)]) == 0
   printed = capsys.readouterr().out
+  assert "reacher_easy weak on 2 device(s): env only, the batch stepped as one:" in printed
   assert "reacher_easy weak on 2 device(s): env only" in printed
   assert "reacher_easy weak on 2 device(s): iteration" in printed
   weak, = [json.loads(line) for line in open(out)]
@@ -84,7 +85,7 @@ def test_scaling_measures_weak_scaling_and_builds_populations_over_the_devices(t
   assert weak["total_envs"] == 4 and weak["settings"]["batch_size"] == 4
   assert weak["settings"]["replay_capacity"] == 12
   assert weak["sps"] > 0 and weak["env_sps"] > 0 and 0 < weak["iteration_s"] < 60
-  assert weak["layout"] == "environments"
+  assert weak["layout"] == "environments" and weak["env_whole_batch_sps"] > 0
   population = bench.trainer_for("population", "reacher_easy", 2, args)
   assert population.members == 4 and population.config.num_envs == 2
   assert population.mesh.devices.size == 2 and population.config.batch_size == 2

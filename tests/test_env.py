@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import functools
 import os
+import re
 import subprocess
 import sys
 
@@ -126,6 +127,35 @@ def test_two_devices_match_one():
     results.append((np.asarray(final.obs), np.asarray(rewards)))
   np.testing.assert_allclose(results[0][0], results[1][0], rtol=1e-5, atol=1e-6)
   np.testing.assert_allclose(results[0][1], results[1][1], rtol=1e-5, atol=1e-6)
+
+
+@COMPILED_ONCE
+def test_each_device_steps_its_own_environments():
+  """On 2 devices AutoReset steps each device's half of the batch alone: environment 1 (on the
+  first device) ends its episode and restarts, the second device's do not, and the states are
+  those of the batch stepped as one; the per-device program agrees nothing between devices,
+  where the batch stepped as one agrees, at least, on whether to run the restart branch."""
+  mesh = mesh_lib.make_mesh(jax.devices()[:2])
+  sharding = mesh_lib.batch_sharding(mesh)
+  env = tasks.make("reacher_easy")
+  state = mesh_lib.shard_batch(compiled()[0](jax.random.PRNGKey(7), NUM_ENVS), mesh)
+  state = state.replace(info=dict(state.info, step=jnp.asarray([3, 999, 3, 3])))
+  action = mesh_lib.shard_batch(jnp.full((NUM_ENVS, 2), 0.2), mesh)
+  stepped, collectives = [], []
+  for per_device in (True, False):
+    step = jax.jit(AutoReset(env, sharding, per_device=per_device).step)
+    compiled_step = step.lower(state, action).compile()
+    collectives.append(re.findall(r"\b(all-reduce|all-gather|all-to-all|collective-permute)"
+                                  r"(?:-start)?\(", compiled_step.as_text()))
+    stepped.append(compiled_step(state, action))
+  assert collectives[0] == [] and "all-reduce" in collectives[1], collectives
+  ours, whole = stepped
+  np.testing.assert_array_equal(ours.done, [0, 1, 0, 0])
+  np.testing.assert_array_equal(ours.info["step"], [4, 0, 4, 4])  # 1 restarted
+  assert len(ours.obs.sharding.device_set) == 2
+  for (path, a), b in zip(jax.tree_util.tree_leaves_with_path(ours), jax.tree.leaves(whole)):
+    np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-5, atol=1e-6,
+                               err_msg=jax.tree_util.keystr(path))
 
 
 def test_mesh_rejects_bad_batch_sizes():

@@ -16,7 +16,8 @@ replay slots and sampled batches over the devices within each member too ("envir
 parameters, optimiser states and normaliser are replicated and XLA averages gradients. A
 population of P members on D devices with D dividing P puts whole members on each device
 ("members": every member-axis leaf split over the devices), so a member's updates run on one
-device with no gradient exchange.
+device with no gradient exchange. Either way each device steps its own environments
+(`mjx_form.mesh.per_device`): the devices do not agree at every solver iteration.
 Every random draw is made on global arrays, so a run does not depend on the device count
 beyond float rounding.
 
@@ -500,7 +501,8 @@ class Trainer:
     def step(carry, _):
       env_state, total = carry
       action = self._policies(policy_params, norm, env_state.obs).mode()
-      env_state = jax.vmap(self.env.step)(env_state, action.reshape((-1, action.shape[-1])))
+      env_state = mesh_lib.per_device(jax.vmap(self.env.step), self._batch)(
+          env_state, action.reshape((-1, action.shape[-1])))
       return (env_state, total + env_state.reward), None
 
     (_, total), _ = jax.lax.scan(step, (states, jnp.zeros(reset_keys.shape[:1])), None,

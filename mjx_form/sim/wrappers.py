@@ -5,6 +5,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
+from mjx_form import mesh as mesh_lib
 from mjx_form.sim.env import State, Task
 
 
@@ -27,14 +28,21 @@ class AutoReset:
   `reward`, `done` and `truncation` still describe the transition that ended the old one and
   `info['final_obs']` holds its last observation. `info['physics_errors']` counts, per
   environment, the episodes cut short by NaN/inf in actions or physics.
+
+  On a mesh of several devices each device steps its own part of the batch
+  (`mjx_form.mesh.per_device`): MJX's solver loops and the restart branch end when that
+  device's environments are done, without waiting at every iteration for the other devices to
+  agree. The environments are independent and each carries its own key, so the result is the
+  same (`per_device=False` steps the whole batch as one, for measuring what that costs).
   """
 
-  def __init__(self, env: Task, sharding=None):
+  def __init__(self, env: Task, sharding=None, per_device: bool = True):
     """`sharding`: where the batch lives on a device mesh (None: wherever JAX puts it). Fresh
     starts are drawn from keys placed there, so `env.reset` sees the same argument types in
     `reset` as in the restarts of `step` and is traced once for both."""
     self.env = env
     self.sharding = sharding
+    self.per_device = per_device
 
   def _constrain(self, tree):
     if self.sharding is None:
@@ -53,6 +61,11 @@ class AutoReset:
 
   def step(self, state: State, action: jax.Array) -> State:
     """One control step of every environment; action has shape (num_envs, action_size)."""
+    if self.per_device:
+      return mesh_lib.per_device(self._step, self.sharding)(state, action)
+    return self._step(state, action)
+
+  def _step(self, state: State, action: jax.Array) -> State:
     stepped = jax.vmap(self.env.step)(state, action)  # carries the wrapper's info keys along
     info = dict(stepped.info, final_obs=stepped.obs,
                 physics_errors=stepped.info["physics_errors"] + stepped.info["physics_error"])
