@@ -504,6 +504,8 @@ def _form_variant(record: dict) -> str:
   model = settings.get("reward", {}).get("effect_model", {})
   regularisers = ([f"ar {model['beta_ar']:g}, L2 {model['l2']:g}"]
                   if "beta_ar" in model and "l2" in model else [])
+  if any(model.get("period") or ()):
+    regularisers.append("turn-invariant")
   return ", ".join([reward, f"T {period}", *regularisers,
                     *_learner_notes(record, with_period=False)])
 

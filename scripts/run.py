@@ -49,7 +49,8 @@ from mjx_form.sim.wrappers import AutoReset  # noqa: E402
 METHODS = ("form", "expert", "random")
 # Options that only --method form reads (a user who gives one to another method is told so).
 FORM_ONLY = ("expert", "demos", "demo_episodes", "save_demos", "demonstrator",
-             "train_demonstrator", "beta_ar", "effect_l2", "reward_scale", "reward_clip")
+             "train_demonstrator", "beta_ar", "effect_l2", "turn_invariant", "reward_scale",
+             "reward_clip")
 
 DEFAULT_COMPILATION_CACHE = os.path.join(
     os.environ.get("XDG_CACHE_HOME", os.path.expanduser("~/.cache")), "mjx_form", "jax")
@@ -217,6 +218,10 @@ def parse_args(argv=None) -> argparse.Namespace:
                          "mjx_form/imitation/settings.py)")
   form.add_argument("--effect_l2", type=float, default=None,
                     help="effect models' L2 weight (default: per task)")
+  form.add_argument("--turn_invariant", action=argparse.BooleanOptionalAction, default=None,
+                    help="effect models blind to full turns of the raw unbounded angles the "
+                         "task observes (reacher's shoulder, cheetah's and hopper's pitch; "
+                         "mjx_form/imitation/effect_model.py; default: off, the paper's)"),
   train.add_argument("--preset", default=None, choices=settings.PRESETS,
                      help="default: measured settings; paper: the paper's. For form: the "
                           "reward scale, reward clip, target period and sampled-Q precision "
@@ -355,7 +360,8 @@ def form_run_settings(args: argparse.Namespace) -> dict:
 
 def form_source(args: argparse.Namespace, run_dir: str, results_path: str, print_fn):
   """Stages 1-2 of --method form: the FORM reward source, its demonstrator in `run_dir`."""
-  explicit = {"beta_ar": args.beta_ar, "l2": args.effect_l2}
+  explicit = {"beta_ar": args.beta_ar, "l2": args.effect_l2,
+              "period": settings.turn_period(args.task, args.turn_invariant)}
   # Effect models share the width of the other networks, and a demonstrator trains on batches
   # shaped like the learner's (batch_size windows of unroll_length transitions).
   config = settings.effect_model_config(args.task, width=args.network_width, **explicit)

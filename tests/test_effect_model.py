@@ -184,3 +184,108 @@ def test_demonstrator_learns_a_linear_system_and_keeps_its_best_step():
   np.testing.assert_allclose(report["heldout_log_likelihood"], after, atol=1e-3)
   assert report["heldout_episodes"] == 2 and report["training_episodes"] == 10
   assert any("held-out log p by offset" in line for line in lines)
+
+
+# --- turn invariance ----------------------------------------------------------------------
+
+TURNING = dataclasses.replace(CONFIG, period=(2 * np.pi, 0.0, 0.0))  # feature 0 is an angle
+
+
+def _turned(x, k):
+  """x [..., D] with feature 0 moved by k full turns (k broadcast over the leading axes)."""
+  return np.asarray(x, np.float64) + np.stack(
+      [2 * np.pi * np.asarray(k, np.float64), np.zeros_like(k, np.float64),
+       np.zeros_like(k, np.float64)], -1)
+
+
+def test_a_turn_invariant_density_moves_each_pair_by_x_ts_turns():
+  """log p(x' | x) of a turn-invariant model is the plain model's (same parameters) at the pair
+  moved by the whole turns that bring x's angle into [-pi, pi), computed here with numpy; so
+  full turns of both change nothing, while a shift of a non-periodic feature does."""
+  rng = np.random.default_rng(6)
+  model, params = _model_and_params()
+  turning = em.make_model(TURNING, D)
+  norm = _norm(rng)
+  x = rng.normal(size=(6, D)) * 3
+  x[:, 0] = rng.uniform(-12, 12, size=6)  # several turns either way
+  x_next = x + rng.normal(size=(6, D)) * 0.3
+  k = np.floor((x[:, 0] + np.pi) / (2 * np.pi))
+  assert len(set(k)) > 2
+  f32 = lambda a: jnp.asarray(a, jnp.float32)
+  got = np.asarray(em.transition_log_prob(turning, params, norm, f32(x), f32(x_next)))
+  expected = np.asarray(em.transition_log_prob(model, params, norm, f32(_turned(x, -k)),
+                                               f32(_turned(x_next, -k))))
+  np.testing.assert_allclose(got, expected, rtol=1e-4, atol=1e-3)
+  turns = rng.integers(-3, 4, size=6)
+  moved = np.asarray(em.transition_log_prob(turning, params, norm, f32(_turned(x, turns)),
+                                            f32(_turned(x_next, turns))))
+  np.testing.assert_allclose(moved, got, rtol=1e-4, atol=1e-3)
+  plain = np.asarray(em.transition_log_prob(model, params, norm, f32(_turned(x, turns)),
+                                            f32(_turned(x_next, turns))))
+  assert np.abs(plain - np.asarray(em.transition_log_prob(model, params, norm, f32(x),
+                                                          f32(x_next)))).max() > 0.1
+  other = x + [0.0, 2 * np.pi, 0.0]
+  assert np.abs(np.asarray(em.transition_log_prob(turning, params, norm, f32(other),
+                                                  f32(x_next + [0.0, 2 * np.pi, 0.0])))
+                - got).max() > 0.1
+
+
+def test_turn_invariant_held_out_likelihood_moves_every_pair_by_its_first_observation():
+  rng = np.random.default_rng(7)
+  model, params = _model_and_params()
+  turning = em.make_model(TURNING, D)
+  norm = _norm(rng)
+  episodes = rng.normal(size=(3, 7, D)) * 0.5
+  episodes[..., 0] = np.cumsum(rng.normal(size=(3, 7)) * 2.0, axis=1)  # wanders past pi
+  got = np.asarray(demonstrator.heldout_log_likelihood(
+      turning, params, norm, jnp.asarray(episodes, jnp.float32), chunk=2))
+  for d in range(1, CONFIG.max_offset + 1):
+    pairs = []
+    for e in range(3):
+      for t in range(7 - d):
+        k = np.floor((episodes[e, t, 0] + np.pi) / (2 * np.pi))
+        pairs.append(float(em.transition_log_prob(
+            model, params, norm, jnp.asarray(_turned(episodes[e, t], -k), jnp.float32),
+            jnp.asarray(_turned(episodes[e, t + d], -k), jnp.float32)))
+            if d == 1 else float(model.apply(params, em.standardise(
+                norm, jnp.asarray(_turned(episodes[e, t], -k), jnp.float32)), d).log_prob(
+                em.standardise(norm, jnp.asarray(_turned(episodes[e, t + d], -k),
+                                                 jnp.float32))) + em.log_jacobian(norm)))
+    np.testing.assert_allclose(got[d - 1], np.mean(pairs), rtol=1e-4)
+
+
+def test_a_turn_invariant_update_does_not_see_full_turns():
+  """The same sequences, each moved by its own number of full turns: the same standardisation
+  (taken over wrapped angles), objective (the autoregressive term included) and step."""
+  rng = np.random.default_rng(8)
+  model = em.make_model(TURNING, D)
+  state = em.init(model, TURNING, jax.random.PRNGKey(0))
+  obs = rng.normal(size=(4, 9, D)) * [1.0, 3.0, 0.5]
+  obs[..., 0] = rng.uniform(-np.pi, np.pi, size=(4, 1)) + np.cumsum(
+      rng.normal(size=(4, 9)) * 0.8, axis=1)
+  turns = rng.integers(-3, 4, size=(4, 1)) * np.ones((4, 9), int)
+  discount = jnp.ones((4, 8))
+  steps = [em.update(model, TURNING, state, jnp.asarray(o, jnp.float32), discount,
+                     jax.random.PRNGKey(1)) for o in (obs, _turned(obs, turns))]
+  (a, ma), (b, mb) = steps
+  for name in ("log_prob", "log_prob_offset1", "log_prob_offset4", "log_prob_autoregressive"):
+    np.testing.assert_allclose(ma[name], mb[name], rtol=1e-4, atol=1e-4, err_msg=name)
+  np.testing.assert_allclose(a.normalizer.mean, b.normalizer.mean, atol=1e-5)
+  for x, y in zip(jax.tree.leaves(a.params), jax.tree.leaves(b.params)):
+    np.testing.assert_allclose(x, y, rtol=1e-4, atol=1e-5)
+  # The standardisation is over the wrapped angle; a plain model's is over the raw one.
+  wrapped = np.mod(obs[..., 0] + np.pi, 2 * np.pi) - np.pi
+  np.testing.assert_allclose(a.normalizer.mean[0], wrapped.mean(), atol=1e-5)
+  plain, _ = em.update(em.make_model(CONFIG, D), CONFIG, em.init(em.make_model(CONFIG, D),
+                       CONFIG, jax.random.PRNGKey(0)), jnp.asarray(_turned(obs, turns),
+                       jnp.float32), discount, jax.random.PRNGKey(1))
+  assert abs(float(plain.normalizer.mean[0]) - wrapped.mean()) > 0.1
+
+
+def test_turn_settings_are_checked():
+  assert em.EffectModelConfig(period=[6.0, 0, 0]).period == (6.0, 0.0, 0.0)  # a file's list
+  with pytest.raises(ValueError, match="period has 3 entries, the observations have 4"):
+    em.make_model(TURNING, 4)
+  for bad in ((-1.0, 0.0, 0.0), (0.0, 0.0, 0.0), (float("inf"), 0.0, 0.0)):
+    with pytest.raises(ValueError, match="period must be finite values >= 0"):
+      em.EffectModelConfig(period=bad).check()

@@ -407,6 +407,19 @@ def test_form_command_line_runs_every_stage(tmp_path, capsys):
                                          "target_update_period": 50,
                                          "sampled_q_bfloat16": False}
   assert cli.train_config(cli.parse_args(["--method", "expert"])).learner.target_update_period == 200
+  # --turn_invariant: the shipped demonstrator (no period) does not fit, so one is trained with
+  # the task's periods (reacher's shoulder), which the imitator model shares.
+  turning = tmp_path / "turning"
+  args = cli.parse_args(_readme_args(turning, "--turn_invariant", "--demos", str(saved),
+                                     "--demonstrator_steps", "10",
+                                     "--demonstrator_eval_every", "10"))
+  source = cli.form_source(args, str(turning), None, print)
+  period = (2 * np.pi, 0.0, 0.0, 0.0, 0.0, 0.0)
+  np.testing.assert_allclose(source.config.period, period)
+  assert source.model.period == source.config.period
+  kept = effect_models.load_effect_model(turning / "demonstrator.npz", task="reacher_easy")
+  np.testing.assert_allclose(kept.metadata["config"]["period"], period)
+  assert "trained with other settings" in capsys.readouterr().out
   assert records[1]["learner_preset"] == "custom"
   assert [r["policy"] for r in records[2:]] == ["final", "best"]
   assert records[2]["episodes"] == final_episodes and np.isfinite(records[2]["final_return"])
@@ -428,6 +441,10 @@ def test_form_command_line_runs_every_stage(tmp_path, capsys):
       (["--demonstrator", str(truncated)], "truncated"),
       (["--demonstrator", str(run_dir / "demonstrator.npz"), "--beta_ar", "0.5"],
        "trained with beta_ar="),
+      (["--demonstrator", str(run_dir / "demonstrator.npz"), "--turn_invariant"],
+       "trained with turn-invariance period (--turn_invariant)=()"),
+      (["--task", "walker_walk", "--turn_invariant"],
+       "walker_walk observes no unbounded angle"),
       (["--demos", str(other_demos)], "demonstrations are for cheetah_run"),
       (["--expert", str(tmp_path / "missing.npz")], "no such policy file"),
       (["--reward_clip", "1"], "--reward_clip must be 0 (off) or finite and > 1"),

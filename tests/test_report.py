@@ -136,6 +136,11 @@ def test_default_form_variant_is_what_a_default_run_records():
           "_seeds012_41m")
   record = json.loads(open(os.path.join(report.RESULTS, name + ".jsonl")).readline())
   assert report._form_variant(record) == report._default_form_variant("cheetah_run")
+  # a turn-invariant run's effect models say so (a period of zeros is none)
+  turned = json.loads(json.dumps(record))
+  turned["settings"]["reward"]["effect_model"]["period"] = [0.0, 6.28] + [0.0] * 15
+  assert report._form_variant(turned) == (
+      "standardised clipped at 3 sd, T 25, ar 0.01, L2 1, turn-invariant, sampled Q in bf16")
 
 
 def test_form_table_per_task_prefers_the_default_configuration():

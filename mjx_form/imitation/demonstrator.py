@@ -63,7 +63,8 @@ def heldout_log_likelihood(model: em.EffectModel, params, norm, episodes: jax.Ar
   max_offset = model.max_offset
 
   def one(episode):  # [T+1, D] -> sums of log-likelihoods per offset [max_offset]
-    log_probs = em.offset_log_probs(model, params, em.standardise(norm, episode[None]))
+    log_probs = em.offset_log_probs(model, params, em.standardise(norm, episode[None]),
+                                    em.turns(model, norm))
     masks = em.offset_masks(jnp.ones((1, t)), max_offset)
     return jnp.sum(log_probs * masks, axis=(1, 2))
 

@@ -17,6 +17,12 @@ sample of the model's own prediction (gradients do not flow through the sample).
 Densities for rewards are in raw observation space: log p(x' | x) = log p(sigma(x') | sigma(x))
 - 0.5 sum_d log(var_d + eps) (change of variables), so two models with different
 standardisations give comparable numbers.
+
+Turn invariance (`EffectModelConfig.period`, e.g. 2 pi for a raw unbounded hinge angle such as
+reacher's shoulder; () for none): every pair (x_t, x_{t+delta}) is moved by the multiple of the
+period that brings x_t's periodic features into [-period/2, period/2), x_{t+delta} by the same
+multiple. A full turn then changes nothing the model sees, and the move is a translation, so
+log p is unchanged (Jacobian 1). The standardisation is taken over the observations so wrapped.
 """
 
 from __future__ import annotations
@@ -27,6 +33,7 @@ from typing import Any, NamedTuple
 import flax.linen as nn
 import jax
 import jax.numpy as jnp
+import numpy as np
 import optax
 
 from mjx_form.rl import normalizer
@@ -48,6 +55,20 @@ class EffectModelConfig:
   learning_rate: float = 1e-4
   normalizer_decay: float = 0.99  # EMA decay of the standardisation, per batch
   min_scale: float = 1e-4
+  # [D] period of each observation feature (0: not periodic) for a turn-invariant model; ()
+  # for none (the paper's). See the module docstring.
+  period: tuple[float, ...] = ()
+
+  def __post_init__(self):  # from a file's JSON list, too
+    object.__setattr__(self, "period", tuple(float(p) for p in self.period))
+
+  def to_dict(self) -> dict:
+    """The settings as files and records keep them (no `period` where there is none, as before
+    turn invariance existed)."""
+    out = dataclasses.asdict(self)
+    if not self.period:
+      del out["period"]
+    return out
 
   def check(self) -> None:
     for name in ("width", "num_components", "max_offset"):
@@ -62,6 +83,10 @@ class EffectModelConfig:
     if not 0.0 <= self.normalizer_decay < 1.0:
       raise ValueError(f"effect model normalizer_decay must be in [0, 1), "
                        f"got {self.normalizer_decay}")
+    if any(not p >= 0 or p == float("inf") for p in self.period) or (
+        self.period and not any(self.period)):
+      raise ValueError(f"effect model period must be finite values >= 0, one at least > 0 "
+                       f"(or none), got {self.period}")
 
 
 class EffectModel(nn.Module):
@@ -72,6 +97,7 @@ class EffectModel(nn.Module):
   num_components: int = 4
   max_offset: int = 5
   min_scale: float = 1e-4
+  period: tuple[float, ...] = ()  # EffectModelConfig.period
 
   def setup(self):
     self.encoder = Encoder(self.width)
@@ -95,8 +121,11 @@ class EffectModel(nn.Module):
 
 
 def make_model(config: EffectModelConfig, observation_size: int) -> EffectModel:
+  if config.period and len(config.period) != observation_size:
+    raise ValueError(f"effect model period has {len(config.period)} entries, the observations "
+                     f"have {observation_size}")
   return EffectModel(observation_size, config.width, config.num_components, config.max_offset,
-                     config.min_scale)
+                     config.min_scale, config.period)
 
 
 class EffectModelState(NamedTuple):
@@ -145,25 +174,67 @@ def standardise(norm: normalizer.NormalizerState, x: jax.Array) -> jax.Array:
   return normalizer.normalize(norm, x, eps=NORMALIZER_EPS)
 
 
+# --- turn invariance ----------------------------------------------------------------------
+
+class Turns(NamedTuple):
+  """A turn-invariant model's periods in standardised coordinates."""
+
+  period: jax.Array  # [D] period_d / sqrt(var_d + eps); 0 where not periodic
+  low: jax.Array  # [D] the standardised value of -period_d / 2
+
+
+def turns(model: EffectModel, norm: normalizer.NormalizerState) -> Turns | None:
+  """`model`'s periods under the standardisation `norm`; None for a model without any."""
+  if not model.period:
+    return None
+  period = jnp.asarray(model.period, norm.mean.dtype)
+  std = jnp.sqrt(norm.var + NORMALIZER_EPS)
+  return Turns(period / std, (-period / 2 - norm.mean) / std)
+
+
+def turn_shift(t: Turns | None, anchor: jax.Array) -> jax.Array:
+  """The multiple of the (standardised) period that brings each periodic feature of the
+  standardised `anchor` [..., D] into the standardised [-period/2, period/2): subtracting it
+  from x_t and from x_{t+delta} makes a pair turn-invariant. 0 without turns."""
+  if t is None:
+    return jnp.zeros_like(anchor)
+  periodic = t.period > 0
+  safe = jnp.where(periodic, t.period, 1.0)
+  return jnp.where(periodic, safe * jnp.floor((anchor - t.low) / safe), 0.0)
+
+
+def wrap_raw(model: EffectModel, x: jax.Array) -> jax.Array:
+  """Raw observations [..., D] with the periodic features wrapped into [-period/2, period/2)
+  (what a turn-invariant model's standardisation is taken over); x itself without periods."""
+  if not model.period:
+    return x
+  return normalizer.wrap(normalizer.init(model.observation_size,
+                                         period=np.asarray(model.period)), x)
+
 # --- densities ----------------------------------------------------------------------------
 
-def offset_log_probs(model: EffectModel, params, x: jax.Array) -> jax.Array:
+def offset_log_probs(model: EffectModel, params, x: jax.Array,
+                     t: Turns | None = None) -> jax.Array:
   """Standardised-space log p(x_{t+delta} | x_t) for every offset: x [B, T+1, D] (standardised)
-  -> [max_offset, B, T] (pairs past x_T give values to be masked out)."""
-  h = model.apply(params, x[:, :-1], method=model.encode)  # [B, T, W]
+  -> [max_offset, B, T] (pairs past x_T give values to be masked out); each pair moved by
+  x_t's `turn_shift` under turns `t` (`turns`; None: not moved)."""
+  shift = turn_shift(t, x[:, :-1])  # [B, T, D]
+  h = model.apply(params, x[:, :-1] - shift, method=model.encode)  # [B, T, W]
   out = []
   for delta in range(1, model.max_offset + 1):
     mixture = model.apply(params, h, delta, method=model.predict)  # [B, T, K, D]
     target = jnp.pad(x[:, delta:], ((0, 0), (0, delta - 1), (0, 0)))  # [B, T, D]
-    out.append(mixture.log_prob(target))
+    out.append(mixture.log_prob(target - shift))
   return jnp.stack(out)
 
 
 def transition_log_prob(model: EffectModel, params, norm: normalizer.NormalizerState,
                         x: jax.Array, x_next: jax.Array) -> jax.Array:
   """Raw-space log p(x_next | x) at offset 1 (FORM's reward term): x, x_next [..., D] -> [...]."""
-  mixture = model.apply(params, standardise(norm, x), 1)
-  return mixture.log_prob(standardise(norm, x_next)) + log_jacobian(norm)
+  x, x_next = standardise(norm, x), standardise(norm, x_next)
+  shift = turn_shift(turns(model, norm), x)
+  mixture = model.apply(params, x - shift, 1)
+  return mixture.log_prob(x_next - shift) + log_jacobian(norm)
 
 
 def _masked_mean(values: jax.Array, mask: jax.Array) -> jax.Array:
@@ -178,14 +249,22 @@ def kernel_l2(params) -> jax.Array:
 
 
 def loss(model: EffectModel, config: EffectModelConfig, params, x: jax.Array,
-         discount: jax.Array, key: jax.Array) -> tuple[jax.Array, dict]:
-  """The negated objective (module docstring) on standardised sequences x [B, T+1, D]."""
+         discount: jax.Array, key: jax.Array,
+         t: Turns | None = None) -> tuple[jax.Array, dict]:
+  """The negated objective (module docstring) on standardised sequences x [B, T+1, D]; pairs
+  moved by their x_t's `turn_shift` under turns `t` (None: not moved)."""
   masks = offset_masks(discount, config.max_offset)  # [max_offset, B, T]
-  log_probs = offset_log_probs(model, params, x)  # [max_offset, B, T]
+  log_probs = offset_log_probs(model, params, x, t)  # [max_offset, B, T]
   per_offset = jax.vmap(_masked_mean)(log_probs, masks)  # [max_offset]
   # Autoregressive term: x~_{t+1} ~ p(. | x_t) for t = 0..T-2, then log p(x_{t+2} | x~_{t+1}).
-  sampled = jax.lax.stop_gradient(model.apply(params, x[:, :-2], 1).sample(key))  # [B, T-1, D]
-  ar_log_prob = model.apply(params, sampled, 1).log_prob(x[:, 2:])  # [B, T-1]
+  # (With turns, x~_{t+1} is drawn in x_t's moved frame and x_{t+2} moved with it, then both
+  # by x~_{t+1}'s own shift.)
+  first = turn_shift(t, x[:, :-2])
+  sampled = jax.lax.stop_gradient(
+      model.apply(params, x[:, :-2] - first, 1).sample(key))  # [B, T-1, D]
+  target = x[:, 2:] - first
+  second = turn_shift(t, sampled)
+  ar_log_prob = model.apply(params, sampled - second, 1).log_prob(target - second)  # [B, T-1]
   ar_mask = masks[1, :, :-1]  # x_t, x_{t+1}, x_{t+2} in one episode
   ar = _masked_mean(ar_log_prob, ar_mask)
   l2 = kernel_l2(params)
@@ -204,10 +283,11 @@ def update(model: EffectModel, config: EffectModelConfig, state: EffectModelStat
   standardised-space log-likelihoods (nats per transition), and `log_prob` the raw-space
   offset-1 log-likelihood of the batch.
   """
-  norm = normalizer.update(state.normalizer, observations, config.normalizer_decay)
+  norm = normalizer.update(state.normalizer, wrap_raw(model, observations),
+                          config.normalizer_decay)
   x = standardise(norm, observations)
-  grads, metrics = jax.grad(lambda p: loss(model, config, p, x, discount, key),
-                            has_aux=True)(state.params)
+  grads, metrics = jax.grad(lambda p: loss(model, config, p, x, discount, key,
+                                           turns(model, norm)), has_aux=True)(state.params)
   updates, opt_state = _optimizer(config).update(grads, state.opt_state, state.params)
   params = optax.apply_updates(state.params, updates)
   metrics["log_prob"] = metrics["log_prob_offset1"] + log_jacobian(norm)

@@ -39,7 +39,6 @@ The source never sees the task reward (`needs_task_reward = False`: it is not ev
 from __future__ import annotations
 
 import copy
-import dataclasses
 from typing import Any, NamedTuple
 
 import jax
@@ -119,7 +118,7 @@ class FormReward:
     return state._replace(reward=reward), metrics
 
   def settings(self) -> dict:
-    return {"effect_model": dataclasses.asdict(self.config),
+    return {"effect_model": self.config.to_dict(),
             "demonstrator_sha256": self.demonstrator_sha256,
             "standardise_reward": self.standardise_reward, "reward_clip": self.reward_clip}
 

@@ -123,7 +123,7 @@ def prepare(env, config: em.EffectModelConfig, explicit: dict, artefacts: Artefa
   shipped = tasks.bundled_demonstrator(env.name)
   if path is None and shipped is not None and not artefacts.train_demonstrator:
     file = _load(shipped, env)
-    if file.metadata["config"] == dataclasses.asdict(config):
+    if file.metadata["config"] == config.to_dict():
       path = shipped
     else:
       print_fn(f"the shipped demonstrator {shipped} was trained with other settings "
@@ -174,7 +174,8 @@ def demonstrator_from_file(file: effect_models.EffectModelFile, path: str,
     raise PipelineError(f"{path}: unusable effect-model settings: {e}") from None
   for key, value in (explicit or {}).items():
     if value is not None and getattr(config, key) != value:
-      raise PipelineError(f"{path}: the demonstrator was trained with {key}="
+      name = "turn-invariance period (--turn_invariant)" if key == "period" else key
+      raise PipelineError(f"{path}: the demonstrator was trained with {name}="
                           f"{getattr(config, key)}, this run asks for {value} (the imitator "
                           "model shares the demonstrator's settings: leave it out, or train a "
                           "demonstrator with --train_demonstrator)")
@@ -188,7 +189,7 @@ def demonstrator_from_file(file: effect_models.EffectModelFile, path: str,
     fits = False
   if not fits:
     raise PipelineError(f"{path}: its parameters do not fit an effect model with its settings "
-                        f"{dataclasses.asdict(config)}")
+                        f"{config.to_dict()}")
   norm = normalizer.NormalizerState(jnp.asarray(file.mean), jnp.asarray(file.var),
                                     jnp.asarray(1, jnp.int32))
   return config, Demonstrator(jax.tree.map(jnp.asarray, file.params), norm)
@@ -204,14 +205,14 @@ def train_demonstrator(env, config: em.EffectModelConfig, demos_obs: np.ndarray,
   state, report = demonstrator_lib.train(demos_obs, config, training, print_fn)
   metadata = {"task": env.name, "observation_size": env.observation_size,
               "observation_layout": env.observation_layout, "distractors": None,
-              "config": dataclasses.asdict(config), "training": report,
+              "config": config.to_dict(), "training": report,
               "demonstrations": demos_info}
   params = jax.device_get(state.params)
   mean, var = np.asarray(state.normalizer.mean), np.asarray(state.normalizer.var)
   if results_path:
     results.ResultWriter(results_path).write(
         kind="effect_model", task=env.name, method="form", physics=physics, seed=seed,
-        settings={**dataclasses.asdict(config), **dataclasses.asdict(training),
+        settings={**config.to_dict(), **dataclasses.asdict(training),
                   "demo_episodes": demos_info["episodes"]},
         **{k: report[k] for k in ("steps", "best_step", "seconds", "heldout_log_likelihood",
                                   "curve")})
