@@ -803,15 +803,18 @@ def effect_model_table(records: list[dict], best_per_task: bool = True) -> str:
                "log-likelihood: of the held-out demonstration episodes, raw observation space, "
                "nats per transition, one value per offset, at the step kept (best step):")
   lines = [caption, "",
-           "| task | trainings | device | demo episodes | beta_ar | L2 | width | steps (best) | "
-           "time | held-out log-likelihood by offset | result file |",
-           "|---|---|---|---|---|---|---|---|---|---|---|"]
+           "| task | trainings | device | demo episodes | beta_ar | L2 | width | turns | batch | "
+           "steps (best) | time | held-out log-likelihood by offset | result file |",
+           "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
   for r in sorted(chosen, key=lambda r: (_order(r["task"]), r.get("time", ""))):
     s = r.get("settings", {})
     heldout = " / ".join(f"{v:.2f}" for v in r["heldout_log_likelihood"])
+    turns = "invariant" if any(s.get("period") or ()) else "-"  # (EffectModelConfig.period)
+    batch = (f"{s['batch_size']} x {s['window']}" if "batch_size" in s and "window" in s
+             else "-")  # windows x transitions per training step
     lines.append(f"| {r['task']} | {count[r['task']]} | `{r['device']}` | "
                  f"{s.get('demo_episodes', '-')} | {_g(s.get('beta_ar'))} | "
-                 f"{_g(s.get('l2'))} | {s.get('width', '-')} | "
+                 f"{_g(s.get('l2'))} | {s.get('width', '-')} | {turns} | {batch} | "
                  f"{r['steps']:,} ({r['best_step']:,}) | {_duration(r['seconds'])} | {heldout} | "
                  f"{r['_file'].removesuffix('.jsonl')} |")
   return "\n".join(lines)

@@ -340,11 +340,14 @@ def test_demonstrator_tables_show_the_held_out_likelihood():
   better = dict(base, settings=dict(base["settings"], beta_ar=0.01),
                 heldout_log_likelihood=[6.0, 5.0, 4.0, 3.0, 2.0])
   best = report.effect_model_table([base, better])
-  assert ("| walker_walk | 2 | `gpu:X` | 1000 | 0.01 | 0.1 | 256 | 90,000 (80,000) | 150 s | "
-          "6.00 / 5.00 / 4.00 / 3.00 / 2.00 | 2026-12-01_effect_models |") in best
+  assert ("| walker_walk | 2 | `gpu:X` | 1000 | 0.01 | 0.1 | 256 | - | - | 90,000 (80,000) | "
+          "150 s | 6.00 / 5.00 / 4.00 / 3.00 / 2.00 | 2026-12-01_effect_models |") in best
   assert best.count("| walker_walk |") == 1
-  every = report.effect_model_table([base, better], best_per_task=False)
-  assert every.count("| walker_walk |") == 2 and "| 1 | 0.1 | 256 |" in every
+  turning = dict(base, settings=dict(base["settings"], period=[6.28, 0.0], batch_size=16,
+                                     window=50))
+  every = report.effect_model_table([base, better, turning], best_per_task=False)
+  assert every.count("| walker_walk |") == 3 and "| 1 | 0.1 | 256 | - | - |" in every
+  assert "| 1 | 0.1 | 256 | invariant | 16 x 50 |" in every
 
 
 def test_learning_tables_show_expert_runs_only():
