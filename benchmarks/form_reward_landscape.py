@@ -161,13 +161,15 @@ def main(argv=None) -> int:
                    spearman_return_log_pd=None if np.isnan(within) else within,
                    shift_from_expert={names[d]: float(shift[d]) for d in far}, **policy_stats,
                    **({} if turn is None else {"log_pd_by_turn": turn}),
-                   demonstrator_sha256=file.metadata["sha256"])
+                   demonstrator_sha256=file.metadata["sha256"],
+                   demonstrator_settings=config.to_dict())
   rho = stats.spearmanr(all_returns, all_scores).statistic
   print(f"  rank correlation of episode return and mean log pD over all episodes: {rho:.2f}")
   if writer:
     writer.write(kind="form_reward_landscape", task=args.task, method="form",
                  behaviour="all", episodes=len(all_returns), spearman_return_log_pd=float(rho),
-                 demonstrator_sha256=file.metadata["sha256"])
+                 demonstrator_sha256=file.metadata["sha256"],
+                 demonstrator_settings=config.to_dict())
   return 0
 
 

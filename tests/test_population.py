@@ -183,6 +183,7 @@ def test_population_from_the_command_line_writes_each_member(tmp_path, capsys):
            for s in SEEDS]
   own = "action_noise_correlation 0.9, learning_rate 0.001, target_update_period 2"
   assert f"a population of 2 (seed 0, {own}; seed 1, {own})" in out
+  assert "2 cpu device(s) (whole members per device)" in out
   assert f"seed 1, {own}: iter 1/2" in out
   assert f"seed 1, {own}: fresh evaluation of the best" in out
   stored = json.load(open(run_dir / "config.json"))

@@ -215,7 +215,9 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
            f"unrolls, {config.updates_per_iteration} updates per iteration (updates/env step "
            f"{config.updates_per_env_step:.2e}, replay ratio {config.replay_ratio:.2f}), "
            f"{total_iterations} iterations, physics {config.physics}, "
-           f"{trainer.mesh.devices.size} {jax.default_backend()} device(s)")
+           f"{trainer.mesh.devices.size} {jax.default_backend()} device(s)"
+           + (f" ({_LAYOUT_WORDS[trainer.layout]})"
+              if trainer.members > 1 and trainer.mesh.devices.size > 1 else ""))
   start_iteration = int(state.iteration)
   timed_steps, timed_seconds, eval_seconds = 0, 0.0, 0.0
   # Each member's last row; a run resumed at its end (no iteration left) keeps where it stopped.
@@ -335,6 +337,11 @@ def _progress_line(row: dict, total_iterations: int, steps_per_iteration: int) -
              f"{row['imitator_batch_log_prob']:.1f})")
   return line + (f"  q {row['q_mean']:.2f}  critic {row['critic_loss']:.3f}  mean out of bounds "
                  f"{row['mean_out_of_bounds']:.2f}")
+
+
+# How a population lies on several devices, as the run's first line says it.
+_LAYOUT_WORDS = {"members": "whole members per device",
+                 "environments": "each member's environments over all of them"}
 
 
 def _best_return(path: str) -> float:
