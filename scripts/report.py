@@ -664,10 +664,13 @@ def scaling_table(records: list[dict]) -> str:
            "same amounts per device). weak: one run, its environments, learner batch and "
            "replay per device fixed; population: members per device fixed, laid out whole "
            "members per device (members) or each member's environments, replay and batches "
-           "split over the devices (environments):", "",
+           "split over the devices (environments); env-only stepping with each device stepping "
+           "its own environments (as the loop does since 2026-11-25), and, where measured "
+           "(`--whole_batch_env_steps`), with the batch stepped as one:", "",
            "| task | mode | device | learner | envs / device | updates / iteration | members | N | "
-           "layout | iteration steps/s | efficiency | env-only steps/s | efficiency | iteration | "
-           "peak memory |", "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+           "layout | iteration steps/s | efficiency | env-only steps/s | efficiency | env-only, "
+           "batch as one | iteration | peak memory |",
+           "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
   ordered = sorted(newest.values(), key=lambda r: (_order(r["task"]), r["mode"], host(r),
                                                    _learner_label(r), r["devices"],
                                                    _layout(r)))
@@ -680,6 +683,7 @@ def scaling_table(records: list[dict]) -> str:
                  f"{r['total_envs'] // n} | {r['settings']['updates_per_iteration']} | "
                  f"{r['members']} | {n} | {_layout(r)} | {_k(r['sps'])} | "
                  f"{eff('sps')} | {_k(r['env_sps'])} | {eff('env_sps')} | "
+                 f"{_k(r['env_whole_batch_sps']) if r.get('env_whole_batch_sps') else '-'} | "
                  f"{r['iteration_s']:.2f} s | "
                  f"{'-' if memory is None else f'{memory / 2**30:.1f} GiB'} |")
   return "\n".join(lines)

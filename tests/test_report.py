@@ -310,7 +310,7 @@ def test_scaling_table_gives_the_efficiency_against_one_device():
                                 record(1, 25_000, 500_000, learner=bf16),
                                 record(8, 150_000, 3_600_000, learner=bf16)])
   rows = [line for line in table.splitlines() if line.startswith("| humanoid_run")]
-  assert "| 8 | environments | 144k | 0.90 | 3.60M | 0.90 | 1.50 s | 2.0 GiB |" in rows[1], rows
+  assert "| 8 | environments | 144k | 0.90 | 3.60M | 0.90 | - | 1.50 s | 2.0 GiB |" in rows[1], rows
   assert "| 1 | - | 20k | 1.00 | 500k | 1.00 |" in rows[0], rows
   # a bf16 learner's rows keep their own one-device row (25k, not the float32 run's 20k)
   assert rows[3].startswith("| humanoid_run | weak | `gpu:H x8` | sampled Q in bf16 | 2048 | 128 "
@@ -322,12 +322,13 @@ def test_scaling_table_gives_the_efficiency_against_one_device():
     return record(devices, sps, 1e6, mode="population", device=device) | {
         "members": 2 * devices, "total_envs": 1024 * devices, "layout": layout}
   table = report.scaling_table([population(1, 200_000, "environments", "gpu:H x1"),
-                                population(2, 380_000, "members"),
+                                population(2, 380_000, "members") | {
+                                    "env_whole_batch_sps": 1.5e6},
                                 population(2, 240_000, "environments")])
   rows = [line for line in table.splitlines() if line.startswith("| humanoid_run")]
   assert "| 2 | 1 | - | 200k | 1.00 |" in rows[0], rows
   assert "| 4 | 2 | environments | 240k | 0.60 |" in rows[1], rows
-  assert "| 4 | 2 | members | 380k | 0.95 |" in rows[2], rows
+  assert "| 4 | 2 | members | 380k | 0.95 | 1.00M | 0.50 | 1.50M |" in rows[2], rows
 
 
 def test_demonstrator_tables_show_the_held_out_likelihood():
