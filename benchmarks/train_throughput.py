@@ -165,6 +165,11 @@ def main(argv=None) -> int:
   key = jax.random.PRNGKey(0)
 
   kind = "population_throughput" if args.members else "train_throughput"
+  uneven = [p for p in args.members or [] if args.layout == "members" and p % jax.device_count()]
+  if uneven:  # refused before anything compiles
+    print(f"error: --layout members: populations of {uneven} do not split over the "
+          f"{jax.device_count()} devices", file=sys.stderr)
+    return 2
   for name in args.tasks:
     for num_envs in args.num_envs:
       for members in args.members or [1]:

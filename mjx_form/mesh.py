@@ -48,12 +48,18 @@ def per_device(fn, sharding: NamedSharding | None):
 
   For independent environments: a loop over a batch (MJX's solver iterations, a restart branch)
   then ends when the device's own environments are done, where over the whole batch the devices
-  would agree at every iteration on whether any environment anywhere goes on."""
+  would agree at every iteration on whether any environment anywhere goes on. A batch that does
+  not split evenly over the devices (e.g. a final evaluation's) is stepped as one, as before."""
   mesh = getattr(sharding, "mesh", None)
   if mesh is None or mesh.devices.size == 1:
     return fn
-  return jax.shard_map(fn, mesh=mesh, in_specs=sharding.spec, out_specs=sharding.spec,
-                       check_vma=False)  # (MJX is not written for shard_map's type check)
+  split = jax.shard_map(fn, mesh=mesh, in_specs=sharding.spec, out_specs=sharding.spec,
+                        check_vma=False)  # (MJX is not written for shard_map's type check)
+
+  def run(*args):
+    batch = jax.tree.leaves(args)[0].shape[0]
+    return (split if batch % mesh.devices.size == 0 else fn)(*args)
+  return run
 
 
 def shard_batch(tree, mesh: Mesh):

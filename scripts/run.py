@@ -221,7 +221,7 @@ def parse_args(argv=None) -> argparse.Namespace:
   form.add_argument("--turn_invariant", action=argparse.BooleanOptionalAction, default=None,
                     help="effect models blind to full turns of the raw unbounded angles the "
                          "task observes (reacher's shoulder, cheetah's and hopper's pitch; "
-                         "mjx_form/imitation/effect_model.py; default: off, the paper's)"),
+                         "mjx_form/imitation/effect_model.py; default: off, the paper's)")
   train.add_argument("--preset", default=None, choices=settings.PRESETS,
                      help="default: measured settings; paper: the paper's. For form: the "
                           "reward scale, reward clip, target period and sampled-Q precision "

@@ -158,6 +158,16 @@ def test_each_device_steps_its_own_environments():
                                err_msg=jax.tree_util.keystr(path))
 
 
+def test_per_device_steps_a_batch_that_does_not_split_as_one():
+  """(A final evaluation of 3 episodes on 2 devices.) The same numbers either way."""
+  mesh = mesh_lib.make_mesh(jax.devices()[:2])
+  double = mesh_lib.per_device(lambda x: x * 2, mesh_lib.batch_sharding(mesh))
+  np.testing.assert_array_equal(jax.jit(double)(jnp.arange(3.0)), [0.0, 2.0, 4.0])
+  even = mesh_lib.shard_batch(jnp.arange(4.0), mesh)
+  np.testing.assert_array_equal(jax.jit(double)(even), [0.0, 2.0, 4.0, 6.0])
+  assert "all-reduce" not in jax.jit(double).lower(even).compile().as_text()
+
+
 def test_mesh_rejects_bad_batch_sizes():
   mesh = mesh_lib.make_mesh(jax.devices()[:2])
   with pytest.raises(ValueError, match="multiple of the number of devices"):
