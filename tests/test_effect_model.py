@@ -289,3 +289,24 @@ def test_turn_settings_are_checked():
   for bad in ((-1.0, 0.0, 0.0), (0.0, 0.0, 0.0), (float("inf"), 0.0, 0.0)):
     with pytest.raises(ValueError, match="period must be finite values >= 0"):
       em.EffectModelConfig(period=bad).check()
+
+
+def test_a_files_turn_settings_read_back_as_the_runs(tmp_path):
+  """A demonstrator file keeps its periods as a JSON list; read back, its settings equal the
+  run's (a tuple), so a ready turn-invariant demonstrator is used, not retrained."""
+  from mjx_form.files import effect_models
+  from mjx_form.imitation import pipeline
+  config = dataclasses.replace(TURNING, width=4)
+  meta = {"task": "reacher_easy", "observation_size": D, "observation_layout": [["x", D]],
+          "distractors": None, "config": config.to_dict(), "training": {},
+          "demonstrations": {}}
+  path = tmp_path / "turning.npz"
+  effect_models.save_effect_model(path, {"w": np.zeros(2, np.float32)}, np.zeros(D),
+                                  np.ones(D), meta)
+  file = effect_models.load_effect_model(path)
+  assert isinstance(file.metadata["config"]["period"], list)
+  assert pipeline._settings_of(file) == config
+  assert pipeline._settings_of(file) != dataclasses.replace(config, period=())
+  assert "period" not in dataclasses.replace(config, period=()).to_dict()
+  broken = file._replace(metadata={**file.metadata, "config": {"widht": 4}})
+  assert pipeline._settings_of(broken) is None
