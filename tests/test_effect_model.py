@@ -2,6 +2,7 @@
 objective's parts and demonstrator training, against numpy / scipy references."""
 
 import dataclasses
+import json
 
 import jax
 import jax.numpy as jnp
@@ -310,3 +311,40 @@ def test_a_files_turn_settings_read_back_as_the_runs(tmp_path):
   assert "period" not in dataclasses.replace(config, period=()).to_dict()
   broken = file._replace(metadata={**file.metadata, "config": {"widht": 4}})
   assert pipeline._settings_of(broken) is None
+
+
+def test_train_demonstrator_script_trains_a_grid_and_refuses_bad_input(tmp_path, capsys):
+  """scripts/train_demonstrator.py on saved demonstrations (random walks shaped like
+  reacher_easy's, tiny sizes): a grid of two turn-invariant models, each file named after its
+  settings and recorded; existing files are never overwritten; a task without unbounded angles
+  is refused for --turn_invariant."""
+  from conftest import load_script
+
+  from mjx_form.files import demos, effect_models
+  script = load_script("train_demonstrator")
+  rng = np.random.default_rng(9)
+  obs = np.cumsum(rng.normal(size=(4, 21, 6)) * 0.3, axis=1).astype(np.float32)
+  saved = tmp_path / "demos.npz"
+  demos.save_demonstrations(saved, obs, metadata={
+      "task": "reacher_easy", "physics": "fast",
+      "observation_layout": [["position", 2], ["to_target", 2], ["velocity", 2]]})
+  grid, records = tmp_path / "grid", tmp_path / "em.jsonl"
+  args = ["--task", "reacher_easy", "--demos", str(saved), "--width", "8", "--max_steps", "4",
+          "--batch_size", "2", "--window", "5", "--eval_every", "2", "--turn_invariant"]
+  assert script.main([*args, "--beta_ar", "0.1,1", "--out", str(grid),
+                      "--results", str(records)]) == 0
+  names = sorted(p.name for p in grid.iterdir())
+  assert names == ["reacher_easy_ar0.1_l20.1_turn.npz", "reacher_easy_ar1_l20.1_turn.npz"]
+  for name, beta_ar in zip(names, (0.1, 1.0)):
+    meta = effect_models.load_effect_model(grid / name, task="reacher_easy").metadata
+    assert meta["config"]["beta_ar"] == beta_ar and meta["training"]["steps"] == 4
+    np.testing.assert_allclose(meta["config"]["period"], [2 * np.pi, 0, 0, 0, 0, 0])
+  assert [json.loads(line)["kind"] for line in open(records)] == ["effect_model"] * 2
+  before = (grid / names[0]).read_bytes()
+  assert script.main([*args, "--beta_ar", "0.1,1", "--out", str(grid)]) == 2
+  assert "exist (nothing was overwritten)" in capsys.readouterr().err
+  assert (grid / names[0]).read_bytes() == before
+  with pytest.raises(SystemExit) as exit_:
+    script.main(["--task", "walker_walk", "--turn_invariant", "--out", str(tmp_path / "w.npz")])
+  assert exit_.value.code == 2
+  assert "walker_walk observes no unbounded angle" in capsys.readouterr().err
