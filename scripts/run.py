@@ -360,8 +360,9 @@ def form_run_settings(args: argparse.Namespace) -> dict:
 
 def form_source(args: argparse.Namespace, run_dir: str, results_path: str, print_fn):
   """Stages 1-2 of --method form: the FORM reward source, its demonstrator in `run_dir`."""
+  env = tasks.make(args.task, physics=args.physics)
   explicit = {"beta_ar": args.beta_ar, "l2": args.effect_l2,
-              "period": settings.turn_period(args.task, args.turn_invariant)}
+              "period": settings.turn_period(env, args.turn_invariant)}
   # Effect models share the width of the other networks, and a demonstrator trains on batches
   # shaped like the learner's (batch_size windows of unroll_length transitions).
   config = settings.effect_model_config(args.task, width=args.network_width, **explicit)
@@ -373,7 +374,7 @@ def form_source(args: argparse.Namespace, run_dir: str, results_path: str, print
       expert=args.expert, demos=args.demos, demonstrator=args.demonstrator,
       demo_episodes=args.demo_episodes, train_demonstrator=args.train_demonstrator,
       save_demos=args.save_demos, training=training)
-  return pipeline.prepare(tasks.make(args.task, physics=args.physics), config, explicit,
+  return pipeline.prepare(env, config, explicit,
                           artefacts, run_dir, resume=args.resume, physics=args.physics,
                           seed=args.seed, results_path=results_path,
                           reward={k: v for k, v in form_run_settings(args).items()

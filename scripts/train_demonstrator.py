@@ -65,8 +65,9 @@ def main(argv=None) -> int:
   if args.task not in tasks.TASKS:
     parser.error(f"unknown task {args.task!r}; valid tasks: {', '.join(tasks.TASKS)}")
   grid = list(itertools.product(args.beta_ar or [None], args.effect_l2 or [None]))
+  env = tasks.make(args.task, physics=args.physics)
   try:
-    period = settings.turn_period(args.task, args.turn_invariant or None)
+    period = settings.turn_period(env, args.turn_invariant or None)
     configs = [settings.effect_model_config(args.task, width=args.width, beta_ar=b, l2=l,
                                             period=period) for b, l in grid]
   except ValueError as e:
@@ -85,7 +86,6 @@ def main(argv=None) -> int:
         max_steps=args.max_steps, batch_size=args.batch_size, window=args.window,
         eval_every=args.eval_every, patience=args.patience, seed=args.seed,
         max_seconds=args.max_seconds)
-    env = tasks.make(args.task, physics=args.physics)
     artefacts = pipeline.Artefacts(expert=args.expert, demos=args.demos)
     obs, info = pipeline.demonstrations(env, artefacts, args.episodes, args.physics, args.seed,
                                         say)

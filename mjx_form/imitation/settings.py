@@ -37,19 +37,18 @@ def effect_model_settings(task: str) -> dict[str, float]:
   return {**DEFAULT, **PER_TASK.get(task, {})}
 
 
-def turn_period(task: str, turn_invariant: bool | None) -> tuple[float, ...] | None:
-  """The effect models' `period` that --turn_invariant / --no-turn_invariant ask for: the
-  task's observation periods (raw unbounded angles), () for none, None where neither was
+def turn_period(env, turn_invariant: bool | None) -> tuple[float, ...] | None:
+  """The effect models' `period` that --turn_invariant / --no-turn_invariant ask for: the task
+  `env`'s observation periods (raw unbounded angles), () for none, None where neither was
   given. ValueError for a task that observes no unbounded angle."""
   if turn_invariant is None:
     return None
   if not turn_invariant:
     return ()
-  import tasks  # (JAX; see effect_model_config)
-  period = tuple(float(p) for p in tasks.make(task).observation_period())
-  if not any(period):
-    raise ValueError(f"--turn_invariant: {task} observes no unbounded angle (nothing to turn)")
-  return period
+  if not env.periodic_observations:
+    raise ValueError(f"--turn_invariant: {env.name} observes no unbounded angle (nothing to "
+                     "turn)")
+  return tuple(float(p) for p in env.observation_period())
 
 
 def effect_model_config(task: str, **overrides) -> EffectModelConfig:
