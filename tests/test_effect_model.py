@@ -293,10 +293,10 @@ def test_turn_settings_are_checked():
 
 
 def test_a_files_turn_settings_read_back_as_the_runs(tmp_path):
-  """A demonstrator file keeps its periods as a JSON list; read back, its settings equal the
-  run's (a tuple), so a ready turn-invariant demonstrator is used, not retrained."""
+  """A demonstrator file keeps its periods as a JSON list; read back, its settings are the
+  run's `to_dict()` (what the pipeline compares a shipped demonstrator with) and rebuild the
+  run's settings (a tuple), so a ready turn-invariant demonstrator is used, not retrained."""
   from mjx_form.files import effect_models
-  from mjx_form.imitation import pipeline
   config = dataclasses.replace(TURNING, width=4)
   meta = {"task": "reacher_easy", "observation_size": D, "observation_layout": [["x", D]],
           "distractors": None, "config": config.to_dict(), "training": {},
@@ -306,11 +306,10 @@ def test_a_files_turn_settings_read_back_as_the_runs(tmp_path):
                                   np.ones(D), meta)
   file = effect_models.load_effect_model(path)
   assert isinstance(file.metadata["config"]["period"], list)
-  assert pipeline._settings_of(file) == config
-  assert pipeline._settings_of(file) != dataclasses.replace(config, period=())
+  assert file.metadata["config"] == config.to_dict()
+  assert em.EffectModelConfig(**file.metadata["config"]) == config
+  assert file.metadata["config"] != dataclasses.replace(config, period=()).to_dict()
   assert "period" not in dataclasses.replace(config, period=()).to_dict()
-  broken = file._replace(metadata={**file.metadata, "config": {"widht": 4}})
-  assert pipeline._settings_of(broken) is None
 
 
 def test_train_demonstrator_script_trains_a_grid_and_refuses_bad_input(tmp_path, capsys):

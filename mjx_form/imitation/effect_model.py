@@ -63,10 +63,12 @@ class EffectModelConfig:
     object.__setattr__(self, "period", tuple(float(p) for p in self.period))
 
   def to_dict(self) -> dict:
-    """The settings as files and records keep them (no `period` where there is none, as before
-    turn invariance existed)."""
+    """The settings as files and records keep them (JSON's shapes: `period` a list, and none
+    where there is no period, as before turn invariance existed)."""
     out = dataclasses.asdict(self)
-    if not self.period:
+    if self.period:
+      out["period"] = list(self.period)
+    else:
       del out["period"]
     return out
 

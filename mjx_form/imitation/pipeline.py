@@ -123,7 +123,7 @@ def prepare(env, config: em.EffectModelConfig, explicit: dict, artefacts: Artefa
   shipped = tasks.bundled_demonstrator(env.name)
   if path is None and shipped is not None and not artefacts.train_demonstrator:
     file = _load(shipped, env)
-    if _settings_of(file) == config:
+    if file.metadata["config"] == config.to_dict():
       path = shipped
     else:
       print_fn(f"the shipped demonstrator {shipped} was trained with other settings "
@@ -160,14 +160,6 @@ def prepare(env, config: em.EffectModelConfig, explicit: dict, artefacts: Artefa
   os.makedirs(run_dir, exist_ok=True)
   shutil.copyfile(path, kept)
   return FormReward(config, demonstrator, file.metadata["sha256"], **reward)
-
-
-def _settings_of(file: effect_models.EffectModelFile) -> em.EffectModelConfig | None:
-  """A demonstrator file's effect-model settings (None where they are not a valid set)."""
-  try:
-    return em.EffectModelConfig(**file.metadata["config"])
-  except (TypeError, ValueError):
-    return None
 
 
 def demonstrator_from_file(file: effect_models.EffectModelFile, path: str,
