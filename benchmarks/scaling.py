@@ -14,8 +14,9 @@ Modes (`--modes`):
 Each measurement is the best of `--repeats` calls after a warm-up (compile times apart) and is
 printed as it ends, so a run cut off by a time limit still says what it measured; each writes
 a `kind: scaling` record: devices, mode, layout, total env steps/s of the iteration and of
-env-only stepping (each device stepping its own environments, as the loop does; with
-`--whole_batch_env_steps` also the batch stepped as one, for what that costs), peak memory of
+env-only stepping (stepped as the loop steps them: the batch as one program-wide batch; with
+`--per_device_env_steps` each device stepping its own part, loop and env-only alike, and on
+several devices the batch stepped as one measured beside it), peak memory of
 the busiest device so far in this process (run one device count per process for a clean
 peak). The iteration's split into collection and updates: benchmarks/train_throughput.py.
 Efficiency (steps/s on N devices over N x one device's) is computed where the table is made
@@ -68,7 +69,8 @@ def trainer_for(mode: str, task: str, devices: int, args) -> Trainer:
                            sampled_q_bfloat16=args.sampled_q_bfloat16))
   members = args.members_per_device * devices if mode == "population" else 1
   return Trainer(config, mesh, seeds=tuple(range(members)),
-                 layout=args.layout if mode == "population" else None)
+                 layout=args.layout if mode == "population" else None,
+                 per_device_env_steps=args.per_device_env_steps)
 
 
 def measure(trainer: Trainer, mode: str, args, writer, key) -> dict:
@@ -82,7 +84,7 @@ def measure(trainer: Trainer, mode: str, args, writer, key) -> dict:
                                                 config.num_envs * members, args.repeats)
   print(f"{label}: env only {env_sps:,.0f} steps/s (compile {env_compile_s:.0f}s)", flush=True)
   whole = {}
-  if args.whole_batch_env_steps and devices > 1:  # what stepping the batch as one costs
+  if trainer.per_device_env_steps and devices > 1:  # against the batch stepped as one
     env_only, start = env_only_fn(trainer, steps, key, per_device=False)
     whole["env_whole_batch_sps"], _ = common.time_compiled(
         env_only, (start, key), steps, config.num_envs * members, args.repeats)
@@ -96,6 +98,8 @@ def measure(trainer: Trainer, mode: str, args, writer, key) -> dict:
             "iteration_s": iteration_s,
             "peak_memory_bytes": results.peak_memory_bytes(), "compile_s": compile_s,
             "env_compile_s": env_compile_s, **whole}
+  if trainer.per_device_env_steps:
+    record["per_device_env_steps"] = True
   settings = {**config.to_dict(), "repeats": args.repeats}
   writer.write(kind="scaling", task=config.task, method="expert", physics=config.physics,
                settings=settings, **record)
@@ -139,10 +143,12 @@ def main(argv=None) -> int:
   parser.add_argument("--sampled_q_bfloat16", action="store_true",
                       help="the target critic's Q of the sampled actions in bfloat16 (FORM's "
                            "default learner); by default float32, the paper's")
-  parser.add_argument("--whole_batch_env_steps", action="store_true",
-                      help="on several devices, also env-only stepping with the batch stepped as "
-                           "one program-wide (every solver iteration and restart branch agreed "
-                           "over all devices), as the loop did before 2026-11-25")
+  parser.add_argument("--per_device_env_steps", action="store_true",
+                      help="each device steps its own environments (a shard_map: Trainer's "
+                           "per_device_env_steps), and on several devices env-only stepping "
+                           "with the batch stepped as one is measured beside it; default: the "
+                           "batch stepped as one (every solver iteration and restart branch "
+                           "agreed over all devices)")
   parser.add_argument("--repeats", type=int, default=3)
   parser.add_argument("--out", default=common.default_results_path("scaling"))
   args = parser.parse_args(argv)

@@ -49,11 +49,14 @@ from mjx_form.rl.train import LAYOUTS, Trainer, TrainConfig  # noqa: E402
 from mjx_form.sim.wrappers import AutoReset  # noqa: E402
 
 
-def env_only_fn(trainer: Trainer, steps: int, key, per_device: bool = True):
+def env_only_fn(trainer: Trainer, steps: int, key, per_device: bool | None = None):
   """(jitted `run(state, key)`, start state): `steps` calls of `AutoReset(task).step` with
   random actions for the trainer's environments (all members'), split over its mesh as the
-  loop's are; each device stepping its own part (as the loop does), or with `per_device=False`
-  the whole batch as one (mjx_form.sim.wrappers.AutoReset)."""
+  loop's are and stepped as the loop steps them (`per_device` None), or with `per_device`
+  True / False each device stepping its own part / the whole batch as one
+  (mjx_form.sim.wrappers.AutoReset)."""
+  if per_device is None:
+    per_device = trainer.per_device_env_steps
   num_envs, mesh = trainer.config.num_envs * trainer.members, trainer.mesh
   start = jax.jit(lambda k: AutoReset(trainer.env).reset(k, num_envs))(key)
   auto_reset = AutoReset(trainer.env, mesh_lib.batch_sharding(mesh), per_device=per_device)
@@ -114,6 +117,8 @@ def measure(trainer: Trainer, label: str, kind: str, args, writer, key) -> None:
               "replay_ratio": config.replay_ratio, "repeats": args.repeats}
   fields = ({"members": members, "devices": trainer.mesh.devices.size,
              "layout": trainer.layout} if kind == "population_throughput" else {})
+  if trainer.per_device_env_steps:
+    fields["per_device_env_steps"] = True
   writer.write(kind=kind, task=config.task, method="expert", physics=config.physics,
                num_envs=config.num_envs, settings=settings, **fields, **result)
   memory = result["peak_memory_bytes"]
@@ -152,6 +157,9 @@ def parse_args(argv=None) -> argparse.Namespace:
                            "per device where they split evenly)")
   parser.add_argument("--sampled_q_bfloat16", action="store_true",
                       help="the learner's Q of the sampled actions in bfloat16 (LearnerConfig)")
+  parser.add_argument("--per_device_env_steps", action="store_true",
+                      help="each device steps its own environments (Trainer's "
+                           "per_device_env_steps; default: the batch stepped as one)")
   parser.add_argument("--repeats", type=int, default=3)
   parser.add_argument("--skip_env_only", action="store_true",
                       help="skip the env-only rollout (its compile costs ~35 s per size on a GPU)")
@@ -175,7 +183,8 @@ def main(argv=None) -> int:
       for members in args.members or [1]:
         try:
           trainer = Trainer(train_config(args, name, num_envs), seeds=tuple(range(members)),
-                            layout=args.layout)
+                            layout=args.layout,
+                            per_device_env_steps=args.per_device_env_steps)
         except ValueError as e:  # e.g. members that do not split over the devices
           print(f"error: {name} {num_envs} envs x {members} members: {e}", file=sys.stderr)
           return 2

@@ -637,9 +637,14 @@ def _device_model(device: str) -> str:
 
 
 def _layout(record: dict) -> str:
-  """How a record's members lay on its devices: '-' on one device (where it makes no
-  difference); records from before layouts existed split environments."""
-  return "-" if record.get("devices", 1) == 1 else record.get("layout", "environments")
+  """How a record's members lay on its devices, and ', per device' where each device stepped
+  its own environments (`per_device_env_steps`; else the batch was stepped as one): '-' on one
+  device (where it makes no difference); records from before layouts existed split
+  environments."""
+  if record.get("devices", 1) == 1:
+    return "-"
+  per_device = ", per device" if record.get("per_device_env_steps") else ""
+  return record.get("layout", "environments") + per_device
 
 
 def scaling_table(records: list[dict]) -> str:
@@ -664,9 +669,10 @@ def scaling_table(records: list[dict]) -> str:
            "same amounts per device). weak: one run, its environments, learner batch and "
            "replay per device fixed; population: members per device fixed, laid out whole "
            "members per device (members) or each member's environments, replay and batches "
-           "split over the devices (environments); env-only stepping with each device stepping "
-           "its own environments (as the loop does since 2026-11-25), and, where measured "
-           "(`--whole_batch_env_steps`), with the batch stepped as one:", "",
+           "split over the devices (environments), and ', per device' where each device stepped "
+           "its own environments (`--per_device_env_steps`; else the batch was stepped as one "
+           "program-wide batch); env-only stepping as the iteration steps, and beside a per "
+           "device row the batch stepped as one:", "",
            "| task | mode | device | learner | envs / device | updates / iteration | members | N | "
            "layout | iteration steps/s | efficiency | env-only steps/s | efficiency | env-only, "
            "batch as one | iteration | peak memory |",

@@ -69,12 +69,13 @@ def test_scaling_measures_weak_scaling_and_builds_populations_over_the_devices(t
       physics="fast", envs_per_device=2, members_per_device=2, envs_per_member=2,
       unroll_length=10, batch_size=2, replay_capacity=6, updates_per_iteration=2,
       network_width=32, num_action_samples=4, target_update_period=3, sampled_q_bfloat16=False,
-      layout=None)
+      layout=None, per_device_env_steps=False)
   assert bench.trainer_for("weak", "reacher_easy", 2, args).config == CONFIG
+  assert not bench.trainer_for("weak", "reacher_easy", 2, args).per_device_env_steps
   bf16 = argparse.Namespace(**{**vars(args), "sampled_q_bfloat16": True})
   assert bench.trainer_for("weak", "reacher_easy", 2, bf16).config.learner.sampled_q_bfloat16
   assert bench.main(["--tasks", "reacher_easy", "--devices", "2", "--modes", "weak", *sizes,
-                     "--repeats", "1", "--whole_batch_env_steps", "--out", str(out)]) == 0
+                     "--repeats", "1", "--per_device_env_steps", "--out", str(out)]) == 0
   printed = capsys.readouterr().out
   assert "reacher_easy weak on 2 device(s): env only, the batch stepped as one:" in printed
   assert "reacher_easy weak on 2 device(s): env only" in printed
@@ -85,6 +86,7 @@ def test_scaling_measures_weak_scaling_and_builds_populations_over_the_devices(t
   assert weak["settings"]["replay_capacity"] == 12
   assert weak["sps"] > 0 and weak["env_sps"] > 0 and 0 < weak["iteration_s"] < 60
   assert weak["layout"] == "environments" and weak["env_whole_batch_sps"] > 0
+  assert weak["per_device_env_steps"] is True
   population = bench.trainer_for("population", "reacher_easy", 2, args)
   assert population.members == 4 and population.config.num_envs == 2
   assert population.mesh.devices.size == 2 and population.config.batch_size == 2

@@ -323,12 +323,13 @@ def test_scaling_table_gives_the_efficiency_against_one_device():
         "members": 2 * devices, "total_envs": 1024 * devices, "layout": layout}
   table = report.scaling_table([population(1, 200_000, "environments", "gpu:H x1"),
                                 population(2, 380_000, "members") | {
-                                    "env_whole_batch_sps": 1.5e6},
+                                    "env_whole_batch_sps": 1.5e6,
+                                    "per_device_env_steps": True},
                                 population(2, 240_000, "environments")])
   rows = [line for line in table.splitlines() if line.startswith("| humanoid_run")]
   assert "| 2 | 1 | - | 200k | 1.00 |" in rows[0], rows
   assert "| 4 | 2 | environments | 240k | 0.60 |" in rows[1], rows
-  assert "| 4 | 2 | members | 380k | 0.95 | 1.00M | 0.50 | 1.50M |" in rows[2], rows
+  assert "| 4 | 2 | members, per device | 380k | 0.95 | 1.00M | 0.50 | 1.50M |" in rows[2], rows
 
 
 def test_demonstrator_tables_show_the_held_out_likelihood():

@@ -16,8 +16,8 @@ replay slots and sampled batches over the devices within each member too ("envir
 parameters, optimiser states and normaliser are replicated and XLA averages gradients. A
 population of P members on D devices with D dividing P puts whole members on each device
 ("members": every member-axis leaf split over the devices), so a member's updates run on one
-device with no gradient exchange. Either way each device steps its own environments
-(`mjx_form.mesh.per_device`): the devices do not agree at every solver iteration.
+device with no gradient exchange. Either way the environments' batch is stepped as one
+(`Trainer(per_device_env_steps=True)`: each device steps its own part; see AutoReset).
 Every random draw is made on global arrays, so a run does not depend on the device count
 beyond float rounding.
 
@@ -174,13 +174,15 @@ class Trainer:
 
   def __init__(self, config: TrainConfig, mesh=None, reward_source=None,
                seeds: tuple[int, ...] | None = None,
-               overrides: tuple[dict, ...] | None = None, layout: str | None = None):
+               overrides: tuple[dict, ...] | None = None, layout: str | None = None,
+               per_device_env_steps: bool = False):
     """`reward_source` overrides the source named by `config.reward_source` (see
     mjx_form.rl.reward_sources for the interface); `seeds`: the members' seeds (default:
     `config.seed` alone); `overrides`: each member's own values of settings that may differ
     between members (mjx_form.rl.grid; default: none), one dict per seed; `layout`: one of
     `LAYOUTS` (default: "members" where the members split evenly over several devices, else
-    "environments")."""
+    "environments"); `per_device_env_steps`: each device steps its own environments
+    (`AutoReset(per_device=True)`; off: the batch is stepped as one, see AutoReset)."""
     self.mesh = mesh if mesh is not None else mesh_lib.make_mesh()
     config.check(self.mesh.devices.size)
     self.seeds = tuple(seeds) if seeds is not None else (config.seed,)
@@ -209,7 +211,8 @@ class Trainer:
     else:  # [P, ...] replicated, [P, N, ...] batches split within each member
       self._member = self._replicated
       self._member_batch = mesh_lib.member_batch_sharding(self.mesh)
-    self.auto_reset = AutoReset(self.env, self._batch)
+    self.per_device_env_steps = per_device_env_steps
+    self.auto_reset = AutoReset(self.env, self._batch, per_device=per_device_env_steps)
     self.networks = networks_lib.make_networks(self.env.action_size, config.network_width,
                                                config.policy_head)
     self.source = reward_source or make_reward_source(config.reward_source)
@@ -501,8 +504,10 @@ class Trainer:
     def step(carry, _):
       env_state, total = carry
       action = self._policies(policy_params, norm, env_state.obs).mode()
-      env_state = mesh_lib.per_device(jax.vmap(self.env.step), self._batch)(
-          env_state, action.reshape((-1, action.shape[-1])))
+      step_all = jax.vmap(self.env.step)
+      if self.per_device_env_steps:
+        step_all = mesh_lib.per_device(step_all, self._batch)
+      env_state = step_all(env_state, action.reshape((-1, action.shape[-1])))
       return (env_state, total + env_state.reward), None
 
     (_, total), _ = jax.lax.scan(step, (states, jnp.zeros(reset_keys.shape[:1])), None,

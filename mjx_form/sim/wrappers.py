@@ -29,14 +29,15 @@ class AutoReset:
   `info['final_obs']` holds its last observation. `info['physics_errors']` counts, per
   environment, the episodes cut short by NaN/inf in actions or physics.
 
-  On a mesh of several devices each device steps its own part of the batch
-  (`mjx_form.mesh.per_device`): MJX's solver loops and the restart branch end when that
-  device's environments are done, without waiting at every iteration for the other devices to
-  agree. The environments are independent and each carries its own key, so the result is the
-  same (`per_device=False` steps the whole batch as one, for measuring what that costs).
+  On a mesh of several devices the batch is stepped as one program-wide batch: MJX's solver
+  loops and the restart branch then agree over all devices at every iteration on whether any
+  environment goes on. With `per_device` each device steps its own part instead
+  (`mjx_form.mesh.per_device`, a shard_map), with the same result (the environments are
+  independent and each carries its own key); off by default: on two H200s (jax 0.11.2,
+  2026-11-26) XLA's GPU compiler crashed (segmentation fault) compiling it.
   """
 
-  def __init__(self, env: Task, sharding=None, per_device: bool = True):
+  def __init__(self, env: Task, sharding=None, per_device: bool = False):
     """`sharding`: where the batch lives on a device mesh (None: wherever JAX puts it). Fresh
     starts are drawn from keys placed there, so `env.reset` sees the same argument types in
     `reset` as in the restarts of `step` and is traced once for both."""
