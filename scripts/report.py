@@ -32,6 +32,8 @@ from mjx_form.cpu import CPU_XLA_FLAG  # noqa: E402  (os only)
 # = tasks.EXPERTS_DIR (not imported from there: importing tasks starts JAX)
 EXPERTS = os.path.join(ROOT, "tasks", "experts")
 DEMONSTRATORS = os.path.join(ROOT, "tasks", "demonstrators")
+# Demonstrators shipped before (the runs that used them keep their demonstrations' return).
+FORMER_DEMONSTRATORS = os.path.join(ROOT, "benchmarks", "demonstrators")
 PAPER_EXPERT, PAPER_FORM = paper.EXPERT, paper.FORM
 RESULTS = os.path.join(ROOT, "benchmarks", "results")
 README = os.path.join(ROOT, "README.md")
@@ -481,11 +483,12 @@ def _mean_std(values: list[float]) -> tuple[float, float]:
   return mean, (sum((v - mean) ** 2 for v in values) / len(values)) ** 0.5
 
 
-def _demonstration_returns(folder: str = DEMONSTRATORS) -> dict[str, float]:
+def _demonstration_returns(folders: tuple[str, ...] = (DEMONSTRATORS, FORMER_DEMONSTRATORS)
+                           ) -> dict[str, float]:
   """{demonstrator sha256: mean return of the demonstrations it was trained on} of the shipped
-  demonstrators (their checksums verified)."""
+  demonstrators and the former ones kept in benchmarks/demonstrators/ (checksums verified)."""
   out = {}
-  for path in sorted(glob.glob(os.path.join(folder, "*.npz"))):
+  for path in sorted(p for folder in folders for p in glob.glob(os.path.join(folder, "*.npz"))):
     meta = effect_models.load_effect_model(path).metadata
     expert = meta["demonstrations"].get("expert", {})
     if "mean_return" in expert:
@@ -504,7 +507,7 @@ def _form_variant(record: dict) -> str:
   model = settings.get("reward", {}).get("effect_model", {})
   regularisers = ([f"ar {model['beta_ar']:g}, L2 {model['l2']:g}"]
                   if "beta_ar" in model and "l2" in model else [])
-  if any(model.get("period") or ()):
+  if any(model.get("period") or ()) or model.get("turn_invariant"):
     regularisers.append("turn-invariant")
   return ", ".join([reward, f"T {period}", *regularisers,
                     *_learner_notes(record, with_period=False)])

@@ -221,7 +221,9 @@ def parse_args(argv=None) -> argparse.Namespace:
   form.add_argument("--turn_invariant", action=argparse.BooleanOptionalAction, default=None,
                     help="effect models blind to full turns of the raw unbounded angles the "
                          "task observes (reacher's shoulder, cheetah's and hopper's pitch; "
-                         "mjx_form/imitation/effect_model.py; default: off, the paper's)")
+                         "mjx_form/imitation/effect_model.py; default: the task's setting in "
+                         "mjx_form/imitation/settings.py: on for reacher_hard, else off, the "
+                         "paper's)")
   train.add_argument("--preset", default=None, choices=settings.PRESETS,
                      help="default: measured settings; paper: the paper's. For form: the "
                           "reward scale, reward clip, target period and sampled-Q precision "
@@ -365,7 +367,7 @@ def form_source(args: argparse.Namespace, run_dir: str, results_path: str, print
               "period": settings.turn_period(env, args.turn_invariant)}
   # Effect models share the width of the other networks, and a demonstrator trains on batches
   # shaped like the learner's (batch_size windows of unroll_length transitions).
-  config = settings.effect_model_config(args.task, width=args.network_width, **explicit)
+  config = settings.effect_model_config(args.task, env, width=args.network_width, **explicit)
   training = demonstrator_lib.DemonstratorTraining(
       max_steps=args.demonstrator_steps, batch_size=args.batch_size, window=args.unroll_length,
       eval_every=args.demonstrator_eval_every, patience=args.demonstrator_patience,

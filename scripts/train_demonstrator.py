@@ -51,9 +51,10 @@ def main(argv=None) -> int:
                       help="autoregressive weight(s) (default: the task's, settings.py)")
   parser.add_argument("--effect_l2", type=_floats, default=None, help="L2 weight(s)")
   parser.add_argument("--width", type=int, default=256)
-  parser.add_argument("--turn_invariant", action="store_true",
+  parser.add_argument("--turn_invariant", action=argparse.BooleanOptionalAction, default=None,
                       help="a model blind to full turns of the task's raw unbounded angles "
-                           "(mjx_form/imitation/effect_model.py)")
+                           "(mjx_form/imitation/effect_model.py), or not (default: the task's "
+                           "setting, mjx_form/imitation/settings.py)")
   defaults = demonstrator.DemonstratorTraining()
   for name in ("max_steps", "batch_size", "window", "eval_every", "patience"):
     parser.add_argument(f"--{name}", type=int, default=getattr(defaults, name))
@@ -67,14 +68,14 @@ def main(argv=None) -> int:
   grid = list(itertools.product(args.beta_ar or [None], args.effect_l2 or [None]))
   env = tasks.make(args.task, physics=args.physics)
   try:
-    period = settings.turn_period(env, args.turn_invariant or None)
-    configs = [settings.effect_model_config(args.task, width=args.width, beta_ar=b, l2=l,
+    period = settings.turn_period(env, args.turn_invariant)
+    configs = [settings.effect_model_config(args.task, env, width=args.width, beta_ar=b, l2=l,
                                             period=period) for b, l in grid]
   except ValueError as e:
     parser.error(str(e))
-  turned = "_turn" if args.turn_invariant else ""
   outs = [args.out] if len(grid) == 1 else [
-      os.path.join(args.out, f"{args.task}_ar{c.beta_ar:g}_l2{c.l2:g}{turned}.npz")
+      os.path.join(args.out, f"{args.task}_ar{c.beta_ar:g}_l2{c.l2:g}"
+                             f"{'_turn' if c.period else ''}.npz")
       for c in configs]
   existing = [o for o in outs if os.path.exists(o)]
   if existing:

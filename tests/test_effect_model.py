@@ -292,6 +292,22 @@ def test_turn_settings_are_checked():
       em.EffectModelConfig(period=bad).check()
 
 
+def test_reacher_hards_effect_models_are_turn_invariant_unless_told_otherwise():
+  """settings.PER_TASK makes reacher_hard's models turn-invariant at its shoulder's raw angle
+  (the period read off the task, built here where the caller does not pass it);
+  --no-turn_invariant gives the plain model; reacher_easy stays plain."""
+  import tasks
+  from mjx_form.imitation import settings
+  env = tasks.make("reacher_hard")
+  config = settings.effect_model_config("reacher_hard", env)
+  assert env.periodic_observations == ("position[0]",)
+  np.testing.assert_allclose(config.period, [2 * np.pi, 0, 0, 0, 0, 0], rtol=1e-6)
+  assert settings.effect_model_config("reacher_hard") == config
+  plain = settings.effect_model_config("reacher_hard", env, period=settings.turn_period(env, False))
+  assert plain.period == () and plain == dataclasses.replace(config, period=())
+  assert settings.effect_model_config("reacher_easy").period == ()
+
+
 def test_a_files_turn_settings_read_back_as_the_runs(tmp_path):
   """A demonstrator file keeps its periods as a JSON list; read back, its settings are the
   run's `to_dict()` (what the pipeline compares a shipped demonstrator with) and rebuild the

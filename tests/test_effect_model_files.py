@@ -124,4 +124,5 @@ def test_each_shipped_demonstrator_has_its_tasks_settings():
     file = effect_models.load_effect_model(tasks.bundled_demonstrator(task), task=task)
     expected = settings.effect_model_config(task, width=256).to_dict()
     assert file.metadata["config"] == expected, task
-    assert "period" not in file.metadata["config"]  # (files from before turn invariance)
+    turned = settings.effect_model_settings(task).get("turn_invariant", False)
+    assert ("period" in file.metadata["config"]) == turned, task

@@ -5,8 +5,10 @@ The paper tunes two regularisers per task and shares them between the demonstrat
 imitator model: the autoregressive weight beta_ar and the L2 weight, each over the grid
 {0.01, 0.1, 1} (its appendix; humanoid_run and quadruped_run did best with beta_ar 1 and
 L2 0.1 there). Everything else is the paper's and the same for every task
-(`EffectModelConfig`). A task not listed uses DEFAULT. Each entry says which measurement chose
-it (benchmarks/results/); an entry without one is not tuned yet.
+(`EffectModelConfig`), except that a task may have turn-invariant effect models
+(`turn_invariant`: blind to full turns of its raw unbounded angles; not in the paper). A task
+not listed uses DEFAULT. Each entry says which measurement chose it (benchmarks/results/); an
+entry without one is not tuned yet.
 """
 
 from __future__ import annotations
@@ -29,18 +31,30 @@ PER_TASK: dict[str, dict[str, float]] = {
     # (0.01, 1) demonstrator evaluated 265 (3 seeds) at 15.4M steps against 114 with (1, 0.1)
     # (2 seeds), 242-353 by 35M; with the reward clipped (DEFAULT_RUN below) it imitates.
     "cheetah_run": {"beta_ar": 0.01, "l2": 1.0},
+    # reacher_hard, turn-invariant (the shoulder's raw angle, effect_model.py), measured
+    # 2026-11-25/26 (benchmarks/NOTES.md, sessions 28-29). The demonstrator's held-out
+    # log-likelihood at offset 1: 18.51 against the plain model's 15.06 (the same expert's 1000
+    # demonstrations, 64 x 100 batches, H200s; higher at every offset; on the CPU at 16 x 50:
+    # 14.28 against 13.22). FORM with it (every other default; seeds 0-1 x wrap_angles 0-1 in
+    # one population, 67.4M steps, one H200): fresh finals 591.9 / 817.2 (no wrap) and 680.9 /
+    # 785.1 (wrapped), best policies 800.2 / 843.1 and 786.9 / 887.4, over 1024 episodes each;
+    # with the plain demonstrator (seeds 0-2, 64.4M, 2026-11-25): finals 576.1 / 553.6 / 666.3,
+    # best 663.6 / 680.3 / 767.8. Seed for seed the turn-invariant runs are ahead.
+    "reacher_hard": {"turn_invariant": True},
 }
 
 
-def effect_model_settings(task: str) -> dict[str, float]:
-  """`task`'s tuned effect-model settings (beta_ar, l2): its PER_TASK entry, else DEFAULT."""
+def effect_model_settings(task: str) -> dict:
+  """`task`'s tuned effect-model settings: beta_ar and l2 (its PER_TASK entry, else DEFAULT),
+  and turn_invariant where its entry says so."""
   return {**DEFAULT, **PER_TASK.get(task, {})}
 
 
 def turn_period(env, turn_invariant: bool | None) -> tuple[float, ...] | None:
   """The effect models' `period` that --turn_invariant / --no-turn_invariant ask for: the task
   `env`'s observation periods (raw unbounded angles), () for none, None where neither was
-  given. ValueError for a task that observes no unbounded angle."""
+  given (the task's setting then applies: `effect_model_config`). ValueError for a task that
+  observes no unbounded angle."""
   if turn_invariant is None:
     return None
   if not turn_invariant:
@@ -51,11 +65,18 @@ def turn_period(env, turn_invariant: bool | None) -> tuple[float, ...] | None:
   return tuple(float(p) for p in env.observation_period())
 
 
-def effect_model_config(task: str, **overrides) -> EffectModelConfig:
-  """The effect-model settings of `task`, with `overrides` (e.g. beta_ar=0.1) applied."""
+def effect_model_config(task: str, env=None, **overrides) -> EffectModelConfig:
+  """The effect-model settings of `task`, with `overrides` (e.g. beta_ar=0.1, period=()) that
+  are not None applied; `env`: the task, built, where the caller has it (a turn-invariant
+  task's periods are read off it; else it is built here)."""
   # Imported here: the constants of this module load without JAX (scripts/report.py).
   from mjx_form.imitation.effect_model import EffectModelConfig
   chosen = effect_model_settings(task)
+  if chosen.pop("turn_invariant", False):
+    if env is None:
+      import tasks
+      env = tasks.make(task)
+    chosen["period"] = turn_period(env, True)
   chosen.update({k: v for k, v in overrides.items() if v is not None})
   config = dataclasses.replace(EffectModelConfig(), **chosen)
   config.check()
