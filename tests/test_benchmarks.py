@@ -348,3 +348,23 @@ def test_recorded_actions_follow_the_actors_correlated_noise():
   assert np.abs(correlated).max() <= 1.0
   with pytest.raises(ValueError, match="sampled actions only"):
     experts.record(env, expert, key, 2, noise_correlation=0.9)
+
+
+def test_multi_device_compile_checks_each_program_in_its_own_process(tmp_path, capsys):
+  """benchmarks/multi_device_compile.py on 2 forced host devices: each program compiled and
+  run in a child process, one line and one record each; a child's death by a signal is named
+  (a child that segfaults is what the script is for)."""
+  bench = load_script("multi_device_compile", folder="benchmarks")
+  out = tmp_path / "compile.jsonl"
+  assert bench.main(["--task", "reacher_easy", "--devices", "2", "--num_envs", "4",
+                     "--programs", "whole_step", "rollout_per_device", "--out", str(out)]) == 0
+  printed = capsys.readouterr().out
+  assert "reacher_easy whole_step on 2 device(s), 4 envs: ok" in printed
+  assert "reacher_easy rollout_per_device on 2 device(s), 4 envs: ok" in printed
+  records = [json.loads(line) for line in open(out)]
+  assert [(r["kind"], r["program"], r["outcome"], r["devices"]) for r in records] == [
+      ("compile_check", "whole_step", "ok", 2), ("compile_check", "rollout_per_device", "ok", 2)]
+  assert bench.ended(-11) == "signal 11 (SIGSEGV)" and bench.ended(3) == "non-finite states"
+  assert bench.ended(1) == "exit status 1"
+  with pytest.raises(SystemExit):
+    bench.main(["--task", "reacher_easy", "--devices", "3", "--out", str(out)])

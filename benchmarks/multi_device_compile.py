@@ -1,0 +1,133 @@
+#!/usr/bin/env python3
+"""Which multi-device stepping programs XLA compiles and runs, each in its own process.
+
+On two H200s (jax 0.11.2, 2026-11-26) XLA's GPU compiler died with a segmentation fault on
+every program that stepped environments per device (`mjx_form.mesh.per_device`, a
+`jax.shard_map`), which took the whole benchmark down with it. This script builds each
+candidate program in a child process on the first `--devices` devices, so a crash names the
+program and the others still run, from the smallest to the loop's own:
+
+  whole_step        one `AutoReset.step` of the batch stepped as one (the default, which ran)
+  plain_per_device  `vmap(task.step)` per device (no restart branch)
+  step_per_device   one `AutoReset(per_device=True).step` (the restart branch inside)
+  rollout_per_device  a scan of 10 such steps with random actions (benchmarks' env-only)
+
+Each child compiles its program, runs it once and checks the states are finite; the parent
+prints `ok` (compile seconds) or how the child ended (e.g. `signal 11`), and writes one
+`kind: compile_check` record per program.
+
+  python benchmarks/multi_device_compile.py --task cheetah_run --devices 2 --num_envs 1024
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import signal
+import subprocess
+import sys
+import time
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+
+import common  # noqa: E402  (puts the repository on sys.path)
+from mjx_form.cpu import configure_cpu_xla  # noqa: E402
+
+PROGRAMS = ("whole_step", "plain_per_device", "step_per_device", "rollout_per_device")
+
+
+def build(program: str, task: str, devices: int, num_envs: int):
+  """(jitted fn, its arguments) of `program` for `num_envs` environments of `task`."""
+  import jax
+
+  import tasks
+  from mjx_form import mesh as mesh_lib
+  from mjx_form.sim.wrappers import AutoReset
+  env = tasks.make(task)
+  mesh = mesh_lib.make_mesh(jax.devices()[:devices])
+  batch = mesh_lib.batch_sharding(mesh)
+  start = mesh_lib.shard_batch(jax.jit(lambda k: AutoReset(env).reset(k, num_envs))(
+      jax.random.PRNGKey(0)), mesh)
+  actions = jax.device_put(jax.random.uniform(jax.random.PRNGKey(1), (num_envs, env.action_size),
+                                              minval=-1.0, maxval=1.0), batch)
+  if program == "plain_per_device":
+    fn = mesh_lib.per_device(jax.vmap(env.step), batch)
+  else:
+    step = AutoReset(env, batch, per_device=program != "whole_step").step
+    fn = step
+    if program == "rollout_per_device":
+      def fn(state, a):
+        return jax.lax.scan(lambda s, _: (step(s, a), None), state, None, length=10)[0]
+  return jax.jit(fn, out_shardings=batch), (start, actions)
+
+
+def child(program: str, task: str, devices: int, num_envs: int) -> int:
+  """Compiles and runs `program` once; 0 where its states come out finite."""
+  import jax
+  import numpy as np
+  fn, args = build(program, task, devices, num_envs)
+  t0 = time.perf_counter()
+  exe = fn.lower(*args).compile()
+  print(f"compiled in {time.perf_counter() - t0:.1f}s", flush=True)
+  out = jax.block_until_ready(exe(*args))
+  return 0 if np.isfinite(np.asarray(out.obs)).all() else 3
+
+
+def ended(returncode: int) -> str:
+  """How a child ended, in words."""
+  if returncode == 0:
+    return "ok"
+  if returncode < 0:
+    name = signal.Signals(-returncode).name if -returncode in signal.valid_signals() else "?"
+    return f"signal {-returncode} ({name})"
+  return "non-finite states" if returncode == 3 else f"exit status {returncode}"
+
+
+def main(argv=None) -> int:
+  parser = argparse.ArgumentParser(description=__doc__,
+                                   formatter_class=argparse.RawDescriptionHelpFormatter)
+  parser.add_argument("--task", default="cheetah_run")
+  parser.add_argument("--devices", type=int, default=2)
+  parser.add_argument("--num_envs", type=int, default=1024)
+  parser.add_argument("--programs", nargs="*", default=list(PROGRAMS), choices=PROGRAMS)
+  parser.add_argument("--timeout", type=float, default=300.0, help="seconds per program")
+  parser.add_argument("--child", choices=PROGRAMS, help=argparse.SUPPRESS)
+  parser.add_argument("--out", default=common.default_results_path("compile_check"))
+  args = parser.parse_args(argv)
+  configure_cpu_xla()
+  if args.child:
+    return child(args.child, args.task, args.devices, args.num_envs)
+  # The parent only names the devices: it leaves their memory to the children.
+  os.environ.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")
+  import jax
+
+  import tasks
+  if args.task not in tasks.TASKS:
+    parser.error(f"unknown task {args.task!r}; valid tasks: {', '.join(tasks.TASKS)}")
+  if not 1 <= args.devices <= jax.device_count() or args.num_envs % args.devices:
+    parser.error(f"--devices {args.devices} of {jax.device_count()}, with --num_envs "
+                 f"{args.num_envs} a multiple of it")
+  writer = common.ResultWriter(args.out)
+  for program in args.programs:
+    command = [sys.executable, os.path.abspath(__file__), "--child", program, "--task",
+               args.task, "--devices", str(args.devices), "--num_envs", str(args.num_envs)]
+    t0 = time.perf_counter()
+    try:
+      done = subprocess.run(command, capture_output=True, text=True, timeout=args.timeout)
+      outcome, tail = ended(done.returncode), (done.stdout + done.stderr).strip()[-400:]
+    except subprocess.TimeoutExpired:
+      outcome, tail = f"timed out after {args.timeout:.0f}s", ""
+    seconds = time.perf_counter() - t0
+    print(f"{args.task} {program} on {args.devices} device(s), {args.num_envs} envs: "
+          f"{outcome} ({seconds:.0f}s)", flush=True)
+    if outcome != "ok" and tail:
+      print("  " + tail.replace("\n", "\n  "), flush=True)
+    writer.write(kind="compile_check", task=args.task, program=program, devices=args.devices,
+                 num_envs=args.num_envs, outcome=outcome, seconds=seconds,
+                 settings={"programs": args.programs, "timeout": args.timeout})
+  print(f"results appended to {args.out}")
+  return 0
+
+
+if __name__ == "__main__":
+  sys.exit(main())
