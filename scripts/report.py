@@ -507,6 +507,8 @@ def _form_variant(record: dict) -> str:
   model = settings.get("reward", {}).get("effect_model", {})
   regularisers = ([f"ar {model['beta_ar']:g}, L2 {model['l2']:g}"]
                   if "beta_ar" in model and "l2" in model else [])
+  # (a record's models carry their period; `_default_form_variant`'s the task's setting, read
+  # without building the task, which would need JAX)
   if any(model.get("period") or ()) or model.get("turn_invariant"):
     regularisers.append("turn-invariant")
   return ", ".join([reward, f"T {period}", *regularisers,
@@ -591,8 +593,10 @@ def population_table(records: list[dict]) -> str:
            "peak device memory of the process (each member's replay of 10,000 unrolls "
            "included); learner: its settings that differ from the paper's. Over several "
            "devices, the layout (whole members per device, or each member's environments, "
-           "replay and batches split over the devices) and the speed-up over the same "
-           "population on one device of the same model:", "",
+           "replay and batches split over the devices; ', per device' where each device "
+           "stepped its own environments, `--per_device_env_steps`, else the batch was stepped "
+           "as one) and the speed-up over the same population on one device of the same "
+           "model:", "",
            "| task | device | envs / member | updates / iteration | learner | P | total steps/s | "
            "speed-up over P = 1 | layout | over one device | iteration | collection | updates | "
            "ms / update / member | peak memory | result file |",
@@ -606,7 +610,9 @@ def population_table(records: list[dict]) -> str:
                if r["members"] == 1}
   starred = False
   for r in ordered:
-    one = newest.get(key(r, 1)) or (newest.get(key(r, 1)[:-1] + ("environments",))
+    # P = 1 on several devices splits its environments (its own layout, per device or not).
+    split = "environments" + (", per device" if r.get("per_device_env_steps") else "")
+    one = newest.get(key(r, 1)) or (newest.get(key(r, 1)[:-1] + (split,))
                                     if r.get("devices", 1) > 1 else None)
     speedup = f"{r['sps'] / one['sps']:.2f}x" if one else "-"
     over_one = "-"

@@ -282,6 +282,14 @@ def test_population_table_gives_the_speed_up_over_one_member_of_the_same_file_or
   assert ("8", "380k", "6.33x", "members", "1.90x") in rows, rows  # the newest one-device 200k
   assert ("8", "250k", "4.17x", "environments", "1.25x") in rows, rows
   assert ("8", "200k", "-", "-", "-") in rows, rows
+  # Stepped per device: a layout of its own, against P = 1 stepped per device (not the 60k).
+  apart = {"per_device_env_steps": True}
+  table = report.population_table([
+      on(record(1, 60_000, 1.0, 0.4, two), 2, "environments"),
+      on(record(1, 80_000, 1.0, 0.4, two), 2, "environments") | apart,
+      on(record(8, 400_000, 2.0, 0.8, two), 2, "members") | apart])
+  row, = [line for line in table.splitlines() if "| members, per device |" in line]
+  assert "| 8 | 400k | 5.00x | members, per device |" in row, row
 
 
 def test_learner_label_names_what_differs_from_the_paper():
