@@ -223,7 +223,8 @@ def parse_args(argv=None) -> argparse.Namespace:
                          "task observes (reacher's shoulder, cheetah's and hopper's pitch; "
                          "mjx_form/imitation/effect_model.py; default: the task's setting in "
                          "mjx_form/imitation/settings.py: on for reacher_hard, else off, the "
-                         "paper's)")
+                         "paper's). reacher_hard's plain demonstrator: --no-turn_invariant "
+                         "--demonstrator benchmarks/demonstrators/reacher_hard_plain.npz")
   train.add_argument("--preset", default=None, choices=settings.PRESETS,
                      help="default: measured settings; paper: the paper's. For form: the "
                           "reward scale, reward clip, target period and sampled-Q precision "
@@ -267,7 +268,8 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.error("--seeds, --grid and --preset apply to --method form and expert")
   args.grid = _grid(parser, args.grid, args.method)
   if args.method != "form":
-    given = [f"--{name}" for name in FORM_ONLY if getattr(args, name) not in (None, False)]
+    given = [f"--{name}" for name in FORM_ONLY
+             if getattr(args, name) != parser.get_default(name)]
     if given:
       parser.error(f"{', '.join(given)} apply to --method form only")
   if args.task not in tasks.TASKS:

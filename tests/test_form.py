@@ -292,6 +292,20 @@ def test_sampled_q_precision_reaches_the_learner_per_method():
       cli.LearnerConfig())  # an expert run with no flags is the paper's learner
 
 
+def test_form_flags_are_refused_for_other_methods(capsys):
+  """A FORM flag given to --method expert or random is an error naming it, whichever value it
+  was given (--no-turn_invariant included); without them those methods parse."""
+  cli = load_script("run")
+  for argv, named in ((["--method", "expert", "--no-turn_invariant"], "--turn_invariant"),
+                      (["--method", "random", "--turn_invariant"], "--turn_invariant"),
+                      (["--method", "expert", "--beta_ar", "0.1"], "--beta_ar"),
+                      (["--method", "expert", "--train_demonstrator"], "--train_demonstrator")):
+    with pytest.raises(SystemExit):
+      cli.parse_args(argv)
+    assert f"{named} apply to --method form only" in capsys.readouterr().err
+  assert cli.parse_args(["--method", "expert"]).turn_invariant is None
+
+
 def test_policy_head_flag_reaches_the_config():
   """--policy_head picks the policy's head for either method; without it, the paper's (the
   default task has no expert recipe; tests/test_recipes.py covers one that has)."""
