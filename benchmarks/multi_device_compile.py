@@ -7,14 +7,16 @@ every program that stepped environments per device (`mjx_form.mesh.per_device`, 
 candidate program in a child process on the first `--devices` devices, so a crash names the
 program and the others still run, from the smallest to the loop's own:
 
-  whole_step        one `AutoReset.step` of the batch stepped as one (the default, which ran)
-  plain_per_device  `vmap(task.step)` per device (no restart branch)
-  step_per_device   one `AutoReset(per_device=True).step` (the restart branch inside)
-  rollout_per_device  a scan of 10 such steps with random actions (benchmarks' env-only)
+  whole_step          one `AutoReset.step` of the batch stepped as one (the default, which ran)
+  plain_per_device    `vmap(task.step)` per device (no restart branch)
+  step_per_device     one `AutoReset(per_device=True).step` (the restart branch inside)
+  rollout_per_device  10 such steps with random actions (the benchmarks' env-only rollout)
+  iteration_per_device  a training iteration of one member per device (tiny learner) with
+                      `Trainer(per_device_env_steps=True)`, as train_throughput's populations
 
 Each child compiles its program, runs it once and checks the states are finite; the parent
-prints `ok` (compile seconds) or how the child ended (e.g. `signal 11`), and writes one
-`kind: compile_check` record per program.
+prints `ok` with the compile seconds, or how the child ended (e.g. `signal 11`), and writes
+one `kind: compile_check` record per program.
 
   python benchmarks/multi_device_compile.py --task cheetah_run --devices 2 --num_envs 1024
 """
@@ -23,6 +25,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -33,44 +36,60 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import common  # noqa: E402  (puts the repository on sys.path)
 from mjx_form.cpu import configure_cpu_xla  # noqa: E402
 
-PROGRAMS = ("whole_step", "plain_per_device", "step_per_device", "rollout_per_device")
+PROGRAMS = ("whole_step", "plain_per_device", "step_per_device", "rollout_per_device",
+            "iteration_per_device")
 
 
 def build(program: str, task: str, devices: int, num_envs: int):
-  """(jitted fn, its arguments) of `program` for `num_envs` environments of `task`."""
+  """(jitted fn, its arguments, fn's output -> its environments' observations) of `program`
+  for `num_envs` environments of `task` on the first `devices` devices."""
   import jax
 
   import tasks
+  from env_throughput import ours_fn
   from mjx_form import mesh as mesh_lib
+  from mjx_form.rl.learner import LearnerConfig
+  from mjx_form.rl.train import TrainConfig, Trainer
   from mjx_form.sim.wrappers import AutoReset
-  env = tasks.make(task)
+  if jax.device_count() < devices:
+    raise SystemExit(f"{devices} devices asked for, {jax.device_count()} here")
   mesh = mesh_lib.make_mesh(jax.devices()[:devices])
+  if program == "iteration_per_device":
+    config = TrainConfig(task=task, num_envs=num_envs // devices, unroll_length=10,
+                         batch_size=2 * devices, replay_capacity=num_envs, updates_per_iteration=2,
+                         network_width=32, eval_envs=devices,
+                         learner=LearnerConfig(num_action_samples=4))
+    trainer = Trainer(config, mesh, seeds=tuple(range(devices)), per_device_env_steps=True)
+    return trainer.iteration, (trainer.init(trainer.keys()),), lambda out: out[0].env.obs
+  env = tasks.make(task)
   batch = mesh_lib.batch_sharding(mesh)
   start = mesh_lib.shard_batch(jax.jit(lambda k: AutoReset(env).reset(k, num_envs))(
       jax.random.PRNGKey(0)), mesh)
-  actions = jax.device_put(jax.random.uniform(jax.random.PRNGKey(1), (num_envs, env.action_size),
-                                              minval=-1.0, maxval=1.0), batch)
+  key = jax.random.PRNGKey(1)
+  observed = lambda state: state.obs
+  if program == "rollout_per_device":
+    auto_reset = AutoReset(env, batch, per_device=True)
+    return ours_fn(env, num_envs, 10, auto_reset), (start, key), observed
+  actions = jax.device_put(jax.random.uniform(key, (num_envs, env.action_size), minval=-1.0,
+                                              maxval=1.0), batch)
   if program == "plain_per_device":
-    fn = mesh_lib.per_device(jax.vmap(env.step), batch)
+    step = mesh_lib.per_device(jax.vmap(env.step), batch)
   else:
-    step = AutoReset(env, batch, per_device=program != "whole_step").step
-    fn = step
-    if program == "rollout_per_device":
-      def fn(state, a):
-        return jax.lax.scan(lambda s, _: (step(s, a), None), state, None, length=10)[0]
-  return jax.jit(fn, out_shardings=batch), (start, actions)
+    step = AutoReset(env, batch, per_device=program == "step_per_device").step
+  return jax.jit(step, out_shardings=batch), (start, actions), observed
 
 
 def child(program: str, task: str, devices: int, num_envs: int) -> int:
-  """Compiles and runs `program` once; 0 where its states come out finite."""
+  """Compiles and runs `program` once; 0 where its environments' observations come out
+  finite."""
   import jax
   import numpy as np
-  fn, args = build(program, task, devices, num_envs)
+  fn, args, observed = build(program, task, devices, num_envs)
   t0 = time.perf_counter()
   exe = fn.lower(*args).compile()
   print(f"compiled in {time.perf_counter() - t0:.1f}s", flush=True)
   out = jax.block_until_ready(exe(*args))
-  return 0 if np.isfinite(np.asarray(out.obs)).all() else 3
+  return 0 if np.isfinite(np.asarray(observed(out))).all() else 3
 
 
 def ended(returncode: int) -> str:
@@ -112,18 +131,22 @@ def main(argv=None) -> int:
     command = [sys.executable, os.path.abspath(__file__), "--child", program, "--task",
                args.task, "--devices", str(args.devices), "--num_envs", str(args.num_envs)]
     t0 = time.perf_counter()
+    output = ""
     try:
       done = subprocess.run(command, capture_output=True, text=True, timeout=args.timeout)
-      outcome, tail = ended(done.returncode), (done.stdout + done.stderr).strip()[-400:]
+      outcome, output = ended(done.returncode), done.stdout + done.stderr
     except subprocess.TimeoutExpired:
-      outcome, tail = f"timed out after {args.timeout:.0f}s", ""
+      outcome = f"timed out after {args.timeout:.0f}s"
     seconds = time.perf_counter() - t0
-    print(f"{args.task} {program} on {args.devices} device(s), {args.num_envs} envs: "
-          f"{outcome} ({seconds:.0f}s)", flush=True)
-    if outcome != "ok" and tail:
-      print("  " + tail.replace("\n", "\n  "), flush=True)
+    compiled = re.search(r"compiled in ([\d.]+)s", output)
+    compile_s = float(compiled.group(1)) if compiled else None
+    print(f"{args.task} {program} on {args.devices} device(s), {args.num_envs} envs: {outcome}"
+          + (f" (compile {compile_s:.0f}s)" if compile_s is not None else "")
+          + f", {seconds:.0f}s in all", flush=True)
+    if outcome != "ok" and output.strip():
+      print("  " + output.strip()[-400:].replace("\n", "\n  "), flush=True)
     writer.write(kind="compile_check", task=args.task, program=program, devices=args.devices,
-                 num_envs=args.num_envs, outcome=outcome, seconds=seconds,
+                 num_envs=args.num_envs, outcome=outcome, compile_s=compile_s, seconds=seconds,
                  settings={"programs": args.programs, "timeout": args.timeout})
   print(f"results appended to {args.out}")
   return 0

@@ -79,17 +79,18 @@ def measure(trainer: Trainer, mode: str, args, writer, key) -> dict:
   label = f"{config.task} {mode} on {devices} device(s)" + (
       f" ({trainer.layout})" if mode == "population" and devices > 1 else "")
   steps, per_iteration = config.unroll_length, config.env_steps_per_iteration * members
-  env_only, start = env_only_fn(trainer, steps, key)
-  env_sps, env_compile_s = common.time_compiled(env_only, (start, key), steps,
-                                                config.num_envs * members, args.repeats)
-  print(f"{label}: env only {env_sps:,.0f} steps/s (compile {env_compile_s:.0f}s)", flush=True)
   whole = {}
-  if trainer.per_device_env_steps and devices > 1:  # against the batch stepped as one
+  if trainer.per_device_env_steps and devices > 1:  # the batch stepped as one beside it, first
     env_only, start = env_only_fn(trainer, steps, key, per_device=False)
     whole["env_whole_batch_sps"], _ = common.time_compiled(
         env_only, (start, key), steps, config.num_envs * members, args.repeats)
     print(f"{label}: env only, the batch stepped as one: {whole['env_whole_batch_sps']:,.0f} "
           "steps/s", flush=True)
+    label += ", per device"
+  env_only, start = env_only_fn(trainer, steps, key)
+  env_sps, env_compile_s = common.time_compiled(env_only, (start, key), steps,
+                                                config.num_envs * members, args.repeats)
+  print(f"{label}: env only {env_sps:,.0f} steps/s (compile {env_compile_s:.0f}s)", flush=True)
   state = trainer.init(trainer.keys())
   iteration_s, compile_s, _ = time_iterations(trainer, state, args.repeats)
   record = {"mode": mode, "devices": devices, "members": members, "layout": trainer.layout,

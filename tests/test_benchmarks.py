@@ -71,15 +71,16 @@ def test_scaling_measures_weak_scaling_and_builds_populations_over_the_devices(t
       network_width=32, num_action_samples=4, target_update_period=3, sampled_q_bfloat16=False,
       layout=None, per_device_env_steps=False)
   assert bench.trainer_for("weak", "reacher_easy", 2, args).config == CONFIG
-  assert not bench.trainer_for("weak", "reacher_easy", 2, args).per_device_env_steps
+  apart = argparse.Namespace(**{**vars(args), "per_device_env_steps": True})
+  assert bench.trainer_for("weak", "reacher_easy", 2, apart).per_device_env_steps
   bf16 = argparse.Namespace(**{**vars(args), "sampled_q_bfloat16": True})
   assert bench.trainer_for("weak", "reacher_easy", 2, bf16).config.learner.sampled_q_bfloat16
   assert bench.main(["--tasks", "reacher_easy", "--devices", "2", "--modes", "weak", *sizes,
                      "--repeats", "1", "--per_device_env_steps", "--out", str(out)]) == 0
   printed = capsys.readouterr().out
   assert "reacher_easy weak on 2 device(s): env only, the batch stepped as one:" in printed
-  assert "reacher_easy weak on 2 device(s): env only" in printed
-  assert "reacher_easy weak on 2 device(s): iteration" in printed
+  assert "reacher_easy weak on 2 device(s), per device: env only" in printed
+  assert "reacher_easy weak on 2 device(s), per device: iteration" in printed
   weak, = [json.loads(line) for line in open(out)]
   assert (weak["kind"], weak["mode"], weak["devices"], weak["members"]) == ("scaling", "weak", 2, 1)
   assert weak["total_envs"] == 4 and weak["settings"]["batch_size"] == 4
@@ -87,6 +88,12 @@ def test_scaling_measures_weak_scaling_and_builds_populations_over_the_devices(t
   assert weak["sps"] > 0 and weak["env_sps"] > 0 and 0 < weak["iteration_s"] < 60
   assert weak["layout"] == "environments" and weak["env_whole_batch_sps"] > 0
   assert weak["per_device_env_steps"] is True
+  # By default the batch is stepped as one, and the record says nothing of per-device stepping.
+  assert bench.main(["--tasks", "reacher_easy", "--devices", "2", "--modes", "weak", *sizes,
+                     "--repeats", "1", "--out", str(out)]) == 0
+  assert "per device" not in capsys.readouterr().out
+  default = json.loads(open(out).readlines()[-1])
+  assert "per_device_env_steps" not in default and "env_whole_batch_sps" not in default
   population = bench.trainer_for("population", "reacher_easy", 2, args)
   assert population.members == 4 and population.config.num_envs == 2
   assert population.mesh.devices.size == 2 and population.config.batch_size == 2
@@ -356,14 +363,16 @@ def test_multi_device_compile_checks_each_program_in_its_own_process(tmp_path, c
   (a child that segfaults is what the script is for)."""
   bench = load_script("multi_device_compile", folder="benchmarks")
   out = tmp_path / "compile.jsonl"
+  programs = ["whole_step", "rollout_per_device", "iteration_per_device"]
   assert bench.main(["--task", "reacher_easy", "--devices", "2", "--num_envs", "4",
-                     "--programs", "whole_step", "rollout_per_device", "--out", str(out)]) == 0
+                     "--programs", *programs, "--out", str(out)]) == 0
   printed = capsys.readouterr().out
-  assert "reacher_easy whole_step on 2 device(s), 4 envs: ok" in printed
-  assert "reacher_easy rollout_per_device on 2 device(s), 4 envs: ok" in printed
+  for program in programs:
+    assert f"reacher_easy {program} on 2 device(s), 4 envs: ok (compile " in printed, printed
   records = [json.loads(line) for line in open(out)]
   assert [(r["kind"], r["program"], r["outcome"], r["devices"]) for r in records] == [
-      ("compile_check", "whole_step", "ok", 2), ("compile_check", "rollout_per_device", "ok", 2)]
+      ("compile_check", p, "ok", 2) for p in programs]
+  assert all(0 < r["compile_s"] < r["seconds"] for r in records)
   assert bench.ended(-11) == "signal 11 (SIGSEGV)" and bench.ended(3) == "non-finite states"
   assert bench.ended(1) == "exit status 1"
   with pytest.raises(SystemExit):
