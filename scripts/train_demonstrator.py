@@ -7,7 +7,8 @@
 
 Demonstrations are recorded from the expert (shipped, or --expert) on the device, or read from
 --demos. With several values of --beta_ar / --effect_l2, every combination is trained on the
-same demonstrations and written to the folder --out as <task>_ar<beta_ar>_l2<l2>.npz. Each
+same demonstrations and written to the folder --out as <task>_ar<beta_ar>_l2<l2>.npz (with
+`_turn` before `.npz` for turn-invariant models: reacher_hard's by default). Each
 training appends a `kind: effect_model` record (held-out log-likelihood per offset, steps,
 the held-out curve) to --results.
 """

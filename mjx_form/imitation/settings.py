@@ -24,7 +24,7 @@ GRID = (0.01, 0.1, 1.0)  # the paper's search space for beta_ar and l2
 # Untuned tasks: the paper's best pair on its two ablated tasks.
 DEFAULT = {"beta_ar": 1.0, "l2": 0.1}
 
-PER_TASK: dict[str, dict[str, float]] = {
+PER_TASK: dict[str, dict[str, float | bool]] = {
     # cheetah_run, measured 2026-11-23 (benchmarks/NOTES.md, sessions 14-15): of the grid
     # {0.01, 0.1} x {0.1, 1}, the L2-1 models give the stalled imitators' behaviour a log pD
     # well above random actions' (the L2-0.1 ones: the same as random), and FORM with the
@@ -72,7 +72,7 @@ def effect_model_config(task: str, env=None, **overrides) -> EffectModelConfig:
   # Imported here: the constants of this module load without JAX (scripts/report.py).
   from mjx_form.imitation.effect_model import EffectModelConfig
   chosen = effect_model_settings(task)
-  if chosen.pop("turn_invariant", False):
+  if chosen.pop("turn_invariant", False) and overrides.get("period") is None:
     if env is None:
       import tasks
       env = tasks.make(task)
