@@ -363,3 +363,18 @@ def test_train_demonstrator_script_trains_a_grid_and_refuses_bad_input(tmp_path,
     script.main(["--task", "walker_walk", "--turn_invariant", "--out", str(tmp_path / "w.npz")])
   assert exit_.value.code == 2
   assert "walker_walk observes no unbounded angle" in capsys.readouterr().err
+  # reacher_hard's models are turn-invariant without the flag (settings.PER_TASK), plain with
+  # --no-turn_invariant.
+  hard = tmp_path / "hard_demos.npz"
+  demos.save_demonstrations(hard, obs, metadata={
+      "task": "reacher_hard", "physics": "fast",
+      "observation_layout": [["position", 2], ["to_target", 2], ["velocity", 2]]})
+  plain = [a for a in args if a != "--turn_invariant"]
+  plain[plain.index("reacher_easy")], plain[plain.index(str(saved))] = "reacher_hard", str(hard)
+  assert script.main([*plain, "--beta_ar", "0.1,1", "--out", str(tmp_path / "hard")]) == 0
+  assert sorted(p.name for p in (tmp_path / "hard").iterdir()) == [
+      "reacher_hard_ar0.1_l20.1_turn.npz", "reacher_hard_ar1_l20.1_turn.npz"]
+  assert script.main([*plain, "--no-turn_invariant", "--out", str(tmp_path / "plain.npz")]) == 0
+  config = effect_models.load_effect_model(tmp_path / "plain.npz",
+                                           task="reacher_hard").metadata["config"]
+  assert "period" not in config
