@@ -610,8 +610,8 @@ def population_table(records: list[dict]) -> str:
                if r["members"] == 1}
   starred = False
   for r in ordered:
-    # P = 1 on several devices splits its environments (its own layout, per device or not).
-    split = "environments" + (", per device" if r.get("per_device_env_steps") else "")
+    # P = 1 on several devices splits its environments (stepped per device as this row was).
+    split = _layout(dict(r, layout="environments"))
     one = newest.get(key(r, 1)) or (newest.get(key(r, 1)[:-1] + (split,))
                                     if r.get("devices", 1) > 1 else None)
     speedup = f"{r['sps'] / one['sps']:.2f}x" if one else "-"

@@ -211,7 +211,6 @@ class Trainer:
     else:  # [P, ...] replicated, [P, N, ...] batches split within each member
       self._member = self._replicated
       self._member_batch = mesh_lib.member_batch_sharding(self.mesh)
-    self.per_device_env_steps = per_device_env_steps
     self.auto_reset = AutoReset(self.env, self._batch, per_device=per_device_env_steps)
     self.networks = networks_lib.make_networks(self.env.action_size, config.network_width,
                                                config.policy_head)
@@ -248,6 +247,11 @@ class Trainer:
                              out_shardings=(self.state_sharding, self._replicated))
     self.evaluate = jax.jit(self._evaluate, static_argnames="num_envs",
                             out_shardings=self._replicated)
+
+  @property
+  def per_device_env_steps(self) -> bool:
+    """Whether each device steps its own environments (`AutoReset.per_device`)."""
+    return self.auto_reset.per_device
 
   def _choose_layout(self, layout: str | None) -> str:
     devices = self.mesh.devices.size
