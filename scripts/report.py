@@ -704,6 +704,40 @@ def scaling_table(records: list[dict]) -> str:
   return "\n".join(lines)
 
 
+def scaling_summary(records: list[dict]) -> str:
+  """The README's view of `kind: scaling`: one row per task, mode, card, learner and layout
+  with the iteration's env steps/s on one device and, on 2, 4 and 8, steps/s and efficiency
+  (the newest record of each; the full table, env-only stepping included, is NOTES')."""
+  rows = [r for r in records if r.get("kind") == "scaling"]
+  if not rows:
+    return "No scaling results yet (`benchmarks/scaling.py`)."
+  group = lambda r: (r["task"], r["mode"], _device_model(r["device"]), _learner_label(r),
+                     r["total_envs"] // r["devices"], r["settings"]["updates_per_iteration"])
+  newest = _newest(rows, lambda r: (*group(r), r["devices"], _layout(r)))
+  counts = (2, 4, 8)
+  lines = ["Scaling over the GPUs of one host (`benchmarks/scaling.py`; the batch stepped as one "
+           "unless the mode says per device): total env steps/s of the training iteration on "
+           "one GPU, and on N GPUs with its efficiency = steps/s / (N x steps/s on one GPU of the "
+           "same model); weak: one run, 2048 environments per GPU; population: 2 members of 512 "
+           "environments per GPU. Full table, env-only stepping too: `benchmarks/NOTES.md`.", "",
+           "| task | mode | card | learner | 1 GPU | "
+           + " | ".join(f"{n} GPUs (efficiency)" for n in counts) + " |",
+           "|---|---|---|---|---|" + "---|" * len(counts)]
+  multi = sorted({(*group(r), _layout(r)) for r in newest.values() if r["devices"] > 1},
+                 key=lambda g: (_order(g[0]), *g[1:4], g[6]))
+  for *g, layout in multi:
+    one = newest.get((*g, 1, "-"))
+    cells = []
+    for n in counts:
+      r = newest.get((*g, n, layout))
+      cells.append("-" if r is None else _k(r["sps"]) + (
+          f" ({r['sps'] / (n * one['sps']):.2f})" if one else ""))
+    mode = g[1] + (", per device" if layout.endswith("per device") else "")
+    lines.append(f"| {g[0]} | {mode} | {g[2].removeprefix('gpu:')} | {g[3]} | "
+                 f"{_k(one['sps']) if one else '-'} | " + " | ".join(cells) + " |")
+  return "\n".join(lines)
+
+
 def form_table(records: list[dict], expert_returns: dict[str, float] | None = None,
                demonstration_returns: dict[str, float] | None = None,
                best_per_task: bool = False) -> str:
@@ -843,7 +877,8 @@ def effect_model_table(records: list[dict], best_per_task: bool = True) -> str:
 def readme_tables(records: list[dict]) -> dict[str, str]:
   return {"form": form_table(records, best_per_task=True),
           "demonstrators": effect_model_table(records), "experts": experts_table(records),
-          "learning_summary": learning_summary(records), "parity_summary": parity_summary(records)}
+          "learning_summary": learning_summary(records), "parity_summary": parity_summary(records),
+          "scaling_summary": scaling_summary(records)}
 
 
 def notes_tables(records: list[dict]) -> dict[str, str]:

@@ -340,6 +340,26 @@ def test_scaling_table_gives_the_efficiency_against_one_device():
   assert "| 4 | 2 | members, per device | 380k | 0.95 | 1.00M | 0.50 | 1.50M |" in rows[2], rows
 
 
+def test_scaling_summary_gives_one_row_per_setting_with_each_device_count():
+  assert report.scaling_summary([]).startswith("No scaling")
+
+  def record(devices, sps, device="gpu:H x4", time="2026-01-01", **extra):
+    return {"kind": "scaling", "task": "humanoid_run", "mode": "weak", "device": device,
+            "devices": devices, "members": 1, "total_envs": 2048 * devices, "sps": sps,
+            "env_sps": sps, "iteration_s": 1.0, "time": time,
+            "settings": {"updates_per_iteration": 8, "learner": {}}, **extra}
+  table = report.scaling_summary([
+      record(1, 40_000, "gpu:H x1"), record(1, 50_000, "gpu:H x1", time="2026-01-02"),
+      record(2, 90_000), record(4, 160_000), record(2, 70_000, "gpu:G x2"),
+      record(2, 95_000, layout="environments", per_device_env_steps=True)])
+  rows = [line for line in table.splitlines() if line.startswith("| humanoid_run")]
+  # the newest one-device record of the same card (50k), N = 8 unmeasured
+  assert rows[0] == "| humanoid_run | weak | G | - | - | 70k | - | - |", rows
+  assert rows[1] == "| humanoid_run | weak | H | - | 50k | 90k (0.90) | 160k (0.80) | - |", rows
+  assert rows[2] == "| humanoid_run | weak, per device | H | - | 50k | 95k (0.95) | - | - |", rows
+  assert len(rows) == 3
+
+
 def test_demonstrator_tables_show_the_held_out_likelihood():
   assert report.effect_model_table([]) == "No demonstrator results yet."
   base = {"kind": "effect_model", "task": "walker_walk", "method": "form", "device": "gpu:X",
