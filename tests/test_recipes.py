@@ -63,8 +63,10 @@ def test_run_applies_the_recipe_to_expert_runs_only_and_flags_win():
                  "--action_noise_correlation", "0", "--no-sampled_q_bfloat16")
   assert (mixed.learner.target_update_period, mixed.action_noise_correlation) == (25, 0.0)
   assert mixed.learner.sampled_q_bfloat16 is False and mixed.policy_head == "acme"
-  walker = config("--task", "walker_walk", "--method", "expert")  # no recipe: the paper's
+  walker = config("--task", "walker_stand", "--method", "expert")  # no recipe: the paper's
   assert walker.learner == LearnerConfig() and walker.policy_head == "paper"
+  walk = config("--task", "walker_walk", "--method", "expert")  # walker_run's recipe
+  assert (walk.learner.target_update_period, walk.learner.clip_critic_actions) == (25, True)
   run = config("--task", "walker_run", "--method", "expert")
   assert (run.learner.target_update_period, run.learner.clip_critic_actions) == (25, True)
   unclipped = config("--task", "walker_run", "--method", "expert", "--no-clip_critic_actions")
