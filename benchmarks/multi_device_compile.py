@@ -13,6 +13,15 @@ program and the others still run, from the smallest to the loop's own:
   rollout_per_device  10 such steps with random actions (the benchmarks' env-only rollout)
   iteration_per_device  a training iteration of one member per device (tiny learner) with
                       `Trainer(per_device_env_steps=True)`, as train_throughput's populations
+  toy_while_per_device  no MJX: a vmapped `while_loop` whose batched predicate each device
+                      decides alone (shard_map), the pattern of MJX's solver loops
+
+On the two H200s of 2026-11-26 every per-device program crashed, even plain_per_device. To see
+where: `--xla_flags=F` (repeatable) runs every program once more per F with F added to
+XLA_FLAGS (e.g. `--xla_gpu_enable_command_buffer=` to keep loops out of CUDA graphs), and
+`--dump_passes DIR` has each child dump its HLO after every compiler pass into DIR/<program>...;
+where a child dies, the last passes dumped are printed and recorded (the pass after them is
+where it died).
 
 Each child compiles its program, runs it once and checks the states are finite; the parent
 prints `ok` with the compile seconds, or how the child ended (e.g. `signal 11`), and writes
@@ -37,7 +46,7 @@ import common  # noqa: E402  (puts the repository on sys.path)
 from mjx_form.cpu import configure_cpu_xla  # noqa: E402
 
 PROGRAMS = ("whole_step", "plain_per_device", "step_per_device", "rollout_per_device",
-            "iteration_per_device")
+            "iteration_per_device", "toy_while_per_device")
 
 
 def build(program: str, task: str, devices: int, num_envs: int):
@@ -54,6 +63,15 @@ def build(program: str, task: str, devices: int, num_envs: int):
   if jax.device_count() < devices:
     raise SystemExit(f"{devices} devices asked for, {jax.device_count()} here")
   mesh = mesh_lib.make_mesh(jax.devices()[:devices])
+  if program == "toy_while_per_device":  # x -> how many halvings bring it below 1
+    import jax.numpy as jnp
+    batch = mesh_lib.batch_sharding(mesh)
+
+    def halvings(x):
+      return jax.lax.while_loop(lambda c: c[0] >= 1.0, lambda c: (c[0] / 2, c[1] + 1.0),
+                                (x, jnp.float32(0.0)))[1]
+    x = jax.device_put(jnp.exp2(jnp.arange(num_envs, dtype=jnp.float32) % 20), batch)
+    return jax.jit(mesh_lib.per_device(jax.vmap(halvings), batch)), (x,), lambda out: out
   if program == "iteration_per_device":
     config = TrainConfig(task=task, num_envs=num_envs // devices, unroll_length=10,
                          batch_size=2 * devices, replay_capacity=num_envs, updates_per_iteration=2,
@@ -102,6 +120,54 @@ def ended(returncode: int) -> str:
   return "non-finite states" if returncode == 3 else f"exit status {returncode}"
 
 
+def last_passes(folder: str, count: int = 3) -> list[str]:
+  """The names of the last `count` HLO dumps written under `folder` (oldest first)."""
+  if not os.path.isdir(folder):
+    return []
+  files = [os.path.join(folder, name) for name in os.listdir(folder)]
+  files = sorted((f for f in files if os.path.isfile(f)), key=lambda f: (os.path.getmtime(f), f))
+  return [os.path.basename(f) for f in files[-count:]]
+
+
+def check(program: str, extra: str, variant: int, args, writer) -> str:
+  """Runs `program` in a child with `extra` added to XLA_FLAGS: prints and records how it
+  ended."""
+  command = [sys.executable, os.path.abspath(__file__), "--child", program, "--task",
+             args.task, "--devices", str(args.devices), "--num_envs", str(args.num_envs)]
+  flags = extra
+  dump = None
+  if args.dump_passes:
+    dump = os.path.join(args.dump_passes, f"{program}_{variant}")
+    flags = f"{extra} --xla_dump_to={dump} --xla_dump_hlo_pass_re=.*".strip()
+  env = dict(os.environ, XLA_FLAGS=f"{os.environ.get('XLA_FLAGS', '')} {flags}".strip())
+  t0 = time.perf_counter()
+  output = ""
+  try:
+    done = subprocess.run(command, capture_output=True, text=True, timeout=args.timeout,
+                          env=env)
+    outcome, output = ended(done.returncode), done.stdout + done.stderr
+  except subprocess.TimeoutExpired:
+    outcome = f"timed out after {args.timeout:.0f}s"
+  seconds = time.perf_counter() - t0
+  compiled = re.search(r"compiled in ([\d.]+)s", output)
+  compile_s = float(compiled.group(1)) if compiled else None
+  passes = last_passes(dump) if dump and outcome != "ok" else []
+  print(f"{args.task} {program} on {args.devices} device(s), {args.num_envs} envs"
+        + (f", XLA_FLAGS + {extra!r}" if extra else "") + f": {outcome}"
+        + (f" (compile {compile_s:.0f}s)" if compile_s is not None else "")
+        + f", {seconds:.0f}s in all", flush=True)
+  if outcome != "ok" and output.strip():
+    print("  " + output.strip()[-400:].replace("\n", "\n  "), flush=True)
+  if passes:
+    print("  last passes dumped: " + ", ".join(passes), flush=True)
+  writer.write(kind="compile_check", task=args.task, program=program, devices=args.devices,
+               num_envs=args.num_envs, outcome=outcome, compile_s=compile_s, seconds=seconds,
+               xla_flags_added=extra, last_passes=passes,
+               settings={"programs": args.programs, "timeout": args.timeout,
+                         "xla_flags": args.xla_flags, "dump_passes": args.dump_passes})
+  return outcome
+
+
 def main(argv=None) -> int:
   parser = argparse.ArgumentParser(description=__doc__,
                                    formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -110,6 +176,11 @@ def main(argv=None) -> int:
   parser.add_argument("--num_envs", type=int, default=1024)
   parser.add_argument("--programs", nargs="*", default=list(PROGRAMS), choices=PROGRAMS)
   parser.add_argument("--timeout", type=float, default=300.0, help="seconds per program")
+  parser.add_argument("--xla_flags", action="append", default=[], metavar="F",
+                      help="also run every program with F added to XLA_FLAGS (repeatable; "
+                           "written --xla_flags=F, as F starts with --)")
+  parser.add_argument("--dump_passes", default=None, metavar="DIR",
+                      help="children dump their HLO after every compiler pass under DIR")
   parser.add_argument("--child", choices=PROGRAMS, help=argparse.SUPPRESS)
   parser.add_argument("--out", default=common.default_results_path("compile_check"))
   args = parser.parse_args(argv)
@@ -127,27 +198,9 @@ def main(argv=None) -> int:
     parser.error(f"--devices {args.devices} of {jax.device_count()}, with --num_envs "
                  f"{args.num_envs} a multiple of it")
   writer = common.ResultWriter(args.out)
-  for program in args.programs:
-    command = [sys.executable, os.path.abspath(__file__), "--child", program, "--task",
-               args.task, "--devices", str(args.devices), "--num_envs", str(args.num_envs)]
-    t0 = time.perf_counter()
-    output = ""
-    try:
-      done = subprocess.run(command, capture_output=True, text=True, timeout=args.timeout)
-      outcome, output = ended(done.returncode), done.stdout + done.stderr
-    except subprocess.TimeoutExpired:
-      outcome = f"timed out after {args.timeout:.0f}s"
-    seconds = time.perf_counter() - t0
-    compiled = re.search(r"compiled in ([\d.]+)s", output)
-    compile_s = float(compiled.group(1)) if compiled else None
-    print(f"{args.task} {program} on {args.devices} device(s), {args.num_envs} envs: {outcome}"
-          + (f" (compile {compile_s:.0f}s)" if compile_s is not None else "")
-          + f", {seconds:.0f}s in all", flush=True)
-    if outcome != "ok" and output.strip():
-      print("  " + output.strip()[-400:].replace("\n", "\n  "), flush=True)
-    writer.write(kind="compile_check", task=args.task, program=program, devices=args.devices,
-                 num_envs=args.num_envs, outcome=outcome, compile_s=compile_s, seconds=seconds,
-                 settings={"programs": args.programs, "timeout": args.timeout})
+  for variant, extra in enumerate([""] + args.xla_flags):
+    for program in args.programs:
+      check(program, extra, variant, args, writer)
   print(f"results appended to {args.out}")
   return 0
 

@@ -2,6 +2,7 @@
 
 import argparse
 import json
+import os
 
 import jax
 import numpy as np
@@ -377,3 +378,28 @@ def test_multi_device_compile_checks_each_program_in_its_own_process(tmp_path, c
   assert bench.ended(1) == "exit status 1"
   with pytest.raises(SystemExit):
     bench.main(["--task", "reacher_easy", "--devices", "3", "--out", str(out)])
+
+
+def test_multi_device_compile_runs_flag_variants_and_names_the_last_passes(tmp_path, capsys):
+  """The MJX-free per-device loop, once as is and once with a flag added to XLA_FLAGS, with
+  its passes dumped; the last passes of a dump are read off the files' order."""
+  bench = load_script("multi_device_compile", folder="benchmarks")
+  out = tmp_path / "compile.jsonl"
+  assert bench.main(["--task", "reacher_easy", "--devices", "2", "--num_envs", "8",
+                     "--programs", "toy_while_per_device",
+                     "--xla_flags=--xla_backend_optimization_level=1", "--dump_passes", str(tmp_path / "d"),
+                     "--out", str(out)]) == 0
+  printed = capsys.readouterr().out
+  assert "toy_while_per_device on 2 device(s), 8 envs: ok" in printed, printed
+  assert "XLA_FLAGS + '--xla_backend_optimization_level=1': ok" in printed, printed
+  records = [json.loads(line) for line in open(out)]
+  assert [r["xla_flags_added"] for r in records] == ["", "--xla_backend_optimization_level=1"]
+  assert all(r["outcome"] == "ok" and r["last_passes"] == [] for r in records)
+  dumped = os.listdir(tmp_path / "d" / "toy_while_per_device_0")
+  assert any("after" in name or "before" in name for name in dumped), dumped[:5]
+  for i, name in enumerate(["a.txt", "b.txt", "c.txt", "d.txt"]):
+    (tmp_path / "p" / name).parent.mkdir(exist_ok=True)
+    (tmp_path / "p" / name).write_text(name)
+    os.utime(tmp_path / "p" / name, (1000 + i, 1000 + i))
+  assert bench.last_passes(str(tmp_path / "p")) == ["b.txt", "c.txt", "d.txt"]
+  assert bench.last_passes(str(tmp_path / "missing")) == []
