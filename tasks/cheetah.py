@@ -47,7 +47,8 @@ class Cheetah(ControlSuiteTask):
     only qpos was overwritten before stepping; so does ours.
     """
     settled = self.after_reset(data).replace(qpos=qpos)
-    settled = physics_lib.physics_step(self.mjx_model, settled, _SETTLE_STEPS)
+    settled = physics_lib.physics_step(self.mjx_model, settled, _SETTLE_STEPS,
+                                       self.solver_settings.bounded_solver_loop)
     return settled.replace(time=jnp.zeros_like(settled.time))
 
   def speed(self, data):

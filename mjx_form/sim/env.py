@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import abc
 import collections
+import dataclasses
 import xml.etree.ElementTree as ET
 from typing import Any
 
@@ -69,6 +70,8 @@ class Task(abc.ABC):
       settings = physics
     else:
       settings = physics_lib.PARITY if physics == "parity" else self.fast_settings
+      if physics == "fast_bounded":
+        settings = dataclasses.replace(settings, bounded_solver_loop=True)
     root = self.model_xml()
     physics_lib.apply_solver_settings(root, settings)
     self.solver_settings = settings
@@ -192,7 +195,8 @@ class Task(abc.ABC):
     """
     action = jnp.asarray(action, state.data.ctrl.dtype)
     data = state.data.replace(ctrl=action)
-    data = physics_lib.physics_step(self.mjx_model, data, self.n_substeps)
+    data = physics_lib.physics_step(self.mjx_model, data, self.n_substeps,
+                                    self.solver_settings.bounded_solver_loop)
     obs_parts = self.get_observation(data, state.task)
     self.check_observation_layout(obs_parts)
     obs = flatten_observation(obs_parts)

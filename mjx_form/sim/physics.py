@@ -20,9 +20,10 @@ import jax.numpy as jnp
 import mujoco
 from mujoco import mjx
 
+from mjx_form.sim import partitionable  # (also: MJX's contact culling by a stable sort)
 from mjx_form.sim import mjx_patches  # noqa: F401  (MJX corrections for parity with MuJoCo C)
 
-PHYSICS_MODES = ("parity", "fast")
+PHYSICS_MODES = ("parity", "fast", "fast_bounded")
 DEFAULT_PHYSICS = "fast"  # as exact as parity in one-step error, 2.5-7x faster (README)
 
 # JAX lets float32 matmuls run as TF32 (10-bit mantissa) on NVIDIA GPUs by default. Measured on
@@ -54,6 +55,9 @@ class SolverSettings:
   ls_iterations: int | None = None
   max_contact_points: int | None = None  # MJX contact culling: keep the N closest contacts
   max_geom_pairs: int | None = None  # MJX contact culling: keep the N closest geom pairs
+  # The solver's iteration loop as a scan of `iterations` passes instead of a while_loop: the
+  # same iterations, no per-iteration question to the devices (mjx_form.sim.partitionable).
+  bounded_solver_loop: bool = False
 
 
 PARITY = SolverSettings()
@@ -111,20 +115,22 @@ def position_velocity_stages(m: mjx.Model, d: mjx.Data) -> mjx.Data:
 
 
 @full_precision
-def acceleration_stage_and_integrate(m: mjx.Model, d: mjx.Data) -> mjx.Data:
+def acceleration_stage_and_integrate(m: mjx.Model, d: mjx.Data,
+                                     bounded_solver_loop: bool = False) -> mjx.Data:
   """MuJoCo's `mj_step2` for the Euler integrator: forces, constraint solve, sensors, advance."""
   d = mjx.fwd_actuation(m, d)
   d = mjx.fwd_acceleration(m, d)
   if d._impl.efc_J.size == 0:  # no constraint rows (e.g. reacher has contacts disabled)
     d = d.replace(qacc=d.qacc_smooth)
   else:
-    d = mjx.solve(m, d)
+    d = (partitionable.solve if bounded_solver_loop else mjx.solve)(m, d)
   d = mjx.sensor_acc(m, d)
   return mjx.euler(m, d)
 
 
 @full_precision
-def physics_step(m: mjx.Model, d: mjx.Data, n_substeps: int) -> mjx.Data:
+def physics_step(m: mjx.Model, d: mjx.Data, n_substeps: int,
+                 bounded_solver_loop: bool = False) -> mjx.Data:
   """dm_control's `physics.step(n)`: `mj_step2; mj_step(n - 1); mj_step1`.
 
   Written as n repetitions of (mj_step2; mj_step1), the same sequence, so each stage is
@@ -132,7 +138,7 @@ def physics_step(m: mjx.Model, d: mjx.Data, n_substeps: int) -> mjx.Data:
   qpos/qvel (true for every state this module returns); so does the result.
   """
   def substep(d, _):
-    d = acceleration_stage_and_integrate(m, d)
+    d = acceleration_stage_and_integrate(m, d, bounded_solver_loop)
     return position_velocity_stages(m, d), None
   d, _ = jax.lax.scan(substep, d, None, length=n_substeps)
   return d
