@@ -668,9 +668,9 @@ def scaling_table(records: list[dict]) -> str:
   # The host: the device model without the count ("gpu:NVIDIA H200 x2" -> "gpu:NVIDIA H200"),
   # so that N devices compare with one of the same model.
   host = lambda r: _device_model(r["device"])
-  key = lambda r, n, layout: (r["task"], r["mode"], host(r), *per_device(r),
-                              r["settings"]["updates_per_iteration"], _learner_label(r), n,
-                              layout)
+  key = lambda r, n, layout: (r["task"], r["mode"], host(r), r.get("physics", "fast"),
+                              *per_device(r), r["settings"]["updates_per_iteration"],
+                              _learner_label(r), n, layout)
   newest = _newest(rows, lambda r: key(r, r["devices"], _layout(r)))
   lines = ["Scaling over the devices of one host (`benchmarks/scaling.py`): total env steps per "
            "second of the whole training iteration (and of env-only stepping) on N devices; "
@@ -682,11 +682,12 @@ def scaling_table(records: list[dict]) -> str:
            "its own environments (`--per_device_env_steps`; else the batch was stepped as one "
            "program-wide batch); env-only stepping as the iteration steps, and beside a per "
            "device row the batch stepped as one:", "",
-           "| task | mode | device | learner | envs / device | updates / iteration | members | N | "
-           "layout | iteration steps/s | efficiency | env-only steps/s | efficiency | env-only, "
-           "batch as one | iteration | peak memory |",
-           "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+           "| task | mode | device | physics | learner | envs / device | updates / iteration | "
+           "members | N | layout | iteration steps/s | efficiency | env-only steps/s | "
+           "efficiency | env-only, batch as one | iteration | peak memory |",
+           "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
   ordered = sorted(newest.values(), key=lambda r: (_order(r["task"]), r["mode"], host(r),
+                                                   r.get("physics", "fast"),
                                                    _learner_label(r), r["devices"],
                                                    _layout(r)))
   for r in ordered:
@@ -694,7 +695,8 @@ def scaling_table(records: list[dict]) -> str:
     n = r["devices"]
     eff = lambda field: f"{r[field] / (n * one[field]):.2f}" if one else "-"
     memory = r.get("peak_memory_bytes")
-    lines.append(f"| {r['task']} | {r['mode']} | `{r['device']}` | {_learner_label(r)} | "
+    lines.append(f"| {r['task']} | {r['mode']} | `{r['device']}` | {r.get('physics', 'fast')} | "
+                 f"{_learner_label(r)} | "
                  f"{r['total_envs'] // n} | {r['settings']['updates_per_iteration']} | "
                  f"{r['members']} | {n} | {_layout(r)} | {_k(r['sps'])} | "
                  f"{eff('sps')} | {_k(r['env_sps'])} | {eff('env_sps')} | "
@@ -712,7 +714,8 @@ def scaling_summary(records: list[dict]) -> str:
   if not rows:
     return "No scaling results yet (`benchmarks/scaling.py`)."
   group = lambda r: (r["task"], r["mode"], _device_model(r["device"]), _learner_label(r),
-                     r["total_envs"] // r["devices"], r["settings"]["updates_per_iteration"])
+                     r.get("physics", "fast"), r["total_envs"] // r["devices"],
+                     r["settings"]["updates_per_iteration"])
   newest = _newest(rows, lambda r: (*group(r), r["devices"], _layout(r)))
   counts = (2, 4, 8)
   lines = ["Scaling over the GPUs of one host (`benchmarks/scaling.py`; the batch stepped as one "
@@ -724,7 +727,7 @@ def scaling_summary(records: list[dict]) -> str:
            + " | ".join(f"{n} GPUs (efficiency)" for n in counts) + " |",
            "|---|---|---|---|---|" + "---|" * len(counts)]
   multi = sorted({(*group(r), _layout(r)) for r in newest.values() if r["devices"] > 1},
-                 key=lambda g: (_order(g[0]), *g[1:4], g[6]))
+                 key=lambda g: (_order(g[0]), *g[1:5], g[7]))
   for *g, layout in multi:
     one = newest.get((*g, 1, "-"))
     cells = []
@@ -732,8 +735,9 @@ def scaling_summary(records: list[dict]) -> str:
       r = newest.get((*g, n, layout))
       cells.append("-" if r is None else _k(r["sps"]) + (
           f" ({r['sps'] / (n * one['sps']):.2f})" if one else ""))
-    mode = g[1] + (", per device" if layout.endswith("per device") else "")
-    lines.append(f"| {g[0]} | {mode} | {g[2].removeprefix('gpu:')} | {g[3]} | "
+    mode = g[1] + ("" if g[4] == "fast" else f", physics {g[4]}") + (
+        ", per device" if layout.endswith("per device") else "")
+    lines.append(f"| {g[0]} | {mode} | {g[2].removeprefix('gpu:NVIDIA ')} | {g[3]} | "
                  f"{_k(one['sps']) if one else '-'} | " + " | ".join(cells) + " |")
   return "\n".join(lines)
 

@@ -321,8 +321,8 @@ def test_scaling_table_gives_the_efficiency_against_one_device():
   assert "| 8 | environments | 144k | 0.90 | 3.60M | 0.90 | - | 1.50 s | 2.0 GiB |" in rows[1], rows
   assert "| 1 | - | 20k | 1.00 | 500k | 1.00 |" in rows[0], rows
   # a bf16 learner's rows keep their own one-device row (25k, not the float32 run's 20k)
-  assert rows[3].startswith("| humanoid_run | weak | `gpu:H x8` | sampled Q in bf16 | 2048 | 128 "
-                            "| 1 | 8 | environments | 150k | 0.75 |"), rows
+  assert rows[3].startswith("| humanoid_run | weak | `gpu:H x8` | fast | sampled Q in bf16 | 2048 "
+                            "| 128 | 1 | 8 | environments | 150k | 0.75 |"), rows
   assert "| 8 | environments | 100k | - | 1.00M | - |" in rows[4], rows  # no one-device row there
   # A population over two devices, in each layout, against one device of the same model (its
   # record says x1: measured with one device visible).
@@ -343,21 +343,25 @@ def test_scaling_table_gives_the_efficiency_against_one_device():
 def test_scaling_summary_gives_one_row_per_setting_with_each_device_count():
   assert report.scaling_summary([]).startswith("No scaling")
 
-  def record(devices, sps, device="gpu:H x4", time="2026-01-01", **extra):
+  def record(devices, sps, device="gpu:NVIDIA H x4", time="2026-01-01", **extra):
     return {"kind": "scaling", "task": "humanoid_run", "mode": "weak", "device": device,
             "devices": devices, "members": 1, "total_envs": 2048 * devices, "sps": sps,
             "env_sps": sps, "iteration_s": 1.0, "time": time,
             "settings": {"updates_per_iteration": 8, "learner": {}}, **extra}
   table = report.scaling_summary([
-      record(1, 40_000, "gpu:H x1"), record(1, 50_000, "gpu:H x1", time="2026-01-02"),
-      record(2, 90_000), record(4, 160_000), record(2, 70_000, "gpu:G x2"),
-      record(2, 95_000, layout="environments", per_device_env_steps=True)])
+      record(1, 40_000, "gpu:NVIDIA H x1"),
+      record(1, 50_000, "gpu:NVIDIA H x1", time="2026-01-02"),
+      record(2, 90_000), record(4, 160_000), record(2, 70_000, "gpu:NVIDIA G x2"),
+      record(2, 95_000, layout="environments", per_device_env_steps=True),
+      record(1, 30_000, physics="fast_bounded"), record(2, 66_000, physics="fast_bounded")])
   rows = [line for line in table.splitlines() if line.startswith("| humanoid_run")]
-  # the newest one-device record of the same card (50k), N = 8 unmeasured
+  # the newest one-device record of the same card and physics (50k), N = 8 unmeasured
   assert rows[0] == "| humanoid_run | weak | G | - | - | 70k | - | - |", rows
   assert rows[1] == "| humanoid_run | weak | H | - | 50k | 90k (0.90) | 160k (0.80) | - |", rows
   assert rows[2] == "| humanoid_run | weak, per device | H | - | 50k | 95k (0.95) | - | - |", rows
-  assert len(rows) == 3
+  assert rows[3] == ("| humanoid_run | weak, physics fast_bounded | H | - | 30k | 66k (1.10) | - "
+                     "| - |"), rows
+  assert len(rows) == 4
 
 
 def test_demonstrator_tables_show_the_held_out_likelihood():
