@@ -15,6 +15,8 @@ program and the others still run, from the smallest to the loop's own:
                       `Trainer(per_device_env_steps=True)`, as train_throughput's populations
   toy_while_per_device  no MJX: a vmapped `while_loop` whose batched predicate each device
                       decides alone (shard_map), the pattern of MJX's solver loops
+  top_k_per_device    no MJX: `lax.top_k` per device (shard_map), MJX's contact culling until
+                      2026-11-26 (now a stable sort, mjx_form.sim.partitionable)
 
 On the two H200s of 2026-11-26 every per-device program crashed, even plain_per_device. To see
 where: `--xla_flags=F` (repeatable) runs every program once more per F with F added to
@@ -46,7 +48,7 @@ import common  # noqa: E402  (puts the repository on sys.path)
 from mjx_form.cpu import configure_cpu_xla  # noqa: E402
 
 PROGRAMS = ("whole_step", "plain_per_device", "step_per_device", "rollout_per_device",
-            "iteration_per_device", "toy_while_per_device")
+            "iteration_per_device", "toy_while_per_device", "top_k_per_device")
 
 
 def build(program: str, task: str, devices: int, num_envs: int):
@@ -72,6 +74,12 @@ def build(program: str, task: str, devices: int, num_envs: int):
                                 (x, jnp.float32(0.0)))[1]
     x = jax.device_put(jnp.exp2(jnp.arange(num_envs, dtype=jnp.float32) % 20), batch)
     return jax.jit(mesh_lib.per_device(jax.vmap(halvings), batch)), (x,), lambda out: out
+  if program == "top_k_per_device":  # the 4 smallest of 19 distances per environment
+    import jax.numpy as jnp
+    batch = mesh_lib.batch_sharding(mesh)
+    x = jax.device_put(jax.random.normal(jax.random.PRNGKey(0), (num_envs, 19)), batch)
+    smallest = mesh_lib.per_device(jax.vmap(lambda d: jax.lax.top_k(-d, 4)[1]), batch)
+    return jax.jit(smallest), (x,), lambda out: out
   if program == "iteration_per_device":
     config = TrainConfig(task=task, num_envs=num_envs // devices, unroll_length=10,
                          batch_size=2 * devices, replay_capacity=num_envs, updates_per_iteration=2,
