@@ -373,7 +373,7 @@ def test_multi_device_compile_checks_each_program_in_its_own_process(tmp_path, c
   records = [json.loads(line) for line in open(out)]
   assert [(r["kind"], r["program"], r["outcome"], r["devices"]) for r in records] == [
       ("compile_check", p, "ok", 2) for p in programs]
-  assert all(0 < r["compile_s"] < r["seconds"] for r in records)
+  assert all(0 <= r["compile_s"] < r["seconds"] for r in records)  # (top_k: ~0.0 s)
   assert bench.ended(-11) == "signal 11 (SIGSEGV)" and bench.ended(3) == "non-finite states"
   assert bench.ended(1) == "exit status 1"
   with pytest.raises(SystemExit):
