@@ -45,6 +45,7 @@ import jax.numpy as jnp  # noqa: E402
 from mujoco import mjx  # noqa: E402
 
 import tasks  # noqa: E402
+from mjx_form.sim import partitionable  # noqa: E402
 from mjx_form.sim.physics import PHYSICS_MODES, apply_solver_settings, full_precision  # noqa: E402
 from mjx_form.sim.wrappers import AutoReset  # noqa: E402
 
@@ -92,10 +93,14 @@ def step_fn(env, num_envs: int, steps: int):
 
 
 def raw_fn(env, num_envs: int, steps: int):
+  """A plain `mjx.step` loop on `env`'s model (MJX's step with the bounded solve of
+  mjx_form.sim.partitionable where `env`'s physics asks for it)."""
   model, n_substeps = env.mjx_model, env.n_substeps
+  bounded = env.solver_settings.bounded_solver_loop
+  mjx_step = partitionable.step if bounded else mjx.step
 
   def control_step(data):
-    return jax.lax.scan(lambda d, _: (mjx.step(model, d), None), data, None, length=n_substeps)[0]
+    return jax.lax.scan(lambda d, _: (mjx_step(model, d), None), data, None, length=n_substeps)[0]
 
   @full_precision  # as our step: float32 matmuls at full precision
   def run(data, key):

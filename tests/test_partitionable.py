@@ -10,6 +10,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from mujoco import mjx
 
 import tasks
 from mjx_form import mesh as mesh_lib
@@ -36,15 +37,38 @@ def test_bounded_while_loop_is_a_while_loop():
   np.testing.assert_array_equal(loop, bounded)
 
 
-def test_stable_top_k_is_top_k_ties_included():
+def test_stable_top_k_is_top_k_ties_nans_and_signed_zeros_included():
   rng = np.random.default_rng(0)
-  x = jnp.asarray(rng.integers(0, 5, size=(6, 19)).astype(np.float32))  # many ties
-  x = x.at[0].set(jnp.asarray(rng.normal(size=19), jnp.float32))
+  x = rng.integers(0, 5, size=(8, 19)).astype(np.float32)  # many ties
+  x[0] = rng.normal(size=19)
+  x[1, [2, 5, 7]] = [np.nan, -np.nan, np.inf]  # (numpy's -nan has the sign bit set)
+  x[2, [0, 1, 3]] = [-0.0, 0.0, -0.0]
+  x[3] = -0.0
+  x[3, [4, 9]] = 0.0
+  x[4, [1, 6]] = [-np.inf, -np.nan]
+  assert np.signbit(x[1, 5]) and not np.signbit(x[1, 2])
+  x = jnp.asarray(x)
   for k in (1, 4, 19):
     values, indices = jax.lax.top_k(x, k)
     ours = partitionable.stable_top_k(x, k)
-    np.testing.assert_array_equal(ours[1], indices)
+    np.testing.assert_array_equal(ours[1], indices, err_msg=f"k={k}")
+    np.testing.assert_array_equal(np.signbit(ours[0]), np.signbit(values))
     np.testing.assert_array_equal(ours[0], values)
+  with pytest.raises(TypeError, match="float32"):
+    partitionable.stable_top_k(jnp.arange(4), 2)
+
+
+def test_replacements_fail_loudly_where_mjx_no_longer_calls_them(monkeypatch):
+  """A newer MJX whose solve stops looping in lax.while_loop (or whose forward stops calling
+  solver.solve) must not silently run MJX's own loop."""
+  from mujoco.mjx._src import solver as mjx_solver
+  env, state = _states("hopper_stand", "fast", steps=2, num_envs=1)
+  data = jax.tree.map(lambda x: x[0], state.data)
+  monkeypatch.setattr(mjx_solver, "solve", lambda m, d: d)
+  with pytest.raises(RuntimeError, match="no longer iterates"):
+    partitionable.solve(env.mjx_model, data)
+  with pytest.raises(RuntimeError, match="no longer iterates"):  # (forward calls the same solve)
+    partitionable.forward(env.mjx_model, data)
 
 
 def test_collision_culls_with_the_stable_sort():
@@ -69,8 +93,9 @@ def _states(name, physics_mode, steps=15, num_envs=4):
 @pytest.mark.parametrize("name,iterations", [("cheetah_run", None), ("hopper_stand", 3)])
 def test_bounded_solve_steps_as_mjx_solve(name, iterations):
   """From the same states, one physics step with MJX's solve and with the bounded loop: the
-  same qacc and next state. With 3 iterations the cap binds (the solver has not converged),
-  so a loop one pass short or long would show."""
+  same qacc and next state, and MJX's forward and step against ours with the bounded solve.
+  With 3 iterations the cap binds (the solver has not converged), so a loop one pass short
+  would show."""
   env, state = _states(name, "fast")
   settings = env.fast_settings
   if iterations is not None:
@@ -85,6 +110,12 @@ def test_bounded_solve_steps_as_mjx_solve(name, iterations):
   for field in ("qacc", "qpos", "qvel", "qfrc_constraint"):
     np.testing.assert_allclose(getattr(steps[True], field), getattr(steps[False], field),
                                rtol=1e-5, atol=1e-5, err_msg=field)
+  m = env.mjx_model
+  for ours, theirs in ((partitionable.forward, mjx.forward), (partitionable.step, mjx.step)):
+    a, b = (jax.jit(jax.vmap(lambda d, f=f: f(m, d)))(data) for f in (ours, theirs))
+    for field in ("qacc", "qpos", "qvel", "sensordata"):
+      np.testing.assert_allclose(getattr(a, field), getattr(b, field), rtol=1e-5, atol=1e-5,
+                                 err_msg=f"{ours.__name__} {field}")
   if iterations is not None:  # one iteration fewer gives another answer
     few = tasks.make(name, dataclasses.replace(settings, iterations=iterations - 1))
     fewer = jax.jit(jax.vmap(lambda d: physics.physics_step(few.mjx_model, d, 1, True)))(data)
@@ -98,20 +129,33 @@ def test_fast_bounded_is_fast_with_the_bounded_loop():
   assert env.physics == "fast_bounded"
 
 
+COLLECTIVE = re.compile(r"\b(all-reduce|all-gather|all-to-all|ragged-all-to-all|reduce-scatter|"
+                        r"collective-permute|collective-broadcast)(?:-start)?\(")
+
+
 def test_bounded_loop_steps_a_split_batch_without_collectives():
   """cheetah_run's batch split over 2 devices, stepped as one program-wide batch: with MJX's
   while_loop the devices agree at every solver iteration (an all-reduce of its condition);
-  with the bounded loop the step exchanges nothing (with lax.top_k's culling it gathered the
-  batch's contact distances: two all-gathers)."""
+  with the bounded loop a step or a reset exchanges nothing (with lax.top_k's culling the
+  step gathered the batch's contact distances: two all-gathers), and the auto-reset wrapper
+  only its one agreement on whether any environment restarts."""
   mesh = mesh_lib.make_mesh(jax.devices()[:2])
-  collectives = {}
+  found = {}
   for mode in ("fast", "fast_bounded"):
     env = tasks.make("cheetah_run", mode)
-    state = mesh_lib.shard_batch(
-        jax.jit(lambda k: AutoReset(env).reset(k, 4))(jax.random.PRNGKey(0)), mesh)
+    keys = mesh_lib.shard_batch(jax.random.split(jax.random.PRNGKey(0), 4), mesh)
+    state = jax.jit(lambda k: AutoReset(env).reset(k, 4))(jax.random.PRNGKey(0))
+    state = mesh_lib.shard_batch(state, mesh)
     action = mesh_lib.shard_batch(jnp.zeros((4, env.action_size)), mesh)
-    text = jax.jit(jax.vmap(env.step)).lower(state, action).compile().as_text()
-    collectives[mode] = re.findall(r"\b(all-reduce|all-gather|all-to-all|collective-permute)"
-                                   r"(?:-start)?\(", text)
-  assert "all-reduce" in collectives["fast"], collectives
-  assert collectives["fast_bounded"] == [], collectives
+    programs = {"step": (jax.vmap(env.step), (state, action)),
+                "reset": (jax.vmap(env.reset), (keys,)),
+                "auto_reset_step": (AutoReset(env).step, (state, action))}
+    if mode == "fast":  # (what the check can see: the step is enough)
+      programs = {"step": programs["step"]}
+    for name, (fn, args) in programs.items():
+      text = jax.jit(fn).lower(*args).compile().as_text()
+      found[mode, name] = COLLECTIVE.findall(text)
+  assert "all-reduce" in found["fast", "step"], found
+  assert found["fast_bounded", "step"] == [], found
+  assert found["fast_bounded", "reset"] == [], found
+  assert found["fast_bounded", "auto_reset_step"] == ["all-reduce"], found

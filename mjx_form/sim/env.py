@@ -221,6 +221,8 @@ class Task(abc.ABC):
 
   def after_reset(self, data: mjx.Data) -> mjx.Data:
     """dm_control's `after_reset`: `mj_forward` with actuation disabled."""
+    if self.solver_settings.bounded_solver_loop:
+      return physics_lib.partitionable.forward(self._reset_model, data)
     return mjx.forward(self._reset_model, data)
 
   def body_id(self, name: str) -> int:

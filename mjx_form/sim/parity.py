@@ -103,17 +103,17 @@ def _state_fields(arrays):
   return {f: arrays[f] for f in STATE_FIELDS}
 
 
-def _physics_batch_fn(model, states, actions, n_substeps):
+def _physics_batch_fn(model, states, actions, n_substeps, bounded_solver_loop=False):
   def one(state, action):
     d = reference_data(model, state).replace(ctrl=jnp.asarray(action, state["qpos"].dtype))
-    return physics_lib.physics_step(model, d, n_substeps)
+    return physics_lib.physics_step(model, d, n_substeps, bounded_solver_loop)
   return jax.vmap(one)(states, actions)
 
 
 @functools.cache
 def _physics_batch():
   """The batched step, compiled once per model structure (a parity check runs it once)."""
-  return jax.jit(_physics_batch_fn, static_argnums=3,
+  return jax.jit(_physics_batch_fn, static_argnums=(3, 4),
                  compiler_options=cpu.run_once_compiler_options())
 
 
@@ -123,7 +123,8 @@ def physics_batch(env: Task, states: dict, actions) -> mjx.Data:
   The model is an argument of the compiled function, so tasks that share a domain's model
   (walker stand/walk/run, ...) share one compilation.
   """
-  return _physics_batch()(env.mjx_model, _state_fields(states), actions, env.n_substeps)
+  return _physics_batch()(env.mjx_model, _state_fields(states), actions, env.n_substeps,
+                          env.solver_settings.bounded_solver_loop)
 
 
 def observe_batch(env: Task, data: mjx.Data, task: dict) -> tuple[jax.Array, jax.Array]:

@@ -14,16 +14,22 @@ exchange data between the devices (seen in the compiled step on 2 forced CPU dev
   each applying the iteration only where the loop's condition still holds
   (`bounded_while_loop`, as MJX's line search already does): the same iterations per
   environment, nothing asked at run time, but the passes after convergence still cost their
-  compute. Selected by `SolverSettings.bounded_solver_loop` (`--physics fast_bounded`);
-  which is faster is measured on the GPUs (benchmarks/NOTES.md).
-Both run MJX's own functions with `jax` seen through `_Overridden`, so no MJX code is copied.
+  compute. `forward` and `step` are MJX's with that solve (resets; a raw loop). Selected by
+  `SolverSettings.bounded_solver_loop` (`--physics fast_bounded`); which is faster is
+  measured on the GPUs (benchmarks/NOTES.md).
+Both run MJX's own functions with some of their module's names seen through `_Overridden`, so
+no MJX code is copied; each checks that its replacement was used (a newer MJX that no longer
+calls it fails loudly).
 """
 
 from __future__ import annotations
 
+import inspect
+
 import jax
 import jax.numpy as jnp
 from mujoco.mjx._src import collision_driver
+from mujoco.mjx._src import forward as mjx_forward
 from mujoco.mjx._src import solver as mjx_solver
 
 
@@ -39,10 +45,20 @@ class _Overridden:
     return getattr(self._module, name)
 
 
+def _total_order_key(x: jax.Array) -> jax.Array:
+  """int32 keys ordered as float32 `x` in IEEE total order (-NaN < -inf < ... < -0.0 < +0.0
+  < ... < +inf < +NaN), the order `lax.top_k` ranks by."""
+  bits = jax.lax.bitcast_convert_type(x.astype(jnp.float32), jnp.int32)
+  return jnp.where(bits < 0, bits ^ jnp.int32(0x7FFFFFFF), bits)
+
+
 def stable_top_k(operand: jax.Array, k: int) -> tuple[jax.Array, jax.Array]:
-  """`lax.top_k(operand, k)` along the last axis (the k largest, ties to the lower index) by
-  a stable sort."""
-  indices = jnp.argsort(-operand, axis=-1, stable=True)[..., :k]
+  """`lax.top_k(operand, k)` of float32 `operand` along its last axis (the k largest in total
+  order, ties to the lower index) by a stable sort."""
+  if operand.dtype != jnp.float32:
+    raise TypeError(f"stable_top_k: float32 only, got {operand.dtype}")
+  descending = ~_total_order_key(operand)  # (~ reverses the order of int32 without overflow)
+  indices = jnp.argsort(descending, axis=-1, stable=True)[..., :k]
   return jnp.take_along_axis(operand, indices, axis=-1), indices
 
 
@@ -57,25 +73,58 @@ def bounded_while_loop(cond_fun, body_fun, init_val, max_iterations: int):
   return jax.lax.scan(one_pass, init_val, None, length=max_iterations)[0]
 
 
-def _with_jax(fn, jax_view):
-  """`fn` (a module-level function of MJX) running against `jax_view` as its `jax`."""
-  return type(fn)(fn.__code__, {**fn.__globals__, "jax": jax_view}, fn.__name__,
-                  fn.__defaults__, fn.__closure__)
+def _rebound(fn, **names):
+  """`fn` (a module-level function of MJX) running with `names` in place of its module's."""
+  if inspect.unwrap(fn) is not fn:
+    raise RuntimeError(f"{fn.__qualname__} is wrapped: mjx_form.sim.partitionable expects "
+                       "MJX's plain function")
+  rebound = type(fn)(fn.__code__, {**fn.__globals__, **names}, fn.__name__, fn.__defaults__,
+                     fn.__closure__)
+  rebound.__kwdefaults__ = fn.__kwdefaults__
+  return rebound
 
 
 def solve(m, d):
   """`mjx.solve(m, d)` with its iteration loop bounded by `m.opt.iterations`."""
+  used = []
 
   def while_loop(cond_fun, body_fun, init_val):
+    used.append(True)
     return bounded_while_loop(cond_fun, body_fun, init_val, int(m.opt.iterations))
 
   view = _Overridden(jax, lax=_Overridden(jax.lax, while_loop=while_loop))
-  return _with_jax(mjx_solver.solve, view)(m, d)
+  d = _rebound(mjx_solver.solve, jax=view)(m, d)
+  if int(m.opt.iterations) > 1 and not used:
+    raise RuntimeError("MJX's solve no longer iterates in jax.lax.while_loop: "
+                       "mjx_form.sim.partitionable needs updating")
+  return d
+
+
+def forward(m, d):
+  """`mjx.forward(m, d)` (MuJoCo's mj_forward) with `solve` as its constraint solver."""
+  used = []
+
+  def bounded(m, d):
+    used.append(True)
+    return solve(m, d)
+
+  d = _rebound(inspect.unwrap(mjx_forward.forward),
+               solver=_Overridden(mjx_solver, solve=bounded))(m, d)
+  if d._impl.efc_J.size and not used:
+    raise RuntimeError("MJX's forward no longer calls solver.solve: "
+                       "mjx_form.sim.partitionable needs updating")
+  return d
+
+
+def step(m, d):
+  """`mjx.step(m, d)` with `forward` (so `solve`) in place of MJX's forward."""
+  return _rebound(inspect.unwrap(mjx_forward.step), forward=forward)(m, d)
 
 
 def install() -> None:
   """MJX's collision culls contacts with `stable_top_k` (its module sees `jax` through a
-  view; nothing else in it changes)."""
+  view; nothing else in it changes). Process-wide: every MJX step culls so, including a plain
+  `mjx.step` (benchmarks' raw loop, peers on MJX)."""
   if not isinstance(collision_driver.jax, _Overridden):
     collision_driver.jax = _Overridden(jax, lax=_Overridden(jax.lax, top_k=stable_top_k))
 
