@@ -715,19 +715,21 @@ def scaling_summary(records: list[dict]) -> str:
     return "No scaling results yet (`benchmarks/scaling.py`)."
   group = lambda r: (r["task"], r["mode"], _device_model(r["device"]), _learner_label(r),
                      r.get("physics", "fast"), r["total_envs"] // r["devices"],
+                     r["members"] // r["devices"] if r["mode"] == "population" else 1,
                      r["settings"]["updates_per_iteration"])
   newest = _newest(rows, lambda r: (*group(r), r["devices"], _layout(r)))
   counts = (2, 4, 8)
   lines = ["Scaling over the GPUs of one host (`benchmarks/scaling.py`; the batch stepped as one "
            "unless the mode says per device): total env steps/s of the training iteration on "
            "one GPU, and on N GPUs with its efficiency = steps/s / (N x steps/s on one GPU of the "
-           "same model); weak: one run, 2048 environments per GPU; population: 2 members of 512 "
-           "environments per GPU. Full table, env-only stepping too: `benchmarks/NOTES.md`.", "",
+           "same model); weak: one run with the environments per GPU given; population: the "
+           "members per GPU given (whole members per GPU). Full table, env-only stepping too: "
+           "`benchmarks/NOTES.md`.", "",
            "| task | mode | card | learner | 1 GPU | "
            + " | ".join(f"{n} GPUs (efficiency)" for n in counts) + " |",
            "|---|---|---|---|---|" + "---|" * len(counts)]
   multi = sorted({(*group(r), _layout(r)) for r in newest.values() if r["devices"] > 1},
-                 key=lambda g: (_order(g[0]), *g[1:5], g[7]))
+                 key=lambda g: (_order(g[0]), *g[1:]))
   for *g, layout in multi:
     one = newest.get((*g, 1, "-"))
     cells = []
@@ -735,7 +737,9 @@ def scaling_summary(records: list[dict]) -> str:
       r = newest.get((*g, n, layout))
       cells.append("-" if r is None else _k(r["sps"]) + (
           f" ({r['sps'] / (n * one['sps']):.2f})" if one else ""))
-    mode = g[1] + ("" if g[4] == "fast" else f", physics {g[4]}") + (
+    envs, members = g[5], g[6]
+    size = (f"{members} x {envs // members} envs" if g[1] == "population" else f"{envs} envs")
+    mode = f"{g[1]}, {size}/GPU" + ("" if g[4] == "fast" else f", physics {g[4]}") + (
         ", per device" if layout.endswith("per device") else "")
     lines.append(f"| {g[0]} | {mode} | {g[2].removeprefix('gpu:NVIDIA ')} | {g[3]} | "
                  f"{_k(one['sps']) if one else '-'} | " + " | ".join(cells) + " |")

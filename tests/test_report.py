@@ -356,12 +356,21 @@ def test_scaling_summary_gives_one_row_per_setting_with_each_device_count():
       record(1, 30_000, physics="fast_bounded"), record(2, 66_000, physics="fast_bounded")])
   rows = [line for line in table.splitlines() if line.startswith("| humanoid_run")]
   # the newest one-device record of the same card and physics (50k), N = 8 unmeasured
-  assert rows[0] == "| humanoid_run | weak | G | - | - | 70k | - | - |", rows
-  assert rows[1] == "| humanoid_run | weak | H | - | 50k | 90k (0.90) | 160k (0.80) | - |", rows
-  assert rows[2] == "| humanoid_run | weak, per device | H | - | 50k | 95k (0.95) | - | - |", rows
-  assert rows[3] == ("| humanoid_run | weak, physics fast_bounded | H | - | 30k | 66k (1.10) | - "
-                     "| - |"), rows
+  weak = "| humanoid_run | weak, 2048 envs/GPU"
+  assert rows[0] == f"{weak} | G | - | - | 70k | - | - |", rows
+  assert rows[1] == f"{weak} | H | - | 50k | 90k (0.90) | 160k (0.80) | - |", rows
+  assert rows[2] == f"{weak}, per device | H | - | 50k | 95k (0.95) | - | - |", rows
+  assert rows[3] == f"{weak}, physics fast_bounded | H | - | 30k | 66k (1.10) | - | - |", rows
   assert len(rows) == 4
+  # populations of other sizes keep their own rows and one-GPU baselines
+  population = lambda devices, sps, members: record(devices, sps) | {
+      "mode": "population", "members": members * devices, "total_envs": 512 * members * devices}
+  table = report.scaling_summary([population(1, 100_000, 2), population(2, 180_000, 2),
+                                  population(1, 150_000, 4), population(2, 240_000, 4)])
+  rows = [line for line in table.splitlines() if line.startswith("| humanoid_run")]
+  assert rows == [
+      "| humanoid_run | population, 2 x 512 envs/GPU | H | - | 100k | 180k (0.90) | - | - |",
+      "| humanoid_run | population, 4 x 512 envs/GPU | H | - | 150k | 240k (0.80) | - | - |"], rows
 
 
 def test_demonstrator_tables_show_the_held_out_likelihood():
