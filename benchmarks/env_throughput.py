@@ -132,6 +132,13 @@ def model_digest(env) -> str:
   return hashlib.sha256(xml.encode()).hexdigest()[:16]
 
 
+def raw_key(env, num_envs: int, steps: int) -> tuple:
+  """What a raw loop's measurement depends on: tasks with the same key share one (the tasks of
+  a domain, at the same solver settings and loop)."""
+  return (model_digest(env), env.solver_settings.bounded_solver_loop, env.n_substeps, num_envs,
+          steps)
+
+
 class Job:
   """One function to time: compiled ahead (possibly in a worker thread), timed later."""
 
@@ -187,7 +194,7 @@ def task_jobs(name: str, args, key, peer_lock: threading.Lock) -> list[dict]:
                         (_tile(starts[physics], times), key), steps, num_envs)
       entries.append({"task": name, "physics": physics, "num_envs": num_envs, "env": env,
                       "steps": steps, "ours": ours, "raw": raw, "step": unwrapped,
-                      "raw_key": (model_digest(env), env.n_substeps, num_envs, steps),
+                      "raw_key": raw_key(env, num_envs, steps),
                       "peer": peer})
   return entries
 

@@ -403,3 +403,15 @@ def test_multi_device_compile_runs_flag_variants_and_names_the_last_passes(tmp_p
     os.utime(tmp_path / "p" / name, (1000 + i, 1000 + i))
   assert bench.last_passes(str(tmp_path / "p")) == ["b.txt", "c.txt", "d.txt"]
   assert bench.last_passes(str(tmp_path / "missing")) == []
+
+
+def test_env_throughput_shares_a_raw_loop_only_between_the_same_physics():
+  """Tasks of one domain share the raw mjx.step loop's measurement; fast_bounded (same XML,
+  another solver loop) gets its own, as parity does."""
+  import tasks
+  bench = load_script("env_throughput", folder="benchmarks")
+  key = lambda name, physics: bench.raw_key(tasks.make(name, physics), 2048, 50)
+  assert key("walker_walk", "fast") == key("walker_run", "fast")
+  assert key("walker_walk", "fast") != key("walker_walk", "fast_bounded")
+  assert key("walker_walk", "fast") != key("walker_walk", "parity")
+  assert key("walker_walk", "fast_bounded") == key("walker_stand", "fast_bounded")
