@@ -107,7 +107,8 @@ def parse_args(argv=None) -> argparse.Namespace:
                       help="progress lines every N steps (random, default 50) or N iterations "
                            "(expert, default 1)")
   parser.add_argument("--physics", default=DEFAULT_PHYSICS, choices=PHYSICS_MODES,
-                      help="parity: dm_control's solver settings; fast: fewer iterations")
+                      help="parity: dm_control's solver settings; fast: fewer iterations; fast_bounded: "
+                           "fast with the solver's loop as a fixed-length scan (same states)")
   parser.add_argument("--seed", type=int, default=0)
   parser.add_argument("--seeds", type=_seeds, default=None,
                       help="comma-separated seeds: a population of runs, one per seed, in one "

@@ -64,7 +64,7 @@ PARITY = SolverSettings()
 
 
 def check_physics_mode(physics: str | SolverSettings) -> str | SolverSettings:
-  """A physics mode name ('parity', 'fast') or explicit `SolverSettings` (for sweeps)."""
+  """A physics mode name (PHYSICS_MODES) or explicit `SolverSettings` (for sweeps)."""
   if not isinstance(physics, SolverSettings) and physics not in PHYSICS_MODES:
     raise ValueError(f"unknown physics mode {physics!r}; valid modes: {', '.join(PHYSICS_MODES)}")
   return physics
