@@ -54,8 +54,15 @@ def test_stable_top_k_is_top_k_ties_nans_and_signed_zeros_included():
     np.testing.assert_array_equal(ours[1], indices, err_msg=f"k={k}")
     np.testing.assert_array_equal(np.signbit(ours[0]), np.signbit(values))
     np.testing.assert_array_equal(ours[0], values)
-  with pytest.raises(TypeError, match="float32"):
-    partitionable.stable_top_k(jnp.arange(4), 2)
+  # other dtypes go to lax.top_k itself (float64 physics under x64 culls as before)
+  ints = jnp.asarray(rng.integers(0, 5, size=(3, 9)), jnp.int32)
+  for a, b in zip(partitionable.stable_top_k(ints, 4), jax.lax.top_k(ints, 4)):
+    np.testing.assert_array_equal(a, b)
+  with jax.enable_x64(True):
+    x64 = jnp.asarray(x, jnp.float64)
+    for a, b in zip(partitionable.stable_top_k(x64, 4), jax.lax.top_k(x64, 4)):
+      assert a.dtype == b.dtype
+      np.testing.assert_array_equal(a, b)
 
 
 def test_replacements_fail_loudly_where_mjx_no_longer_calls_them(monkeypatch):
@@ -64,11 +71,23 @@ def test_replacements_fail_loudly_where_mjx_no_longer_calls_them(monkeypatch):
   from mujoco.mjx._src import solver as mjx_solver
   env, state = _states("hopper_stand", "fast", steps=2, num_envs=1)
   data = jax.tree.map(lambda x: x[0], state.data)
+  from mujoco.mjx._src import forward as mjx_forward
+  m = env.mjx_model
+  solve = mjx_solver.solve
   monkeypatch.setattr(mjx_solver, "solve", lambda m, d: d)
   with pytest.raises(RuntimeError, match="no longer iterates"):
-    partitionable.solve(env.mjx_model, data)
+    partitionable.solve(m, data)
   with pytest.raises(RuntimeError, match="no longer iterates"):  # (forward calls the same solve)
-    partitionable.forward(env.mjx_model, data)
+    partitionable.forward(m, data)
+  monkeypatch.setattr(mjx_solver, "solve", solve)
+  # a forward that never calls the solver, and a step that never calls forward
+  assert data._impl.efc_J.size  # (there are constraint rows to solve)
+  monkeypatch.setattr(mjx_forward, "forward", lambda m, d: d)
+  with pytest.raises(RuntimeError, match="no longer calls solver.solve"):
+    partitionable.forward(m, data)
+  monkeypatch.setattr(mjx_forward, "step", lambda m, d: d)
+  with pytest.raises(RuntimeError, match="no longer calls forward"):
+    partitionable.step(m, data)
 
 
 def test_collision_culls_with_the_stable_sort():
@@ -122,6 +141,39 @@ def test_bounded_solve_steps_as_mjx_solve(name, iterations):
     assert np.abs(np.asarray(fewer.qacc - steps[False].qacc)).max() > 1e-3
 
 
+def test_solve_iterations_counts_the_passes_of_mjx_solve():
+  """hopper_stand states in contact: the count under jit and vmap against the same solve run
+  eagerly with its while_loop as a Python loop that counts its passes; with a cap of 3 no
+  count exceeds it."""
+  from mujoco.mjx._src import solver as mjx_solver
+  env, state = _states("hopper_stand", "fast")
+  m = env.mjx_model
+  prepare = lambda m, d: mjx.fwd_acceleration(m, mjx.fwd_actuation(m, d))
+  data = jax.jit(jax.vmap(lambda d: prepare(m, d)))(state.data)
+  counts = np.asarray(jax.jit(jax.vmap(lambda d: partitionable.solve_iterations(m, d)))(data))
+
+  def python_count(d):
+    passes = []
+
+    def while_loop(cond_fun, body_fun, x):
+      while bool(cond_fun(x)):
+        x = body_fun(x)
+        passes.append(1)
+      return x
+
+    view = partitionable._Overridden(
+        jax, lax=partitionable._Overridden(jax.lax, while_loop=while_loop))
+    partitionable._rebound(mjx_solver.solve, jax=view)(m, d)
+    return len(passes)
+
+  reference = [python_count(jax.tree.map(lambda x, i=i: x[i], data)) for i in range(len(counts))]
+  np.testing.assert_array_equal(counts, reference)
+  assert len(set(reference)) > 1, reference  # (states that need different counts)
+  capped = tasks.make("hopper_stand", dataclasses.replace(env.fast_settings, iterations=3))
+  few = jax.jit(jax.vmap(lambda d: partitionable.solve_iterations(capped.mjx_model, d)))(data)
+  np.testing.assert_array_equal(few, np.minimum(counts, 3))
+
+
 def test_fast_bounded_is_fast_with_the_bounded_loop():
   env = tasks.make("walker_walk", "fast_bounded")
   assert env.solver_settings == dataclasses.replace(tasks.make("walker_walk").fast_settings,
@@ -136,9 +188,10 @@ COLLECTIVE = re.compile(r"\b(all-reduce|all-gather|all-to-all|ragged-all-to-all|
 def test_bounded_loop_steps_a_split_batch_without_collectives():
   """cheetah_run's batch split over 2 devices, stepped as one program-wide batch: with MJX's
   while_loop the devices agree at every solver iteration (an all-reduce of its condition);
-  with the bounded loop a step or a reset exchanges nothing (with lax.top_k's culling the
-  step gathered the batch's contact distances: two all-gathers), and the auto-reset wrapper
-  only its one agreement on whether any environment restarts."""
+  with the bounded loop a step or cheetah's reset exchanges nothing (with lax.top_k's culling
+  the step gathered the batch's contact distances: two all-gathers), and the auto-reset wrapper
+  only its one agreement on whether any environment restarts. (Humanoid's and quadruped's
+  resets loop on contacts in while_loops of their own.)"""
   mesh = mesh_lib.make_mesh(jax.devices()[:2])
   found = {}
   for mode in ("fast", "fast_bounded"):

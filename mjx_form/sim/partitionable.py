@@ -14,7 +14,8 @@ exchange data between the devices (seen in the compiled step on 2 forced CPU dev
   each applying the iteration only where the loop's condition still holds
   (`bounded_while_loop`, as MJX's line search already does): the same iterations per
   environment, nothing asked at run time, but the passes after convergence still cost their
-  compute. `forward` and `step` are MJX's with that solve (resets; a raw loop). Selected by
+  compute. `forward` and `step` are MJX's with that solve (resets; a raw loop); humanoid's and
+  quadruped's resets still loop on contacts in while_loops of their own. Selected by
   `SolverSettings.bounded_solver_loop` (`--physics fast_bounded`); which is faster is
   measured on the GPUs (benchmarks/NOTES.md).
 Both run MJX's own functions with some of their module's names seen through `_Overridden`, so
@@ -48,15 +49,16 @@ class _Overridden:
 def _total_order_key(x: jax.Array) -> jax.Array:
   """int32 keys ordered as float32 `x` in IEEE total order (-NaN < -inf < ... < -0.0 < +0.0
   < ... < +inf < +NaN), the order `lax.top_k` ranks by."""
-  bits = jax.lax.bitcast_convert_type(x.astype(jnp.float32), jnp.int32)
+  bits = jax.lax.bitcast_convert_type(x, jnp.int32)
   return jnp.where(bits < 0, bits ^ jnp.int32(0x7FFFFFFF), bits)
 
 
 def stable_top_k(operand: jax.Array, k: int) -> tuple[jax.Array, jax.Array]:
-  """`lax.top_k(operand, k)` of float32 `operand` along its last axis (the k largest in total
-  order, ties to the lower index) by a stable sort."""
+  """`lax.top_k(operand, k)` along the last axis (the k largest, ties to the lower index): for
+  float32 (the physics' dtype) by a stable sort in IEEE total order, for other dtypes (float64
+  under `jax.enable_x64`) `lax.top_k` itself."""
   if operand.dtype != jnp.float32:
-    raise TypeError(f"stable_top_k: float32 only, got {operand.dtype}")
+    return jax.lax.top_k(operand, k)  # (`install` changes MJX's view of jax only)
   descending = ~_total_order_key(operand)  # (~ reverses the order of int32 without overflow)
   indices = jnp.argsort(descending, axis=-1, stable=True)[..., :k]
   return jnp.take_along_axis(operand, indices, axis=-1), indices
@@ -100,6 +102,25 @@ def solve(m, d):
   return d
 
 
+def solve_iterations(m, d) -> jax.Array:
+  """The iterations `mjx.solve(m, d)` takes from `d` (its solver_niter, at most
+  `m.opt.iterations`): how many passes of a batch's `while_loop` this environment needs."""
+  found = []
+
+  def while_loop(cond_fun, body_fun, init_val):
+    found.append(jax.lax.while_loop(cond_fun, body_fun, init_val))
+    return found[-1]
+
+  if int(m.opt.iterations) == 1:  # (MJX's solve then takes its one iteration without a loop)
+    return jnp.ones((), jnp.int32)
+  view = _Overridden(jax, lax=_Overridden(jax.lax, while_loop=while_loop))
+  _rebound(mjx_solver.solve, jax=view)(m, d)
+  if len(found) != 1:
+    raise RuntimeError("MJX's solve no longer iterates in one jax.lax.while_loop: "
+                       "mjx_form.sim.partitionable needs updating")
+  return found[0].solver_niter
+
+
 def forward(m, d):
   """`mjx.forward(m, d)` (MuJoCo's mj_forward) with `solve` as its constraint solver."""
   used = []
@@ -118,7 +139,17 @@ def forward(m, d):
 
 def step(m, d):
   """`mjx.step(m, d)` with `forward` (so `solve`) in place of MJX's forward."""
-  return _rebound(inspect.unwrap(mjx_forward.step), forward=forward)(m, d)
+  used = []
+
+  def bounded(m, d):
+    used.append(True)
+    return forward(m, d)
+
+  d = _rebound(inspect.unwrap(mjx_forward.step), forward=bounded)(m, d)
+  if not used:
+    raise RuntimeError("MJX's step no longer calls forward: "
+                       "mjx_form.sim.partitionable needs updating")
+  return d
 
 
 def install() -> None:
