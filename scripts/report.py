@@ -385,9 +385,9 @@ def train_throughput_table(records: list[dict]) -> str:
   rows = [r for r in records if r.get("kind") == "train_throughput"]
   if not rows:
     return "No training-loop throughput results yet."
-  newest = _newest(rows, lambda r: (r["task"], r["num_envs"], r["device"], _matmuls(r),
-                                    r["settings"]["updates_per_iteration"], _episodes(r),
-                                    _xla_flags(r), _learner_label(r)))
+  newest = _newest(rows, lambda r: (r["task"], r["num_envs"], r["device"], r["physics"],
+                                    _matmuls(r), r["settings"]["updates_per_iteration"],
+                                    _episodes(r), _xla_flags(r), _learner_label(r)))
   lines = ["Environment steps per second of one whole training iteration (collect 100-step "
            "unrolls, normaliser, replay insert, MPO/Retrace updates) beside env-only "
            "`AutoReset(task).step` with random actions, in the same process; peak device memory "
@@ -398,8 +398,8 @@ def train_throughput_table(records: list[dict]) -> str:
            "other XLA flags |",
            "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
   for r in sorted(newest.values(),
-                  key=lambda r: (_order(r["task"]), r["num_envs"], _matmuls(r), _xla_flags(r),
-                                 _learner_label(r))):
+                  key=lambda r: (_order(r["task"]), r["num_envs"], r["physics"], _matmuls(r),
+                                 _xla_flags(r), _learner_label(r))):
     memory = r.get("peak_memory_bytes")
     lines.append(f"| {r['task']} | `{r['device']}` | {r['physics']} | {_matmuls(r)} | "
                  f"{r['num_envs']} | {r['settings']['updates_per_iteration']} | "
@@ -573,13 +573,13 @@ def population_table(records: list[dict]) -> str:
   rows = [r for r in records if r.get("kind") == "population_throughput"]
   if not rows:
     return "No population throughput results yet."
-  key = lambda r, p: (r.get("_file", ""), r["task"], r["device"], r["num_envs"], p,
-                      r["settings"]["updates_per_iteration"], _learner_label(r), _layout(r))
+  key = lambda r, p: (r.get("_file", ""), r["task"], r["device"], r["physics"], r["num_envs"],
+                      p, r["settings"]["updates_per_iteration"], _learner_label(r), _layout(r))
   newest = _newest(rows, lambda r: key(r, r["members"]))
   # The same population on one device of the same model (the newest such record; from the
   # same result file where it has one), for rows measured over several devices.
-  one_device = lambda r: (r["task"], _device_model(r["device"]) + " x1", r["num_envs"],
-                          r["members"], r["settings"]["updates_per_iteration"],
+  one_device = lambda r: (r["task"], _device_model(r["device"]) + " x1", r["physics"],
+                          r["num_envs"], r["members"], r["settings"]["updates_per_iteration"],
                           _learner_label(r))
   alone = {}
   for r in sorted(newest.values(), key=lambda r: r.get("time", "")):
@@ -597,12 +597,13 @@ def population_table(records: list[dict]) -> str:
            "stepped its own environments, `--per_device_env_steps`, else the batch was stepped "
            "as one) and the speed-up over the same population on one device of the same "
            "model:", "",
-           "| task | device | envs / member | updates / iteration | learner | P | total steps/s | "
-           "speed-up over P = 1 | layout | over one device | iteration | collection | updates | "
-           "ms / update / member | peak memory | result file |",
-           "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+           "| task | device | physics | envs / member | updates / iteration | learner | P | "
+           "total steps/s | speed-up over P = 1 | layout | over one device | iteration | "
+           "collection | updates | ms / update / member | peak memory | result file |",
+           "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
   ordered = sorted(newest.values(), key=lambda r: (_order(r["task"]), r["device"],
-                                                   r["num_envs"], r.get("_file", ""),
+                                                   r["physics"], r["num_envs"],
+                                                   r.get("_file", ""),
                                                    r["members"], _layout(r)))
   # Where a result file has no P = 1, the newest P = 1 of the same task, device and settings
   # from another file stands in, marked with an asterisk.
@@ -626,7 +627,7 @@ def population_table(records: list[dict]) -> str:
     per_member = r["update_ms"] / r["members"]  # update_ms: all members' update, side by side
     memory = r.get("peak_memory_bytes")
     label = _run_label(r["_file"], "population_throughput") if "_file" in r else "-"
-    lines.append(f"| {r['task']} | `{r['device']}` | {r['num_envs']} | "
+    lines.append(f"| {r['task']} | `{r['device']}` | {r['physics']} | {r['num_envs']} | "
                  f"{r['settings']['updates_per_iteration']} | {_learner_label(r)} | "
                  f"{r['members']} | {_k(r['sps'])} | "
                  f"{speedup} | {_layout(r)} | {over_one} | {r['iteration_s']:.2f} s | "
@@ -634,8 +635,8 @@ def population_table(records: list[dict]) -> str:
                  f"{updates_s:.2f} s | {per_member:.2f} | "
                  f"{'-' if memory is None else f'{memory / 2**30:.1f} GiB'} | {label} |")
   if starred:
-    lines += ["", "\\* over P = 1 of another result file (same task, device, environments, "
-              "updates and learner settings)."]
+    lines += ["", "\\* over P = 1 of another result file (same task, device, physics, "
+              "environments, updates and learner settings)."]
   return "\n".join(lines)
 
 
@@ -723,11 +724,12 @@ def scaling_summary(records: list[dict]) -> str:
            "unless the mode says per device): total env steps/s of the training iteration on "
            "one GPU, and on N GPUs with its efficiency = steps/s / (N x steps/s on one GPU of the "
            "same model); weak: one run with the environments per GPU given; population: the "
-           "members per GPU given (whole members per GPU). Full table, env-only stepping too: "
-           "`benchmarks/NOTES.md`.", "",
-           "| task | mode | card | learner | 1 GPU | "
+           "members per GPU given (whole members per GPU, unless the mode says each member's "
+           "environments are split over the GPUs); updates: the learner updates per iteration. "
+           "Full table, env-only stepping too: `benchmarks/NOTES.md`.", "",
+           "| task | mode | card | learner | updates | 1 GPU | "
            + " | ".join(f"{n} GPUs (efficiency)" for n in counts) + " |",
-           "|---|---|---|---|---|" + "---|" * len(counts)]
+           "|---|---|---|---|---|---|" + "---|" * len(counts)]
   multi = sorted({(*group(r), _layout(r)) for r in newest.values() if r["devices"] > 1},
                  key=lambda g: (_order(g[0]), *g[1:]))
   for *g, layout in multi:
@@ -739,9 +741,11 @@ def scaling_summary(records: list[dict]) -> str:
           f" ({r['sps'] / (n * one['sps']):.2f})" if one else ""))
     envs, members = g[5], g[6]
     size = (f"{members} x {envs // members} envs" if g[1] == "population" else f"{envs} envs")
-    mode = f"{g[1]}, {size}/GPU" + ("" if g[4] == "fast" else f", physics {g[4]}") + (
-        ", per device" if layout.endswith("per device") else "")
-    lines.append(f"| {g[0]} | {mode} | {g[2].removeprefix('gpu:NVIDIA ')} | {g[3]} | "
+    split = g[1] == "population" and layout.startswith("environments")
+    mode = (f"{g[1]}, {size}/GPU" + (", environments split" if split else "")
+            + ("" if g[4] == "fast" else f", physics {g[4]}")
+            + (", per device" if layout.endswith("per device") else ""))
+    lines.append(f"| {g[0]} | {mode} | {g[2].removeprefix('gpu:NVIDIA ')} | {g[3]} | {g[7]} | "
                  f"{_k(one['sps']) if one else '-'} | " + " | ".join(cells) + " |")
   return "\n".join(lines)
 

@@ -229,7 +229,7 @@ def test_population_table_gives_the_speed_up_over_one_member_of_the_same_file_or
   def record(members, sps, iteration_s, collect_s, file="2026-12-01_population_throughput.jsonl",
              learner=None):
     return {"kind": "population_throughput", "task": "cheetah_run", "device": "gpu:X",
-            "num_envs": 512, "members": members, "sps": sps, "iteration_s": iteration_s,
+            "physics": "fast", "num_envs": 512, "members": members, "sps": sps, "iteration_s": iteration_s,
             "collect_s": collect_s, "update_ms": 1e3 * (iteration_s - collect_s) / 100,
             "peak_memory_bytes": 2**30 * members,
             "settings": {"updates_per_iteration": 100, "learner": learner or {}}, "_file": file}
@@ -240,13 +240,13 @@ def test_population_table_gives_the_speed_up_over_one_member_of_the_same_file_or
                                    record(4, 100_000, 2.0, 0.8, later, bf16)])
   rows = [line for line in table.splitlines() if line.startswith("| cheetah_run")]
   # P = 8: 4.00x; updates 1.2 s over 100 updates and 8 members = 1.50 ms each.
-  assert rows[1] == ("| cheetah_run | `gpu:X` | 512 | 100 | - | 8 | 200k | 4.00x | - | - | "
+  assert rows[1] == ("| cheetah_run | `gpu:X` | fast | 512 | 100 | - | 8 | 200k | 4.00x | - | - | "
                      "2.00 s | 0.80 s | 1.20 s | 1.50 | 8.0 GiB | 2026-12-01 |"), rows
   assert "| 1 | 50k | 1.00x | - | - | 1.00 s | 0.40 s | 0.60 s | 6.00 | 1.0 GiB |" in rows[0], rows
   # The later file's P = 4 is against its own P = 1 (40k), not the other file's (50k); its
   # learner's departure from the paper's is named.
-  assert rows[3].startswith("| cheetah_run | `gpu:X` | 512 | 100 | sampled Q in bf16 | 4 | 100k | "
-                            "2.50x |"), rows
+  assert rows[3].startswith("| cheetah_run | `gpu:X` | fast | 512 | 100 | sampled Q in bf16 | 4 | "
+                            "100k | 2.50x |"), rows
   assert rows[3].endswith("| 2026-12-02 faster |"), rows
   assert "another result file" not in table
 
@@ -258,12 +258,19 @@ def test_population_table_gives_the_speed_up_over_one_member_of_the_same_file_or
                                    record(1, 40_000, 1.0, 0.4, later, bf16) | {"time": "2"},
                                    record(8, 200_000, 2.0, 0.8, newer, bf16) | {"time": "3"},
                                    record(8, 100_000, 2.0, 0.8, newer, t25) | {"time": "3"}])
-  rows = {line.split(" | ")[4]: line for line in table.splitlines()
+  rows = {line.split(" | ")[5]: line for line in table.splitlines()
           if line.startswith("| cheetah_run") and "| 8 |" in line}
   assert "| 8 | 200k | 5.00x* |" in rows["sampled Q in bf16"], rows
   assert "| 8 | 100k | - |" in rows["T 25"], rows
-  assert table.endswith("\\* over P = 1 of another result file (same task, device, "
+  assert table.endswith("\\* over P = 1 of another result file (same task, device, physics, "
                         "environments, updates and learner settings)."), table
+  # another physics mode is never measured against fast's P = 1, in its file or elsewhere
+  bounded = lambda r: r | {"physics": "fast_bounded"}
+  table = report.population_table([record(1, 50_000, 1.0, 0.4, later, bf16),
+                                   bounded(record(8, 300_000, 2.0, 0.8, later, bf16)),
+                                   bounded(record(8, 300_000, 2.0, 0.8, newer, bf16))])
+  rows = [line for line in table.splitlines() if "| fast_bounded |" in line]
+  assert len(rows) == 2 and all("| 8 | 300k | - |" in row for row in rows), rows
 
   # Over two devices: each layout's speed-up over the same population on one device of the
   # same model (here from another file) and over P = 1 on the two devices (a single run
@@ -277,7 +284,7 @@ def test_population_table_gives_the_speed_up_over_one_member_of_the_same_file_or
       on(record(1, 60_000, 1.0, 0.4, two), 2, "environments"),
       on(record(8, 380_000, 2.0, 0.8, two), 2, "members"),
       on(record(8, 250_000, 2.0, 0.8, two), 2, "environments")])
-  rows = {tuple(line.split(" | ")[5:10]): line for line in table.splitlines()
+  rows = {tuple(line.split(" | ")[6:11]): line for line in table.splitlines()
           if line.startswith("| cheetah_run")}
   assert ("8", "380k", "6.33x", "members", "1.90x") in rows, rows  # the newest one-device 200k
   assert ("8", "250k", "4.17x", "environments", "1.25x") in rows, rows
@@ -357,20 +364,35 @@ def test_scaling_summary_gives_one_row_per_setting_with_each_device_count():
   rows = [line for line in table.splitlines() if line.startswith("| humanoid_run")]
   # the newest one-device record of the same card and physics (50k), N = 8 unmeasured
   weak = "| humanoid_run | weak, 2048 envs/GPU"
-  assert rows[0] == f"{weak} | G | - | - | 70k | - | - |", rows
-  assert rows[1] == f"{weak} | H | - | 50k | 90k (0.90) | 160k (0.80) | - |", rows
-  assert rows[2] == f"{weak}, per device | H | - | 50k | 95k (0.95) | - | - |", rows
-  assert rows[3] == f"{weak}, physics fast_bounded | H | - | 30k | 66k (1.10) | - | - |", rows
+  assert rows[0] == f"{weak} | G | - | 8 | - | 70k | - | - |", rows
+  assert rows[1] == f"{weak} | H | - | 8 | 50k | 90k (0.90) | 160k (0.80) | - |", rows
+  assert rows[2] == f"{weak}, per device | H | - | 8 | 50k | 95k (0.95) | - | - |", rows
+  assert rows[3] == f"{weak}, physics fast_bounded | H | - | 8 | 30k | 66k (1.10) | - | - |", rows
   assert len(rows) == 4
   # populations of other sizes keep their own rows and one-GPU baselines
   population = lambda devices, sps, members: record(devices, sps) | {
       "mode": "population", "members": members * devices, "total_envs": 512 * members * devices}
-  table = report.scaling_summary([population(1, 100_000, 2), population(2, 180_000, 2),
-                                  population(1, 150_000, 4), population(2, 240_000, 4)])
+  members = lambda r: r | {"layout": "members"}
+  table = report.scaling_summary([population(1, 100_000, 2), members(population(2, 180_000, 2)),
+                                  population(1, 150_000, 4), members(population(2, 240_000, 4))])
   rows = [line for line in table.splitlines() if line.startswith("| humanoid_run")]
   assert rows == [
-      "| humanoid_run | population, 2 x 512 envs/GPU | H | - | 100k | 180k (0.90) | - | - |",
-      "| humanoid_run | population, 4 x 512 envs/GPU | H | - | 150k | 240k (0.80) | - | - |"], rows
+      "| humanoid_run | population, 2 x 512 envs/GPU | H | - | 8 | 100k | 180k (0.90) | - | - |",
+      "| humanoid_run | population, 4 x 512 envs/GPU | H | - | 8 | 150k | 240k (0.80) | - | - |"
+  ], rows
+  # each member's environments split over the GPUs, and another update count: rows of their own
+  split = population(2, 120_000, 2) | {"layout": "environments"}
+  more = lambda r: r | {"settings": {"updates_per_iteration": 128, "learner": {}}}
+  table = report.scaling_summary([population(1, 100_000, 2), members(population(2, 180_000, 2)),
+                                  split, more(population(1, 50_000, 2)),
+                                  more(members(population(2, 95_000, 2)))])
+  rows = [line for line in table.splitlines() if line.startswith("| humanoid_run")]
+  assert rows == [
+      "| humanoid_run | population, 2 x 512 envs/GPU, environments split | H | - | 8 | 100k | "
+      "120k (0.60) | - | - |",
+      "| humanoid_run | population, 2 x 512 envs/GPU | H | - | 8 | 100k | 180k (0.90) | - | - |",
+      "| humanoid_run | population, 2 x 512 envs/GPU | H | - | 128 | 50k | 95k (0.95) | - | - |"
+  ], rows
 
 
 def test_demonstrator_tables_show_the_held_out_likelihood():
@@ -483,9 +505,9 @@ def test_parity_tables_are_per_device_and_precision():
   assert "`cpu:cpu x1`, matmuls in float32" in table
 
 
-def test_train_throughput_rows_differ_by_precision_xla_flags_and_learner():
-  """A measurement under other compiler flags, matmul precision or learner settings is a row of
-  its own, the learner's departures from the paper named."""
+def test_train_throughput_rows_differ_by_physics_precision_xla_flags_and_learner():
+  """A measurement under another physics mode, other compiler flags, matmul precision or learner
+  settings is a row of its own, the learner's departures from the paper named."""
   base = {"kind": "train_throughput", "task": "cheetah_run", "physics": "fast", "num_envs": 512,
           "device": "gpu:X", "versions": {}, "time": "t", "sps": 1.1e5, "env_sps": 2.8e5,
           "ratio_to_env": 0.41, "update_ms": 2.0, "peak_memory_bytes": None,
@@ -498,8 +520,10 @@ def test_train_throughput_rows_differ_by_precision_xla_flags_and_learner():
   del tf32["physics_matmul_precision"]
   bf16 = dict(base, sps=1.3e5, time="w", settings=dict(
       base["settings"], learner={"target_update_period": 200, "sampled_q_bfloat16": True}))
-  table = report.train_throughput_table([base, graphs, tf32, bf16])
+  bounded = dict(base, sps=0.9e5, time="x", physics="fast_bounded")
+  table = report.train_throughput_table([base, graphs, tf32, bf16, bounded])
   assert "| 110k | 280k | 0.41 | 2.0 | - | - |" in table
+  assert "| fast_bounded | float32 | 512 | 128 | - | lockstep | 90k |" in table
   assert "| 100k | 280k | 0.41 | 2.0 | - | `--xla_gpu_enable_command_buffer=WHILE` |" in table
   assert "| TF32 | 512 | 128 | - | lockstep | 120k |" in table
   assert "| float32 | 512 | 128 | sampled Q in bf16 | lockstep | 130k |" in table
