@@ -137,6 +137,10 @@ def last_passes(folder: str, count: int = 3) -> list[str]:
   return [os.path.basename(f) for f in files[-count:]]
 
 
+def dump_folder(root: str, program: str, variant: int) -> str:
+  return os.path.join(root, f"{program}_{variant}")
+
+
 def check(program: str, extra: str, variant: int, args, writer) -> str:
   """Runs `program` in a child with `extra` added to XLA_FLAGS: prints and records how it
   ended."""
@@ -145,7 +149,7 @@ def check(program: str, extra: str, variant: int, args, writer) -> str:
   flags = extra
   dump = None
   if args.dump_passes:
-    dump = os.path.join(args.dump_passes, f"{program}_{variant}")
+    dump = dump_folder(args.dump_passes, program, variant)
     flags = f"{extra} --xla_dump_to={dump} --xla_dump_hlo_pass_re=.*".strip()
   env = dict(os.environ, XLA_FLAGS=f"{os.environ.get('XLA_FLAGS', '')} {flags}".strip())
   t0 = time.perf_counter()
@@ -205,8 +209,16 @@ def main(argv=None) -> int:
   if not 1 <= args.devices <= jax.device_count() or args.num_envs % args.devices:
     parser.error(f"--devices {args.devices} of {jax.device_count()}, with --num_envs "
                  f"{args.num_envs} a multiple of it")
+  variants = list(enumerate([""] + args.xla_flags))
+  if args.dump_passes:  # (a dump left from another run would be read as this one's last passes)
+    if os.path.exists(args.dump_passes) and not os.path.isdir(args.dump_passes):
+      parser.error(f"--dump_passes {args.dump_passes} is not a folder")
+    used = [d for d in (dump_folder(args.dump_passes, p, v) for v, _ in variants
+                        for p in args.programs) if os.path.isdir(d) and os.listdir(d)]
+    if used:
+      parser.error(f"--dump_passes: {', '.join(used)} already hold dumps (nothing was run)")
   writer = common.ResultWriter(args.out)
-  for variant, extra in enumerate([""] + args.xla_flags):
+  for variant, extra in variants:
     for program in args.programs:
       check(program, extra, variant, args, writer)
   print(f"results appended to {args.out}")

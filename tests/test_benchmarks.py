@@ -397,6 +397,14 @@ def test_multi_device_compile_runs_flag_variants_and_names_the_last_passes(tmp_p
   assert all(r["outcome"] == "ok" and r["last_passes"] == [] for r in records)
   dumped = os.listdir(tmp_path / "d" / "toy_while_per_device_0")
   assert any("after" in name or "before" in name for name in dumped), dumped[:5]
+  # a folder holding dumps already, or a file, is refused before anything runs
+  (tmp_path / "f").write_text("")
+  for root, message in ((tmp_path / "d", "already hold dumps"), (tmp_path / "f", "not a folder")):
+    with pytest.raises(SystemExit) as exit_info:
+      bench.main(["--task", "reacher_easy", "--devices", "2", "--num_envs", "8", "--programs",
+                  "toy_while_per_device", "--dump_passes", str(root), "--out", str(out)])
+    assert exit_info.value.code == 2 and message in capsys.readouterr().err
+  assert len(open(out).readlines()) == 2
   for i, name in enumerate(["a.txt", "b.txt", "c.txt", "d.txt"]):
     (tmp_path / "p" / name).parent.mkdir(exist_ok=True)
     (tmp_path / "p" / name).write_text(name)
