@@ -4,7 +4,8 @@
 targets copied every 200 updates, float32, the critic sees tanh of the sampled action), its
 policy head and independent action noise. The default preset is a task's measured recipe where
 PER_TASK has one, else the paper's: a recipe is kept only where a GPU learning curve showed it
-beats the paper's settings on that task (the entry names the records). Flags
+beats the paper's settings on that task (the entry names the records and says where the
+comparison is not like for like, e.g. another number of updates per env step). Flags
 (`--target_update_period`, `--policy_head`, ...) win over both.
 
 The scale of a run (environments, updates per iteration, env steps) stays on the command line;
