@@ -15,7 +15,7 @@ from test_readme_commands import run_commands
 
 import tasks
 from mjx_form import mesh as mesh_lib
-from mjx_form.files import checkpoint, demos, effect_models
+from mjx_form.files import checkpoint, demos, effect_models, experts
 from mjx_form.imitation import effect_model as em
 from mjx_form.imitation import settings
 from mjx_form.imitation.form import Demonstrator, FormReward
@@ -480,3 +480,23 @@ def test_form_command_line_runs_every_stage(tmp_path, capsys):
   assert cli.main(_readme_args(run_dir)) == 2
   assert "--resume" in capsys.readouterr().err
   assert (run_dir / "demonstrator.npz").read_bytes() == before
+
+
+def test_a_demonstrator_of_another_expert_is_named():
+  """walker_walk's shipped demonstrator was trained on the former expert's demonstrations
+  (878.8); demonstrations of the shipped expert get a notice naming both policies, those of
+  the same policy none."""
+  from mjx_form.files import policy_io
+  from mjx_form.imitation import pipeline
+  demonstrator = effect_models.load_effect_model(tasks.bundled_demonstrator("walker_walk"))
+  theirs = demonstrator.metadata["demonstrations"]["expert"]
+  path = tasks.bundled_expert("walker_walk")
+  _, meta = policy_io.load_policy(path)
+  ours = {"expert": experts.recording_info(path, meta, np.array([950.0, 970.0]), 0, False)}
+  notice = pipeline.another_expert(demonstrator.metadata, ours)
+  assert notice is not None and "another expert policy" in notice, notice
+  assert theirs["policy_sha256"][:12] in notice and meta["sha256"][:12] in notice, notice
+  assert "mean return 878.8" in notice and "mean return 960.0" in notice, notice
+  same = {"expert": dict(ours["expert"], policy_sha256=theirs["policy_sha256"])}
+  assert pipeline.another_expert(demonstrator.metadata, same) is None
+  assert pipeline.another_expert(demonstrator.metadata, {"expert": {}}) is None  # unknown

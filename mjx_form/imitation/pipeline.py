@@ -152,6 +152,9 @@ def prepare(env, config: em.EffectModelConfig, explicit: dict, artefacts: Artefa
            f"steps at step {file.metadata['training'].get('best_step')}, held-out "
            f"log-likelihood by offset {file.metadata['training'].get('heldout_log_likelihood')}")
   if demos_obs is not None:
+    other = another_expert(file.metadata, demos_info)
+    if other:
+      print_fn(other)
     fit = demonstrator_lib.heldout_log_likelihood(em.make_model(config, env.observation_size),
                                                   demonstrator.params, demonstrator.normalizer,
                                                   jnp.asarray(demos_obs))
@@ -160,6 +163,22 @@ def prepare(env, config: em.EffectModelConfig, explicit: dict, artefacts: Artefa
   os.makedirs(run_dir, exist_ok=True)
   shutil.copyfile(path, kept)
   return FormReward(config, demonstrator, file.metadata["sha256"], **reward)
+
+
+def another_expert(demonstrator_metadata: dict, demos_info: dict) -> str | None:
+  """A notice where a demonstrator was trained on demonstrations of another expert policy than
+  this run's demonstrations (by the policies' sha256; None where they agree or are unknown):
+  it then imitates that expert, and the run's expert return is not the one it imitates."""
+  theirs = demonstrator_metadata.get("demonstrations", {}).get("expert") or {}
+  ours = demos_info.get("expert") or {}
+  a, b = theirs.get("policy_sha256"), ours.get("policy_sha256")
+  if not a or not b or a == b:
+    return None
+  ret = lambda e: "" if e.get("mean_return") is None else f", mean return {e['mean_return']:.1f}"
+  return (f"note: the demonstrator was trained on demonstrations of another expert policy "
+          f"({theirs.get('policy_file')} sha256 {a[:12]}{ret(theirs)}) than this run's "
+          f"({ours.get('policy_file')} sha256 {b[:12]}{ret(ours)}): the run imitates that one; "
+          "--train_demonstrator trains one on this run's demonstrations")
 
 
 def demonstrator_from_file(file: effect_models.EffectModelFile, path: str,
