@@ -423,3 +423,32 @@ def test_env_throughput_shares_a_raw_loop_only_between_the_same_physics():
   assert key("walker_walk", "fast") != key("walker_walk", "fast_bounded")
   assert key("walker_walk", "fast") != key("walker_walk", "parity")
   assert key("walker_walk", "fast_bounded") == key("walker_stand", "fast_bounded")
+
+
+def test_solver_iterations_summarises_what_a_batch_computes(tmp_path):
+  """Two steps of four environments: batch maxima over disjoint groups, and the line-search
+  passes a batch computes (10 per iteration of its slowest environment) against those a
+  search stopping with the batch's slowest would (the largest count of each iteration)."""
+  bench = load_script("solver_iterations", folder="benchmarks")
+  counts = np.array([[1, 2, 3, 4], [2, 2, 2, 5]])
+  passes = np.zeros((2, 4, 10), np.int32)
+  passes[0, :, 0] = [1, 1, 2, 1]
+  passes[0, 3, 1:4] = [3, 1, 1]
+  passes[1, :, :2] = 2
+  passes[1, 3, 2:5] = [4, 4, 1]
+  s = bench.summary(counts, passes, cap=10, ls_cap=10, num_envs=4)
+  assert s["mean"] == 2.625 and s["at_cap"] == 0.0
+  assert s["mean_batch_max"] == {"1": 2.625, "4": 4.5}  # (8 does not fit in 4)
+  ls = s["line_search"]
+  assert ls["mean_per_iteration"] == passes.sum() / counts.sum()
+  assert ls["batch_passes_now"] == 45.0  # 10 x (4 + 5) / 2
+  assert ls["batch_passes_if_stopped"] == ((2 + 3 + 1 + 1) + (2 + 2 + 4 + 4 + 1)) / 2
+  out = tmp_path / "si.jsonl"  # (reacher: only its finger's joint limit to solve)
+  assert bench.main(["--tasks", "reacher_easy", "--num_envs", "4", "--steps", "3", "--out",
+                     str(out)]) == 0
+  record = json.loads(open(out).read())
+  assert record["kind"] == "solver_iterations" and record["policy"] == "expert"
+  settings = record["settings"]  # (reacher keeps dm_control's 100/50 in every mode)
+  assert (settings["num_envs"], settings["steps"], settings["iterations"]) == (4, 3, 100)
+  ls = record["line_search"]
+  assert 0 <= record["mean"] <= 100 and ls["batch_passes_if_stopped"] <= ls["batch_passes_now"]

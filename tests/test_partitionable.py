@@ -142,36 +142,57 @@ def test_bounded_solve_steps_as_mjx_solve(name, iterations):
 
 
 def test_solve_iterations_counts_the_passes_of_mjx_solve():
-  """hopper_stand states in contact: the count under jit and vmap against the same solve run
-  eagerly with its while_loop as a Python loop that counts its passes; with a cap of 3 no
-  count exceeds it."""
+  """hopper_stand states in contact, with the solver capped at 3 iterations: the counts
+  (iterations, line-search passes per iteration) against the same solve with both loops
+  unrolled in Python, each pass applied where its condition holds and counted there; without
+  the cap, the first 3 iterations count the same and the rest stop by convergence."""
   from mujoco.mjx._src import solver as mjx_solver
   env, state = _states("hopper_stand", "fast")
-  m = env.mjx_model
+  capped = tasks.make("hopper_stand", dataclasses.replace(env.fast_settings, iterations=3))
   prepare = lambda m, d: mjx.fwd_acceleration(m, mjx.fwd_actuation(m, d))
-  data = jax.jit(jax.vmap(lambda d: prepare(m, d)))(state.data)
-  counts = np.asarray(jax.jit(jax.vmap(lambda d: partitionable.solve_iterations(m, d)))(data))
+  data = jax.jit(jax.vmap(lambda d: prepare(env.mjx_model, d)))(state.data)
+  count = lambda m: tuple(map(np.asarray, jax.jit(jax.vmap(
+      lambda d: partitionable.solve_iterations(m, d)))(data)))
 
-  def python_count(d):
-    passes = []
+  def unrolled(m, d):
+    searches = []  # line-search passes of each solver iteration, as traced values
 
     def while_loop(cond_fun, body_fun, x):
-      while bool(cond_fun(x)):
-        x = body_fun(x)
-        passes.append(1)
+      iterations = []
+      for _ in range(int(m.opt.iterations)):
+        go = cond_fun(x)
+        x = jax.tree.map(lambda a, b, go=go: jnp.where(go, a, b), body_fun(x), x)
+        iterations.append(go)
+      searches[:] = [jnp.where(go, n, 0) for go, n in zip(iterations, searches)]
+      return x, jnp.sum(jnp.stack(iterations))
+
+    def line_search_loop(cond_fun, body_fun, x, max_iter):
+      n = jnp.zeros((), jnp.int32)
+      for _ in range(max_iter):
+        go = cond_fun(x)
+        x = jax.tree.map(lambda a, b, go=go: jnp.where(go, a, b), body_fun(x), x)
+        n = n + go
+      searches.append(n)
       return x
 
-    view = partitionable._Overridden(
-        jax, lax=partitionable._Overridden(jax.lax, while_loop=while_loop))
-    partitionable._rebound(mjx_solver.solve, jax=view)(m, d)
-    return len(passes)
+    result = []
+    view = partitionable._Overridden(jax, lax=partitionable._Overridden(
+        jax.lax, while_loop=lambda *a: result.append(while_loop(*a)) or result[-1][0]))
+    line_search = partitionable._rebound(mjx_solver._linesearch,
+                                         _while_loop_scan=line_search_loop)
+    partitionable._rebound(mjx_solver.solve, jax=view, _linesearch=line_search)(m, d)
+    return result[0][1], jnp.stack(searches)
 
-  reference = [python_count(jax.tree.map(lambda x, i=i: x[i], data)) for i in range(len(counts))]
-  np.testing.assert_array_equal(counts, reference)
-  assert len(set(reference)) > 1, reference  # (states that need different counts)
-  capped = tasks.make("hopper_stand", dataclasses.replace(env.fast_settings, iterations=3))
-  few = jax.jit(jax.vmap(lambda d: partitionable.solve_iterations(capped.mjx_model, d)))(data)
+  few, few_passes = count(capped.mjx_model)
+  reference = jax.jit(jax.vmap(lambda d: unrolled(capped.mjx_model, d)))(data)
+  np.testing.assert_array_equal(few, reference[0])
+  np.testing.assert_array_equal(few_passes, reference[1])
+  counts, passes = count(env.mjx_model)
   np.testing.assert_array_equal(few, np.minimum(counts, 3))
+  np.testing.assert_array_equal(few_passes, passes[:, :3])
+  assert len(set(counts)) > 1 and passes.max() > 1, (counts, passes)  # (varied counts)
+  after = np.arange(passes.shape[1]) >= counts[:, None]
+  assert (passes[after] == 0).all() and (passes <= capped.mjx_model.opt.ls_iterations).all()
 
 
 def test_fast_bounded_is_fast_with_the_bounded_loop():

@@ -102,23 +102,42 @@ def solve(m, d):
   return d
 
 
-def solve_iterations(m, d) -> jax.Array:
-  """The iterations `mjx.solve(m, d)` takes from `d` (its solver_niter, at most
-  `m.opt.iterations`): how many passes of a batch's `while_loop` this environment needs."""
-  found = []
+def solve_iterations(m, d) -> tuple[jax.Array, jax.Array]:
+  """How `mjx.solve(m, d)` iterates from `d`: its iterations (solver_niter, at most
+  `m.opt.iterations`: the passes a batch's `while_loop` needs for this environment) and the
+  line search's passes in each of them ([m.opt.iterations], 0 after the last; MJX runs the
+  line search as a scan of `m.opt.ls_iterations` passes, only these of which change it)."""
+  cap = int(m.opt.iterations)
+  searches, found = [], []
+
+  def line_search_loop(cond_fun, body_fun, init_val, max_iter):
+    searches.append(mjx_solver._while_loop_scan(cond_fun, body_fun, init_val, max_iter))
+    return searches[-1]
 
   def while_loop(cond_fun, body_fun, init_val):
-    found.append(jax.lax.while_loop(cond_fun, body_fun, init_val))
-    return found[-1]
+    def counted(carry):  # (the line search's count is read in the same trace as the body)
+      ctx, passes = carry
+      searches.clear()
+      new = body_fun(ctx)
+      if len(searches) != 1:
+        raise RuntimeError("MJX's solver iteration no longer runs one line search in "
+                           "_while_loop_scan: mjx_form.sim.partitionable needs updating")
+      return new, passes.at[ctx.solver_niter].set(searches[-1].ls_iter)
+    found.append(jax.lax.while_loop(lambda carry: cond_fun(carry[0]), counted,
+                                    (init_val, jnp.zeros(cap, jnp.int32))))
+    return found[-1][0]
 
-  if int(m.opt.iterations) == 1:  # (MJX's solve then takes its one iteration without a loop)
-    return jnp.ones((), jnp.int32)
+  line_search = _rebound(mjx_solver._linesearch, _while_loop_scan=line_search_loop)
+  if cap == 1:  # (MJX's solve then takes its one iteration without a loop)
+    _rebound(mjx_solver.solve, _linesearch=line_search)(m, d)
+    return jnp.ones((), jnp.int32), jnp.stack([searches[-1].ls_iter])
   view = _Overridden(jax, lax=_Overridden(jax.lax, while_loop=while_loop))
-  _rebound(mjx_solver.solve, jax=view)(m, d)
+  _rebound(mjx_solver.solve, jax=view, _linesearch=line_search)(m, d)
   if len(found) != 1:
     raise RuntimeError("MJX's solve no longer iterates in one jax.lax.while_loop: "
                        "mjx_form.sim.partitionable needs updating")
-  return found[0].solver_niter
+  ctx, passes = found[0]
+  return ctx.solver_niter, passes
 
 
 def forward(m, d):
