@@ -46,15 +46,27 @@ DOMAIN_TASKS = list(CULL)
 ITERATIONS = ((100, 50), (10, 10), (4, 8))  # MuJoCo's defaults (dm_control's) come first
 
 
-def candidates(name: str) -> list[SolverSettings]:
-  """The settings tried for `name`'s domain; the first one is dm_control's (parity)."""
+def candidates(name: str, pairs=ITERATIONS) -> list[SolverSettings]:
+  """The settings tried for `name`'s domain, each (solver, line-search) iteration pair without
+  and with culling; (100, 50) is dm_control's (parity: MuJoCo's defaults)."""
   out = []
-  for iterations, ls in ITERATIONS:
+  for iterations, ls in pairs:
     default = (iterations, ls) == ITERATIONS[0]
     out.append(SolverSettings() if default else SolverSettings(iterations, ls))
     out.append(SolverSettings(None if default else iterations, None if default else ls,
                               max_contact_points=CULL[name], max_geom_pairs=CULL[name]))
   return out
+
+
+def _pair(text: str) -> tuple[int, int]:
+  """'10/4' -> (10, 4): solver and line-search iterations."""
+  try:
+    iterations, ls = (int(v) for v in text.split("/"))
+  except ValueError:
+    raise argparse.ArgumentTypeError(f"expected I/L (e.g. 10/4), got {text!r}") from None
+  if iterations < 1 or ls < 1:
+    raise argparse.ArgumentTypeError(f"iterations must be positive, got {text!r}")
+  return iterations, ls
 
 
 def start_states(name: str, num_envs: int, key):
@@ -77,6 +89,11 @@ def main(argv=None) -> int:
   parser.add_argument("--num_envs", type=int, default=2048)
   parser.add_argument("--steps", type=int, default=20, help="control steps per timed call")
   parser.add_argument("--repeats", type=int, default=2)
+  parser.add_argument("--iterations", nargs="*", type=_pair,
+                      default=list(ITERATIONS), metavar="I/L",
+                      help="solver/line-search iteration pairs to try, e.g. 10/10 10/4 "
+                           "(default: 100/50 10/10 4/8; with --measure speed put 100/50 "
+                           "first: the speed-ups are over the first)")
   parser.add_argument("--out", default=common.default_results_path("solver_sweep"))
   args = parser.parse_args(argv)
   writer = common.ResultWriter(args.out)
@@ -88,7 +105,7 @@ def main(argv=None) -> int:
       parity_sps = None
     else:
       ref = parity_error.load_reference(args.reference, name)
-    for settings in candidates(name):
+    for settings in candidates(name, args.iterations):
       env = tasks.make(name, physics=settings)
       record = {"kind": "solver_sweep", "task": name, "measured": args.measure,
                 "settings": {"solver": vars(settings), "n_substeps": env.n_substeps}}
@@ -98,7 +115,7 @@ def main(argv=None) -> int:
         raw_sps, compile_s = common.time_compiled(
             env_throughput.raw_fn(env, args.num_envs, args.steps), (data, key), args.steps,
             args.num_envs, args.repeats)
-        parity_sps = parity_sps or raw_sps  # the first candidate is dm_control's settings
+        parity_sps = parity_sps or raw_sps  # (the first candidate: dm_control's by default)
         record["settings"].update(num_envs=args.num_envs, steps=args.steps,
                                   repeats=args.repeats)
         writer.write(**record, raw_sps=raw_sps, speedup_over_parity=raw_sps / parity_sps,

@@ -452,3 +452,16 @@ def test_solver_iterations_summarises_what_a_batch_computes(tmp_path):
   assert (settings["num_envs"], settings["steps"], settings["iterations"]) == (4, 3, 100)
   ls = record["line_search"]
   assert 0 <= record["mean"] <= 100 and ls["batch_passes_if_stopped"] <= ls["batch_passes_now"]
+
+
+def test_solver_sweep_tries_the_iteration_pairs_it_is_given():
+  bench = load_script("solver_sweep", folder="benchmarks")
+  pairs = [bench._pair("10/4"), bench._pair("10/10")]
+  assert pairs == [(10, 4), (10, 10)]
+  settings = bench.candidates("walker_walk", pairs)
+  assert [(s.iterations, s.ls_iterations, s.max_contact_points) for s in settings] == [
+      (10, 4, None), (10, 4, 8), (10, 10, None), (10, 10, 8)]
+  assert bench.candidates("cheetah_run")[0] == bench.SolverSettings()  # parity comes first
+  for bad in ("10", "10/x", "0/4"):
+    with pytest.raises(argparse.ArgumentTypeError):
+      bench._pair(bad)
