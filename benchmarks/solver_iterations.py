@@ -23,6 +23,7 @@ the batch's largest count). Counts, not timings: the same on any device (float32
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import os
 import sys
 
@@ -41,7 +42,7 @@ import tasks  # noqa: E402
 from mjx_form.files import experts  # noqa: E402
 from mjx_form.rl import normalizer  # noqa: E402
 from mjx_form.sim import partitionable  # noqa: E402
-from mjx_form.sim.physics import full_precision  # noqa: E402
+from mjx_form.sim.physics import PARITY, full_precision  # noqa: E402
 from mjx_form.sim.wrappers import AutoReset  # noqa: E402
 
 DEFAULT_TASKS = ("cheetah_run", "hopper_stand", "walker_walk", "quadruped_walk", "humanoid_run")
@@ -126,6 +127,8 @@ def main(argv=None) -> int:
   parser.add_argument("--tasks", nargs="*", default=list(DEFAULT_TASKS), choices=tasks.TASKS,
                       metavar="TASK")
   parser.add_argument("--physics", default="fast", choices=("parity", "fast"))
+  parser.add_argument("--ls_iterations", type=int, default=None,
+                      help="the line search's cap instead of the mode's (fast: 10)")
   parser.add_argument("--num_envs", type=int, default=256)
   parser.add_argument("--steps", type=int, default=200, help="control steps per environment")
   parser.add_argument("--policy", default="expert", choices=("expert", "random"),
@@ -133,12 +136,15 @@ def main(argv=None) -> int:
   parser.add_argument("--seed", type=int, default=0)
   parser.add_argument("--out", default=None)
   args = parser.parse_args(argv)
-  for name in ("num_envs", "steps"):
-    if getattr(args, name) < 1:
+  for name in ("num_envs", "steps", "ls_iterations"):
+    if getattr(args, name) is not None and getattr(args, name) < 1:
       parser.error(f"--{name} must be positive, got {getattr(args, name)}")
   writer = common.ResultWriter(args.out or common.default_results_path("solver_iterations"))
   for name in args.tasks:
     env = tasks.make(name, args.physics)
+    if args.ls_iterations is not None:
+      settings = env.fast_settings if args.physics == "fast" else PARITY
+      env = tasks.make(name, dataclasses.replace(settings, ls_iterations=args.ls_iterations))
     policy_fn, policy = policy_for(env, args.policy == "expert")
     counts, passes = rollout_counts(env, policy_fn, args.num_envs, args.steps,
                                     jax.random.PRNGKey(args.seed))

@@ -452,6 +452,10 @@ def test_solver_iterations_summarises_what_a_batch_computes(tmp_path):
   assert (settings["num_envs"], settings["steps"], settings["iterations"]) == (4, 3, 100)
   ls = record["line_search"]
   assert 0 <= record["mean"] <= 100 and ls["batch_passes_if_stopped"] <= ls["batch_passes_now"]
+  assert bench.main(["--tasks", "reacher_easy", "--num_envs", "4", "--steps", "3",
+                     "--ls_iterations", "4", "--out", str(out)]) == 0
+  capped = json.loads(open(out).readlines()[-1])
+  assert capped["settings"]["ls_iterations"] == capped["line_search"]["cap"] == 4
 
 
 def test_solver_sweep_tries_the_iteration_pairs_it_is_given():
