@@ -169,26 +169,39 @@ def parity_summary(records: list[dict], physics: str = "parity") -> str:
 
 
 def sweep_table(records: list[dict]) -> str:
+  """`kind: solver_sweep`: per task and solver settings the raw physics' speed (newest record)
+  and its one-step error, a column per set of dm_control states (errors over different states
+  are not compared in one column)."""
   rows = [r for r in records if r.get("kind") == "solver_sweep"]
   if not rows:
     return "No solver sweep results yet."
-  newest = _newest(rows, lambda r: (r["task"], _solver(r["settings"]["solver"]), r["measured"]))
+  states = lambda r: r["settings"].get("num_transitions", 0) if r["measured"] == "error" else 0
+  newest = _newest(rows, lambda r: (r["task"], _solver(r["settings"]["solver"]), r["measured"],
+                                    states(r)))
   speed = {k[:2]: r for k, r in newest.items() if k[2] == "speed"}
-  error = {k[:2]: r for k, r in newest.items() if k[2] == "error"}
-  keys = sorted(set(speed) | set(error),  # by task, then most iterations first, culling second
-                key=lambda k: (_order(k[0]), -int(k[1].split("/")[0]), "cull" in k[1]))
+  error = {(*k[:2], k[3]): r for k, r in newest.items() if k[2] == "error"}
+  counts = sorted({k[2] for k in error})
+  iterations = lambda solver: [-int(v) for v in solver.split()[0].split("/")]
+  keys = sorted(set(speed) | {k[:2] for k in error},  # by task, most iterations, culling last
+                key=lambda k: (_order(k[0]), *iterations(k[1]), "cull" in k[1]))
   first = next(iter(speed.values()), None)
   lines = [f"Raw `mjx.step` control steps per second at "
            f"{first['settings']['num_envs'] if first else '-'} envs on "
            f"`{first['device'] if first else '-'}`, and the one-step qvel error against "
-           "dm_control (float32, CPU, 64 states: median / p90 / max):", "",
-           "| task | solver | raw steps/s | x parity | qvel error |", "|---|---|---|---|---|"]
+           "dm_control's next state (float32, CPU: median / p90 / max over the transitions from "
+           "N dm_control states under random actions, a column per set of states):", "",
+           "| task | solver (iterations / line search) | raw steps/s | x parity | "
+           + " | ".join(f"qvel error, {n} states" for n in counts) + " |",
+           "|---|---|---|---|" + "---|" * len(counts)]
   for task, solver in keys:
-    s, e = speed.get((task, solver)), error.get((task, solver))
+    s = speed.get((task, solver))
     sps = f"{_k(s['raw_sps'])} | {s['speedup_over_parity']:.2f}" if s else "- | -"
-    err = (f"{e['qvel_error']['median']:.0e} / {e['qvel_error']['p90']:.0e} / "
-           f"{e['qvel_error']['max']:.0e}") if e else "-"
-    lines.append(f"| {task} | {solver} | {sps} | {err} |")
+    errors = []
+    for n in counts:
+      e = error.get((task, solver, n))
+      errors.append(f"{e['qvel_error']['median']:.0e} / {e['qvel_error']['p90']:.0e} / "
+                    f"{e['qvel_error']['max']:.0e}" if e else "-")
+    lines.append(f"| {task} | {solver} | {sps} | " + " | ".join(errors) + " |")
   return "\n".join(lines)
 
 

@@ -571,3 +571,25 @@ def test_experts_table_judges_the_bar_on_the_evaluation_of_most_episodes():
   assert "925.0 +- 1.0 (1000, gpu)" in line and "below (925.9)" in line
   assert "926.0" in row([many, evaluation(1000, 926.0, "2026-11-23T04")])  # newest of a tie
   assert row([]).startswith("| reacher_easy | `reacher_easy.npz` | 922.0 | - | - | - | 974.6 | - |")
+
+
+def test_sweep_table_keeps_errors_over_different_states_apart():
+  """Errors measured over 64 and over 512 dm_control states go to columns of their own (the
+  newest per setting and state set); rows run from most solver then line-search iterations."""
+  def error(ls, max_error, states, time="1"):
+    return {"kind": "solver_sweep", "task": "walker_walk", "measured": "error", "time": time,
+            "settings": {"solver": {"iterations": 10, "ls_iterations": ls},
+                         "num_transitions": states},
+            "qvel_error": {"median": 1e-5, "p90": 3e-5, "max": max_error}}
+  speed = {"kind": "solver_sweep", "task": "walker_walk", "measured": "speed", "time": "1",
+           "device": "gpu:X", "raw_sps": 57_000, "speedup_over_parity": 3.71,
+           "settings": {"solver": {"iterations": 10, "ls_iterations": 10}, "num_envs": 2048}}
+  table = report.sweep_table([speed, error(10, 1e-3, 64), error(10, 2e-3, 512),
+                              error(10, 9e-3, 512, time="0"), error(3, 4e-2, 512),
+                              error(4, 1.5e-3, 512)])
+  rows = [line for line in table.splitlines() if line.startswith("| walker_walk")]
+  assert "| qvel error, 64 states | qvel error, 512 states |" in table
+  assert rows == ["| walker_walk | 10/10 | 57k | 3.71 | 1e-05 / 3e-05 / 1e-03 | "
+                  "1e-05 / 3e-05 / 2e-03 |",
+                  "| walker_walk | 10/4 | - | - | - | 1e-05 / 3e-05 / 2e-03 |",
+                  "| walker_walk | 10/3 | - | - | - | 1e-05 / 3e-05 / 4e-02 |"], rows
