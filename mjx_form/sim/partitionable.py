@@ -15,7 +15,8 @@ exchange data between the devices (seen in the compiled step on 2 forced CPU dev
   (`bounded_while_loop`, as MJX's line search already does): the same iterations per
   environment, nothing asked at run time, but the passes after convergence still cost their
   compute. `forward` and `step` are MJX's with that solve (resets; a raw loop); humanoid's and
-  quadruped's resets still loop on contacts in while_loops of their own. Selected by
+  quadruped's resets still loop on contacts in while_loops of their own. `solve_iterations`
+  counts the passes an environment needs of each loop (benchmarks/solver_iterations.py). Selected by
   `SolverSettings.bounded_solver_loop` (`--physics fast_bounded`); which is faster is
   measured on the GPUs (benchmarks/NOTES.md).
 Both run MJX's own functions with some of their module's names seen through `_Overridden`, so
@@ -106,7 +107,7 @@ def solve_iterations(m, d) -> tuple[jax.Array, jax.Array]:
   """How `mjx.solve(m, d)` iterates from `d`: its iterations (solver_niter, at most
   `m.opt.iterations`: the passes a batch's `while_loop` needs for this environment) and the
   line search's passes in each of them ([m.opt.iterations], 0 after the last; MJX runs the
-  line search as a scan of `m.opt.ls_iterations` passes, only these of which change it)."""
+  line search as a scan of `m.opt.ls_iterations` passes, of which only these change it)."""
   cap = int(m.opt.iterations)
   searches, found = [], []
 
