@@ -160,8 +160,7 @@ def main(argv=None) -> int:
           "stopped with the batch's slowest", flush=True)
     writer.write(kind="solver_iterations", task=name, policy=policy, physics=args.physics,
                  settings={"num_envs": args.num_envs, "steps": args.steps, "seed": args.seed,
-                           "iterations": cap,
-                           "ls_iterations": int(env.mjx_model.opt.ls_iterations)}, **s)
+                           "iterations": cap, "ls_iterations": ls_cap}, **s)
   print(f"results appended to {writer.path}")
   return 0
 

@@ -15,10 +15,10 @@ exchange data between the devices (seen in the compiled step on 2 forced CPU dev
   (`bounded_while_loop`, as MJX's line search already does): the same iterations per
   environment, nothing asked at run time, but the passes after convergence still cost their
   compute. `forward` and `step` are MJX's with that solve (resets; a raw loop); humanoid's and
-  quadruped's resets still loop on contacts in while_loops of their own. `solve_iterations`
-  counts the passes an environment needs of each loop (benchmarks/solver_iterations.py). Selected by
+  quadruped's resets still loop on contacts in while_loops of their own. Selected by
   `SolverSettings.bounded_solver_loop` (`--physics fast_bounded`); which is faster is
-  measured on the GPUs (benchmarks/NOTES.md).
+  measured on the GPUs (benchmarks/NOTES.md). `solve_iterations` counts the passes an
+  environment needs of each of MJX's loops (benchmarks/solver_iterations.py).
 Both run MJX's own functions with some of their module's names seen through `_Overridden`, so
 no MJX code is copied; each checks that its replacement was used (a newer MJX that no longer
 calls it fails loudly).
@@ -87,14 +87,21 @@ def _rebound(fn, **names):
   return rebound
 
 
+def _recorded(fn):
+  """(`fn` recording its calls, the list of its calls): whether MJX used a replacement."""
+  calls = []
+
+  def recording(*args):
+    calls.append(True)
+    return fn(*args)
+
+  return recording, calls
+
+
 def solve(m, d):
   """`mjx.solve(m, d)` with its iteration loop bounded by `m.opt.iterations`."""
-  used = []
-
-  def while_loop(cond_fun, body_fun, init_val):
-    used.append(True)
-    return bounded_while_loop(cond_fun, body_fun, init_val, int(m.opt.iterations))
-
+  while_loop, used = _recorded(lambda cond_fun, body_fun, init_val: bounded_while_loop(
+      cond_fun, body_fun, init_val, int(m.opt.iterations)))
   view = _Overridden(jax, lax=_Overridden(jax.lax, while_loop=while_loop))
   d = _rebound(mjx_solver.solve, jax=view)(m, d)
   if int(m.opt.iterations) > 1 and not used:
@@ -143,12 +150,7 @@ def solve_iterations(m, d) -> tuple[jax.Array, jax.Array]:
 
 def forward(m, d):
   """`mjx.forward(m, d)` (MuJoCo's mj_forward) with `solve` as its constraint solver."""
-  used = []
-
-  def bounded(m, d):
-    used.append(True)
-    return solve(m, d)
-
+  bounded, used = _recorded(solve)
   d = _rebound(inspect.unwrap(mjx_forward.forward),
                solver=_Overridden(mjx_solver, solve=bounded))(m, d)
   if d._impl.efc_J.size and not used:
@@ -159,12 +161,7 @@ def forward(m, d):
 
 def step(m, d):
   """`mjx.step(m, d)` with `forward` (so `solve`) in place of MJX's forward."""
-  used = []
-
-  def bounded(m, d):
-    used.append(True)
-    return forward(m, d)
-
+  bounded, used = _recorded(forward)
   d = _rebound(inspect.unwrap(mjx_forward.step), forward=bounded)(m, d)
   if not used:
     raise RuntimeError("MJX's step no longer calls forward: "
