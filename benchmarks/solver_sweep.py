@@ -4,8 +4,9 @@
 For each candidate (solver iterations, line-search iterations, contact culling) it measures
 one of two things, chosen by `--measure`:
   speed: control steps per second of the raw `mjx.step` loop at `--num_envs` on this device
-         (GPU), from the same reset states for every candidate (a domain's parity settings
-         are its first candidate, so each line also gives the speed-up over parity);
+         (GPU), from the same reset states for every candidate, and the speed-up over the
+         first candidate (`first` in the record; dm_control's settings unless --iterations
+         starts otherwise);
   error: the one-control-step error against dm_control's reference transitions
          (scripts/make_reference.py), float32, on this device (CPU is fine).
 Records `kind: solver_sweep` with `measured` set to `speed` or `error`. The fast mode of each
@@ -102,7 +103,7 @@ def main(argv=None) -> int:
   for name in args.tasks:
     if args.measure == "speed":
       qpos, qvel = start_states(name, args.num_envs, key)
-      parity_sps = None
+      first_sps = first = None
     else:
       ref = parity_error.load_reference(args.reference, name)
     for settings in candidates(name, args.iterations):
@@ -115,13 +116,14 @@ def main(argv=None) -> int:
         raw_sps, compile_s = common.time_compiled(
             env_throughput.raw_fn(env, args.num_envs, args.steps), (data, key), args.steps,
             args.num_envs, args.repeats)
-        parity_sps = parity_sps or raw_sps  # (the first candidate: dm_control's by default)
+        if first is None:  # the first candidate (dm_control's settings by default)
+          first_sps, first = raw_sps, describe(settings)
         record["settings"].update(num_envs=args.num_envs, steps=args.steps,
                                   repeats=args.repeats)
-        writer.write(**record, raw_sps=raw_sps, speedup_over_parity=raw_sps / parity_sps,
-                     compile_s=compile_s)
+        writer.write(**record, raw_sps=raw_sps, speedup_over_first=raw_sps / first_sps,
+                     first=first, compile_s=compile_s)
         print(f"{name:<16}{describe(settings):<16}{raw_sps:>12,.0f} raw steps/s "
-              f"({raw_sps / parity_sps:.2f}x parity, compile {compile_s:.0f}s)", flush=True)
+              f"({raw_sps / first_sps:.2f}x {first}, compile {compile_s:.0f}s)", flush=True)
         del data
       else:
         result = parity_error.measure(name, settings, ref)

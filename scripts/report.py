@@ -195,14 +195,26 @@ def sweep_table(records: list[dict]) -> str:
            "|---|---|---|---|" + "---|" * len(counts)]
   for task, solver in keys:
     s = speed.get((task, solver))
-    sps = f"{_k(s['raw_sps'])} | {s['speedup_over_parity']:.2f}" if s else "- | -"
+    sps = f"{_k(s['raw_sps'])} | {_over_parity(s, speed.get((task, '100/50')))}" if s else "- | -"
     errors = []
     for n in counts:
       e = error.get((task, solver, n))
       errors.append(f"{e['qvel_error']['median']:.0e} / {e['qvel_error']['p90']:.0e} / "
                     f"{e['qvel_error']['max']:.0e}" if e else "-")
-    lines.append(f"| {task} | {solver} | {sps} | " + " | ".join(errors) + " |")
+    lines.append("| " + " | ".join([task, solver, sps, *errors]) + " |")
   return "\n".join(lines)
+
+
+def _over_parity(speed: dict, parity: dict | None) -> str:
+  """A sweep record's speed-up over dm_control's settings: its own where its run started from
+  them (`speedup_over_parity`, older records), else against the newest parity record of the
+  same device and size ('-' where there is none)."""
+  if "speedup_over_parity" in speed:
+    return f"{speed['speedup_over_parity']:.2f}"
+  same = lambda r: (r["device"], r["settings"]["num_envs"])
+  if parity is None or same(parity) != same(speed):
+    return "-"
+  return f"{speed['raw_sps'] / parity['raw_sps']:.2f}"
 
 
 def _duration(seconds: float) -> str:

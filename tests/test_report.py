@@ -593,3 +593,23 @@ def test_sweep_table_keeps_errors_over_different_states_apart():
                   "1e-05 / 3e-05 / 2e-03 |",
                   "| walker_walk | 10/4 | - | - | - | 1e-05 / 3e-05 / 2e-03 |",
                   "| walker_walk | 10/3 | - | - | - | 1e-05 / 3e-05 / 4e-02 |"], rows
+
+
+def test_sweep_table_takes_speed_ups_over_parity_not_over_a_runs_first_candidate():
+  """A sweep run that started from 10/10 records its speed-ups over 10/10; the table's
+  'x parity' divides by the parity record of the same device and size instead."""
+  def speed(ls, sps, device="gpu:X", time="2", **extra):
+    solver = {"iterations": 10, "ls_iterations": ls} if ls else {}
+    return {"kind": "solver_sweep", "task": "walker_walk", "measured": "speed", "time": time,
+            "device": device, "raw_sps": sps, "settings": {"solver": solver, "num_envs": 2048},
+            **extra}
+  parity = speed(None, 20_000, time="1", speedup_over_parity=1.0)
+  rows = lambda records: [line for line in report.sweep_table(records).splitlines()
+                          if line.startswith("| walker_walk")]
+  newer = [speed(10, 60_000, speedup_over_first=1.0, first="10/10"),
+           speed(4, 90_000, speedup_over_first=1.5, first="10/10")]
+  assert rows([parity] + newer) == ["| walker_walk | 100/50 | 20k | 1.00 |",
+                                    "| walker_walk | 10/10 | 60k | 3.00 |",
+                                    "| walker_walk | 10/4 | 90k | 4.50 |"]
+  other = [speed(4, 90_000, device="gpu:Y", speedup_over_first=1.5, first="10/10")]
+  assert rows([parity] + other)[1] == "| walker_walk | 10/4 | 90k | - |"
