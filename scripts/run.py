@@ -108,7 +108,9 @@ def parse_args(argv=None) -> argparse.Namespace:
                            "(expert, default 1)")
   parser.add_argument("--physics", default=DEFAULT_PHYSICS, choices=PHYSICS_MODES,
                       help="parity: dm_control's solver settings; fast: fewer iterations; fast_bounded: "
-                           "fast with the solver's loop as a fixed-length scan (same states)")
+                           "fast with the solver's loop as a fixed-length scan (same states); "
+                           "fast_ls4: fast with the line search capped at 4 passes (same "
+                           "one-step error, 1.3-1.5x faster physics)")
   parser.add_argument("--seed", type=int, default=0)
   parser.add_argument("--seeds", type=_seeds, default=None,
                       help="comma-separated seeds: a population of runs, one per seed, in one "

@@ -1,5 +1,7 @@
 """Task registry, specs and models against dm_control's (no compilation of MJX steps here)."""
 
+import dataclasses
+
 import jax
 import numpy as np
 import pytest
@@ -84,3 +86,14 @@ def test_a_wrong_observation_declaration_is_caught_while_tracing():
   env.observation_elements = (("position", 2), ("to_target", 3), ("velocity", 2))  # a size
   with pytest.raises(ValueError, match="observation_elements"):
     jax.eval_shape(env.step, state, jax.numpy.zeros(2))
+
+
+@pytest.mark.parametrize("name", ["walker_walk", "humanoid_run", "reacher_easy"])
+def test_fast_ls4_is_fast_with_the_line_search_capped(name):
+  fast = tasks.make(name, physics="fast").solver_settings
+  capped = tasks.make(name, physics="fast_ls4")
+  if fast.ls_iterations is None:  # reacher: contacts disabled, nothing to cap
+    assert capped.solver_settings == fast
+  else:
+    assert capped.solver_settings == dataclasses.replace(fast, ls_iterations=4)
+    assert capped.mj_model.opt.ls_iterations == 4 and capped.physics == "fast_ls4"
