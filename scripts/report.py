@@ -388,7 +388,8 @@ def learning_table(records: list[dict], threshold: float = 800.0) -> str:
     first = (f"{_duration(reached['wall_s'])} ({reached['env_steps'] / 1e6:.1f}M)" if reached
              else "not reached")
     settings = last["settings"]
-    notes = ", ".join(_learner_notes(last))
+    physics = [f"{last['physics']} physics"] if last.get("physics", "fast") != "fast" else []
+    notes = ", ".join(physics + _learner_notes(last))
     lines.append(f"| {task} | `{last['device']}` | {_matmuls(last)} | {last['num_envs']} | "
                  f"{settings['updates_per_iteration']} ({settings['replay_ratio']:g}) | "
                  f"{_episodes(last)} | {_action_penalty(last)} | "
@@ -878,13 +879,18 @@ def effect_model_table(records: list[dict], best_per_task: bool = True) -> str:
   rows = [r for r in records if r.get("kind") == "effect_model"]
   if not rows:
     return "No demonstrator results yet."
-  count = {task: sum(r["task"] == task for r in rows) for task in {r["task"] for r in rows}}
+  # Likelihoods compare only over the same demonstrations: records name their expert policy
+  # (older records do not: one group per task).
+  group = lambda r: (r["task"], (r.get("demonstrations") or {}).get("expert_sha256"))
+  count = {g: sum(group(r) == g for r in rows) for g in {group(r) for r in rows}}
   if best_per_task:
-    chosen = [max((r for r in rows if r["task"] == task), key=_heldout_mean) for task in count]
+    chosen = [max((r for r in rows if group(r) == g), key=_heldout_mean) for g in count]
     caption = ("Demonstrator effect models (`kind: effect_model` records of "
                "`scripts/train_demonstrator.py` and of `--method form` runs that trained one), "
-               "per task the training with the highest mean held-out log-likelihood (all of them "
-               "in `benchmarks/NOTES.md`). Held-out log-likelihood: of the held-out demonstration "
+               "per task and expert the training with the highest mean held-out "
+               "log-likelihood (all of them in `benchmarks/NOTES.md`). Expert: the policy whose "
+               "demonstrations it learned (sha256, mean return; '-' in records before they "
+               "named it). Held-out log-likelihood: of the held-out demonstration "
                "episodes, raw observation space, nats per transition, one value per offset "
                "1, 2, ..., at the step kept (best step):")
   else:
@@ -893,16 +899,19 @@ def effect_model_table(records: list[dict], best_per_task: bool = True) -> str:
                "log-likelihood: of the held-out demonstration episodes, raw observation space, "
                "nats per transition, one value per offset, at the step kept (best step):")
   lines = [caption, "",
-           "| task | trainings | device | demo episodes | beta_ar | L2 | width | turns | batch | "
-           "steps (best) | time | held-out log-likelihood by offset | result file |",
-           "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+           "| task | expert | trainings | device | demo episodes | beta_ar | L2 | width | turns | "
+           "batch | steps (best) | time | held-out log-likelihood by offset | result file |",
+           "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
   for r in sorted(chosen, key=lambda r: (_order(r["task"]), r.get("time", ""))):
     s = r.get("settings", {})
     heldout = " / ".join(f"{v:.2f}" for v in r["heldout_log_likelihood"])
     turns = "invariant" if any(s.get("period") or ()) else "-"  # (EffectModelConfig.period)
     batch = (f"{s['batch_size']} x {s['window']}" if "batch_size" in s and "window" in s
              else "-")  # windows x transitions per training step
-    lines.append(f"| {r['task']} | {count[r['task']]} | `{r['device']}` | "
+    demos = r.get("demonstrations") or {}
+    expert = (f"{demos['expert_sha256'][:12]} ({demos['expert_return']:.1f})"
+              if demos.get("expert_sha256") else "-")
+    lines.append(f"| {r['task']} | {expert} | {count[group(r)]} | `{r['device']}` | "
                  f"{s.get('demo_episodes', '-')} | {_g(s.get('beta_ar'))} | "
                  f"{_g(s.get('l2'))} | {s.get('width', '-')} | {turns} | {batch} | "
                  f"{r['steps']:,} ({r['best_step']:,}) | {_duration(r['seconds'])} | {heldout} | "

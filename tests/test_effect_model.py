@@ -354,7 +354,9 @@ def test_train_demonstrator_script_trains_a_grid_and_refuses_bad_input(tmp_path,
     meta = effect_models.load_effect_model(grid / name, task="reacher_easy").metadata
     assert meta["config"]["beta_ar"] == beta_ar and meta["training"]["steps"] == 4
     np.testing.assert_allclose(meta["config"]["period"], [2 * np.pi, 0, 0, 0, 0, 0])
-  assert [json.loads(line)["kind"] for line in open(records)] == ["effect_model"] * 2
+  written = [json.loads(line) for line in open(records)]
+  assert [r["kind"] for r in written] == ["effect_model"] * 2
+  assert written[0]["demonstrations"]["sha256"] == meta["demonstrations"]["sha256"] is not None
   before = (grid / names[0]).read_bytes()
   assert script.main([*args, "--beta_ar", "0.1,1", "--out", str(grid)]) == 2
   assert "exist (nothing was overwritten)" in capsys.readouterr().err

@@ -405,9 +405,15 @@ def test_demonstrator_tables_show_the_held_out_likelihood():
   better = dict(base, settings=dict(base["settings"], beta_ar=0.01),
                 heldout_log_likelihood=[6.0, 5.0, 4.0, 3.0, 2.0])
   best = report.effect_model_table([base, better])
-  assert ("| walker_walk | 2 | `gpu:X` | 1000 | 0.01 | 0.1 | 256 | - | - | 90,000 (80,000) | "
+  assert ("| walker_walk | - | 2 | `gpu:X` | 1000 | 0.01 | 0.1 | 256 | - | - | 90,000 (80,000) | "
           "150 s | 6.00 / 5.00 / 4.00 / 3.00 / 2.00 | 2026-12-01_effect_models |") in best
   assert best.count("| walker_walk |") == 1
+  # Another expert's demonstrations: a row of its own, even with a lower likelihood.
+  other = dict(base, demonstrations={"sha256": "d" * 64, "expert_sha256": "a9395d5fd8f0" + "0" * 52,
+                                     "expert_return": 963.69})
+  both = report.effect_model_table([base, better, other])
+  assert both.count("| walker_walk |") == 2
+  assert "| walker_walk | a9395d5fd8f0 (963.7) | 1 | `gpu:X` |" in both
   turning = dict(base, settings=dict(base["settings"], period=[6.28, 0.0], batch_size=16,
                                      window=50))
   every = report.effect_model_table([base, better, turning], best_per_task=False)
@@ -433,6 +439,9 @@ def test_learning_tables_show_expert_runs_only():
   summary = report.learning_summary([*curve, fast, form, *expert])
   assert "| 934.0 | 500 s (5.0M, d) |" in summary, summary
   assert "990.0" not in report.learning_table([*curve, fast, form])
+  capped = [dict(r, physics="fast_ls4", _file="e.jsonl") for r in expert]
+  table = report.learning_table([*curve, *capped])
+  assert table.count("(fast_ls4 physics)") == 1 and "fast physics" not in table, table
 
 
 def test_expert_runs_tell_members_apart_by_every_grid_setting():

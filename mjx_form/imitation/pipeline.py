@@ -214,6 +214,14 @@ def demonstrator_from_file(file: effect_models.EffectModelFile, path: str,
   return config, Demonstrator(jax.tree.map(jnp.asarray, file.params), norm)
 
 
+def _demonstrations_ids(demos_info: dict) -> dict:
+  """What a demonstrator record names its training data by: the demonstrations' checksum and
+  the expert policy's (held-out likelihoods compare only over the same demonstrations)."""
+  expert = demos_info.get("expert") or {}
+  return {"sha256": demos_info.get("sha256"), "expert_sha256": expert.get("policy_sha256"),
+          "expert_return": expert.get("mean_return")}
+
+
 def train_demonstrator(env, config: em.EffectModelConfig, demos_obs: np.ndarray,
                        demos_info: dict, training: demonstrator_lib.DemonstratorTraining,
                        physics: str, seed: int, results_path: str | None, print_fn,
@@ -233,6 +241,7 @@ def train_demonstrator(env, config: em.EffectModelConfig, demos_obs: np.ndarray,
         kind="effect_model", task=env.name, method="form", physics=physics, seed=seed,
         settings={**config.to_dict(), **dataclasses.asdict(training),
                   "demo_episodes": demos_info["episodes"]},
+        demonstrations=_demonstrations_ids(demos_info),
         **{k: report[k] for k in ("steps", "best_step", "seconds", "heldout_log_likelihood",
                                   "curve")})
   effect_models.save_effect_model(path, params, mean, var, metadata)
