@@ -179,6 +179,9 @@ def sweep_table(records: list[dict]) -> str:
   newest = _newest(rows, lambda r: (r["task"], _solver(r["settings"]["solver"]), r["measured"],
                                     states(r)))
   speed = {k[:2]: r for k, r in newest.items() if k[2] == "speed"}
+  size = lambda r: (r["task"], r["device"], r["settings"]["num_envs"])
+  parity = _newest([r for r in rows if r["measured"] == "speed"
+                    and _solver(r["settings"]["solver"]) == "100/50"], size)
   error = {(*k[:2], k[3]): r for k, r in newest.items() if k[2] == "error"}
   counts = sorted({k[2] for k in error})
   iterations = lambda solver: [-int(v) for v in solver.split()[0].split("/")]
@@ -195,7 +198,7 @@ def sweep_table(records: list[dict]) -> str:
            "|---|---|---|---|" + "---|" * len(counts)]
   for task, solver in keys:
     s = speed.get((task, solver))
-    sps = f"{_k(s['raw_sps'])} | {_over_parity(s, speed.get((task, '100/50')))}" if s else "- | -"
+    sps = f"{_k(s['raw_sps'])} | {_over_parity(s, parity.get(size(s)))}" if s else "- | -"
     errors = []
     for n in counts:
       e = error.get((task, solver, n))
@@ -207,14 +210,11 @@ def sweep_table(records: list[dict]) -> str:
 
 def _over_parity(speed: dict, parity: dict | None) -> str:
   """A sweep record's speed-up over dm_control's settings: its own where its run started from
-  them (`speedup_over_parity`, older records), else against the newest parity record of the
-  same device and size ('-' where there is none)."""
+  them (`speedup_over_parity`, older records), else against `parity`, the newest parity record
+  of the same task, device and size ('-' where there is none)."""
   if "speedup_over_parity" in speed:
     return f"{speed['speedup_over_parity']:.2f}"
-  same = lambda r: (r["device"], r["settings"]["num_envs"])
-  if parity is None or same(parity) != same(speed):
-    return "-"
-  return f"{speed['raw_sps'] / parity['raw_sps']:.2f}"
+  return "-" if parity is None else f"{speed['raw_sps'] / parity['raw_sps']:.2f}"
 
 
 def _duration(seconds: float) -> str:
@@ -879,9 +879,14 @@ def effect_model_table(records: list[dict], best_per_task: bool = True) -> str:
   rows = [r for r in records if r.get("kind") == "effect_model"]
   if not rows:
     return "No demonstrator results yet."
-  # Likelihoods compare only over the same demonstrations: records name their expert policy
-  # (older records do not: one group per task).
-  group = lambda r: (r["task"], (r.get("demonstrations") or {}).get("expert_sha256"))
+  # Likelihoods compare only over the same demonstrations: records name their expert policy, or
+  # the demonstrations themselves where no expert is named (older records name neither: one
+  # group per task).
+  def group(r):
+    demos = r.get("demonstrations")
+    if not demos:
+      return r["task"], None
+    return r["task"], demos.get("expert_sha256") or f"demos {demos.get('sha256')}"
   count = {g: sum(group(r) == g for r in rows) for g in {group(r) for r in rows}}
   if best_per_task:
     chosen = [max((r for r in rows if group(r) == g), key=_heldout_mean) for g in count]
@@ -909,8 +914,12 @@ def effect_model_table(records: list[dict], best_per_task: bool = True) -> str:
     batch = (f"{s['batch_size']} x {s['window']}" if "batch_size" in s and "window" in s
              else "-")  # windows x transitions per training step
     demos = r.get("demonstrations") or {}
-    expert = (f"{demos['expert_sha256'][:12]} ({demos['expert_return']:.1f})"
-              if demos.get("expert_sha256") else "-")
+    expert = "-"
+    if demos.get("expert_sha256"):
+      ret = demos.get("expert_return")
+      expert = demos["expert_sha256"][:12] + (f" ({ret:.1f})" if ret is not None else "")
+    elif demos:
+      expert = f"none (demonstrations {str(demos.get('sha256'))[:12]})"
     lines.append(f"| {r['task']} | {expert} | {count[group(r)]} | `{r['device']}` | "
                  f"{s.get('demo_episodes', '-')} | {_g(s.get('beta_ar'))} | "
                  f"{_g(s.get('l2'))} | {s.get('width', '-')} | {turns} | {batch} | "

@@ -111,7 +111,7 @@ def pytest_terminal_summary(terminalreporter):
         parts.append(f"{key} {value['median']:.1e}/{value['p90']:.1e}/{value['max']:.1e}")
       else:
         parts.append(f"{key} {value}")
-    write(f"  {row['test']:<20} {row['task']:<15} {row['physics']:<7} " + "  ".join(parts))
+    write(f"  {row['test']:<20} {row['task']:<15} {row['physics']:<8} " + "  ".join(parts))
   path = os.path.join(os.path.dirname(_CACHE), ".parity_report.jsonl")
   with open(path, "w") as f:
     for row in _PARITY_REPORT:

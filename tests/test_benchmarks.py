@@ -121,13 +121,23 @@ def test_dm_control_transfer_runs_the_expert_in_dm_control(tmp_path):
   record, = [json.loads(line) for line in open(out)]
   assert record["kind"] == "expert_transfer" and record["episodes"] == 2
   assert 0 <= record["dm_control_return"] <= 20 and "mjx_return" not in record  # short: no MJX
+  assert record["physics"] == "fast"  # the shipped expert's
+  # MJX's side runs in the physics the policy was trained in (its metadata's).
+  import tasks
+  from mjx_form.files import policy_io
+  params, meta = policy_io.load_policy(tasks.bundled_expert("reacher_easy"))
+  trained = tmp_path / "parity_policy.npz"
+  policy_io.save_policy(trained, params, {k: v for k, v in meta.items()
+                                         if k not in ("sha256", "format", "version")}
+                        | {"physics": "parity"})
+  assert bench.main([*args, "--policy", str(trained)]) == 0
+  assert json.loads(open(out).readlines()[-1])["physics"] == "parity"
   from mjx_form.sim import parity
   env = parity.load_dm_control_env("reacher_easy", 0)
   ts = env.reset()
   np.testing.assert_array_equal(
       bench.flat_observations([ts, ts])[1],
       parity.flat_observation(ts.observation).astype(np.float32))
-  import tasks
   from mjx_form.files import experts
   task = tasks.make("reacher_easy")
   expert = experts.load_expert(tasks.bundled_expert("reacher_easy"), task)

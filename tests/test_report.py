@@ -414,6 +414,15 @@ def test_demonstrator_tables_show_the_held_out_likelihood():
   both = report.effect_model_table([base, better, other])
   assert both.count("| walker_walk |") == 2
   assert "| walker_walk | a9395d5fd8f0 (963.7) | 1 | `gpu:X` |" in both
+  # Demonstrations without a named expert (a --demos file): a row of their own; an expert
+  # without its return.
+  hand = dict(base, demonstrations={"sha256": "e" * 64, "expert_sha256": None})
+  unscored = dict(base, demonstrations={"sha256": "f" * 64, "expert_sha256": "b" * 64})
+  rows = report.effect_model_table([base, hand, unscored]).splitlines()
+  assert sum(line.startswith("| walker_walk |") for line in rows) == 3
+  assert any(line.startswith("| walker_walk | none (demonstrations eeeeeeeeeeee) | 1 |")
+             for line in rows)
+  assert any(line.startswith("| walker_walk | bbbbbbbbbbbb | 1 |") for line in rows)
   turning = dict(base, settings=dict(base["settings"], period=[6.28, 0.0], batch_size=16,
                                      window=50))
   every = report.effect_model_table([base, better, turning], best_per_task=False)
@@ -622,3 +631,9 @@ def test_sweep_table_takes_speed_ups_over_parity_not_over_a_runs_first_candidate
                                     "| walker_walk | 10/4 | 90k | 4.50 |"]
   other = [speed(4, 90_000, device="gpu:Y", speedup_over_first=1.5, first="10/10")]
   assert rows([parity] + other)[1] == "| walker_walk | 10/4 | 90k | - |"
+  # The parity record of the row's device and size, even where another is newer.
+  elsewhere = [speed(None, 10_000, device="gpu:Y", time="3", speedup_over_parity=1.0),
+               dict(speed(None, 10_000, time="3", speedup_over_parity=1.0),
+                    settings={"solver": {}, "num_envs": 64})]
+  assert rows([parity, *elsewhere, *newer])[1:] == ["| walker_walk | 10/10 | 60k | 3.00 |",
+                                                    "| walker_walk | 10/4 | 90k | 4.50 |"]

@@ -72,9 +72,9 @@ class Task(abc.ABC):
       settings = physics_lib.PARITY if physics == "parity" else self.fast_settings
       if physics == "fast_bounded":
         settings = dataclasses.replace(settings, bounded_solver_loop=True)
-      if physics == "fast_ls4" and settings.ls_iterations is not None:  # (reacher: no contacts)
-        settings = dataclasses.replace(
-            settings, ls_iterations=min(settings.ls_iterations, physics_lib.FAST_LS_ITERATIONS))
+      if physics == "fast_ls4" and settings != physics_lib.PARITY:  # (reacher: no contacts)
+        settings = dataclasses.replace(settings, ls_iterations=min(
+            settings.ls_iterations or 50, physics_lib.FAST_LS_ITERATIONS))  # (None: MuJoCo's 50)
     root = self.model_xml()
     physics_lib.apply_solver_settings(root, settings)
     self.solver_settings = settings
