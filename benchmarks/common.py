@@ -37,6 +37,18 @@ def expert_tasks(parser, args) -> list[str]:
   return names
 
 
+def load_expert(task: str, path: str):
+  """(expert, env): the policy file at `path`, checked against `task`, and the task in the
+  physics the policy was trained in (its metadata's; e.g. quadruped_walk's: fast_ls4)."""
+  import tasks
+  from mjx_form.files import experts
+
+  env = tasks.make(task)
+  expert = experts.load_expert(path, env)
+  physics = expert.metadata.get("physics", env.physics)
+  return expert, env if physics == env.physics else tasks.make(task, physics=physics)
+
+
 def default_results_path(what: str) -> str:
   day = datetime.date.today().isoformat()
   return os.path.join(RESULTS_DIR, f"{day}_{what}.jsonl")

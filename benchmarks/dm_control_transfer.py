@@ -114,9 +114,7 @@ def main(argv=None) -> int:
   for task in names:
     try:
       path = args.policy or tasks.bundled_expert(task)
-      expert = experts.load_expert(path, tasks.make(task))
-      # MJX's side in the physics the expert was trained in (expert_eval.py does the same).
-      env = tasks.make(task, physics=expert.metadata.get("physics", "fast"))
+      expert, env = common.load_expert(task, path)  # (MJX: the physics it was trained in)
       start = time.perf_counter()
       theirs = dm_control_returns(task, expert, env.observation_layout, env.action_size,
                                   args.episodes, args.seed, args.steps)

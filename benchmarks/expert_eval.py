@@ -179,12 +179,10 @@ def main(argv=None) -> int:
   for task in names:
     try:
       path = args.policy or tasks.bundled_expert(task)
-      expert = experts.load_expert(path, tasks.make(task))
+      expert, env = common.load_expert(task, path)  # (in the physics it was trained in)
     except (ValueError, KeyError) as e:
       print(f"error: {e}", file=sys.stderr)
       return 2
-    # The physics the expert was trained in (the shipped ones: fast).
-    env = tasks.make(task, physics=expert.metadata.get("physics", "fast"))
     try:
       dimension = (None if args.by_start is None
                    else start_dimension(env.observation_layout, args.by_start))

@@ -119,8 +119,7 @@ def main(argv=None) -> int:
   for task in names:
     try:
       path = args.policy or tasks.bundled_expert(task)
-      expert = experts.load_expert(path, tasks.make(task))
-      trained = tasks.make(task, physics=expert.metadata.get("physics", "fast"))
+      expert, trained = common.load_expert(task, path)
       dimension = (None if args.start is None
                    else expert_eval.start_dimension(trained.observation_layout, args.start[0]))
       starts = draw_starts(trained, jax.random.PRNGKey(args.seed), args.episodes, dimension,
