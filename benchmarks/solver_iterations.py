@@ -42,7 +42,7 @@ import tasks  # noqa: E402
 from mjx_form.files import experts  # noqa: E402
 from mjx_form.rl import normalizer  # noqa: E402
 from mjx_form.sim import partitionable  # noqa: E402
-from mjx_form.sim.physics import PARITY, full_precision  # noqa: E402
+from mjx_form.sim.physics import full_precision  # noqa: E402
 from mjx_form.sim.wrappers import AutoReset  # noqa: E402
 
 DEFAULT_TASKS = ("cheetah_run", "hopper_stand", "walker_walk", "quadruped_walk", "humanoid_run")
@@ -142,9 +142,9 @@ def main(argv=None) -> int:
   writer = common.ResultWriter(args.out or common.default_results_path("solver_iterations"))
   for name in args.tasks:
     env = tasks.make(name, args.physics)
-    if args.ls_iterations is not None:
-      settings = env.fast_settings if args.physics == "fast" else PARITY
-      env = tasks.make(name, dataclasses.replace(settings, ls_iterations=args.ls_iterations))
+    if args.ls_iterations is not None:  # (the mode's settings, the cap replaced)
+      env = tasks.make(name, dataclasses.replace(env.solver_settings,
+                                                 ls_iterations=args.ls_iterations))
     policy_fn, policy = policy_for(env, args.policy == "expert")
     counts, passes = rollout_counts(env, policy_fn, args.num_envs, args.steps,
                                     jax.random.PRNGKey(args.seed))
