@@ -872,13 +872,34 @@ def _heldout_mean(record: dict) -> float:
   return sum(values) / len(values)
 
 
-def effect_model_table(records: list[dict], best_per_task: bool = True) -> str:
+def _shipped_demonstrators(folder: str = DEMONSTRATORS) -> dict[str, tuple]:
+  """{task: (training steps, held-out log-likelihood by offset)} of the demonstrators shipped
+  in `folder`: what ties a training's record to the file it wrote (records do not carry the
+  file's checksum)."""
+  out = {}
+  for path in sorted(glob.glob(os.path.join(folder, "*.npz"))):
+    meta = effect_models.load_effect_model(path).metadata
+    training = meta["training"]
+    out[meta["task"]] = (training["steps"], tuple(training["heldout_log_likelihood"]))
+  return out
+
+
+def _is_shipped(record: dict, shipped: dict[str, tuple]) -> bool:
+  steps, heldout = shipped.get(record["task"], (None, ()))
+  return (record["steps"] == steps and len(heldout) == len(record["heldout_log_likelihood"])
+          and all(abs(a - b) < 1e-3 for a, b in zip(heldout, record["heldout_log_likelihood"])))
+
+
+def effect_model_table(records: list[dict], best_per_task: bool = True,
+                       shipped: dict[str, tuple] | None = None) -> str:
   """Demonstrator trainings (`kind: effect_model` records): with `best_per_task`, one row per
-  task, the training with the highest mean held-out log-likelihood over offsets; else every
-  record."""
+  task and expert, the shipped training where it is among them, else the one with the highest
+  mean held-out log-likelihood over offsets; else every record. `shipped`: as
+  `_shipped_demonstrators()` (the default)."""
   rows = [r for r in records if r.get("kind") == "effect_model"]
   if not rows:
     return "No demonstrator results yet."
+  shipped = _shipped_demonstrators() if shipped is None else shipped
   # Likelihoods compare only over the same demonstrations: records name their expert policy, or
   # the demonstrations themselves where no expert is named (older records name neither: one
   # group per task).
@@ -889,10 +910,12 @@ def effect_model_table(records: list[dict], best_per_task: bool = True) -> str:
     return r["task"], demos.get("expert_sha256") or f"demos {demos.get('sha256')}"
   count = {g: sum(group(r) == g for r in rows) for g in {group(r) for r in rows}}
   if best_per_task:
-    chosen = [max((r for r in rows if group(r) == g), key=_heldout_mean) for g in count]
+    chosen = [max((r for r in rows if group(r) == g),
+                  key=lambda r: (_is_shipped(r, shipped), _heldout_mean(r))) for g in count]
     caption = ("Demonstrator effect models (`kind: effect_model` records of "
                "`scripts/train_demonstrator.py` and of `--method form` runs that trained one), "
-               "per task and expert the training with the highest mean held-out "
+               "per task and expert the shipped one (`tasks/demonstrators/<task>.npz`; shipped: "
+               "yes) where it is among them, else the training with the highest mean held-out "
                "log-likelihood (all of them in `benchmarks/NOTES.md`). Expert: the policy whose "
                "demonstrations it learned (sha256, mean return; '-' in records before they "
                "named it). Held-out log-likelihood: of the held-out demonstration "
@@ -904,9 +927,10 @@ def effect_model_table(records: list[dict], best_per_task: bool = True) -> str:
                "log-likelihood: of the held-out demonstration episodes, raw observation space, "
                "nats per transition, one value per offset, at the step kept (best step):")
   lines = [caption, "",
-           "| task | expert | trainings | device | demo episodes | beta_ar | L2 | width | turns | "
-           "batch | steps (best) | time | held-out log-likelihood by offset | result file |",
-           "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+           "| task | expert | shipped | trainings | device | demo episodes | beta_ar | L2 | width | "
+           "turns | batch | steps (best) | time | held-out log-likelihood by offset | "
+           "result file |",
+           "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
   for r in sorted(chosen, key=lambda r: (_order(r["task"]), r.get("time", ""))):
     s = r.get("settings", {})
     heldout = " / ".join(f"{v:.2f}" for v in r["heldout_log_likelihood"])
@@ -920,7 +944,8 @@ def effect_model_table(records: list[dict], best_per_task: bool = True) -> str:
       expert = demos["expert_sha256"][:12] + (f" ({ret:.1f})" if ret is not None else "")
     elif demos:
       expert = f"none (demonstrations {str(demos.get('sha256'))[:12]})"
-    lines.append(f"| {r['task']} | {expert} | {count[group(r)]} | `{r['device']}` | "
+    mark = "yes" if _is_shipped(r, shipped) else "-"
+    lines.append(f"| {r['task']} | {expert} | {mark} | {count[group(r)]} | `{r['device']}` | "
                  f"{s.get('demo_episodes', '-')} | {_g(s.get('beta_ar'))} | "
                  f"{_g(s.get('l2'))} | {s.get('width', '-')} | {turns} | {batch} | "
                  f"{r['steps']:,} ({r['best_step']:,}) | {_duration(r['seconds'])} | {heldout} | "

@@ -4,6 +4,7 @@ the README's main command on (reacher_easy, small sizes; the loop runs over the 
 devices)."""
 
 import json
+import os
 import re
 
 import jax
@@ -483,16 +484,21 @@ def test_form_command_line_runs_every_stage(tmp_path, capsys):
 
 
 def test_a_demonstrator_of_another_expert_is_named():
-  """walker_walk's shipped demonstrator was trained on the former expert's demonstrations
-  (878.8); demonstrations of the shipped expert get a notice naming both policies, those of
-  the same policy none."""
+  """walker_walk's former demonstrator (benchmarks/demonstrators/) was trained on the former
+  expert's demonstrations (878.8); demonstrations of the shipped expert get a notice naming
+  both policies, those of the same policy none. The shipped demonstrator learned the shipped
+  expert's: no notice."""
   from mjx_form.files import policy_io
   from mjx_form.imitation import pipeline
-  demonstrator = effect_models.load_effect_model(tasks.bundled_demonstrator("walker_walk"))
+  former = os.path.join(os.path.dirname(__file__), "..", "benchmarks", "demonstrators",
+                        "walker_walk_expert_136e17.npz")
+  demonstrator = effect_models.load_effect_model(former)
   theirs = demonstrator.metadata["demonstrations"]["expert"]
   path = tasks.bundled_expert("walker_walk")
   _, meta = policy_io.load_policy(path)
   ours = {"expert": experts.recording_info(path, meta, np.array([950.0, 970.0]), 0, False)}
+  shipped = effect_models.load_effect_model(tasks.bundled_demonstrator("walker_walk"))
+  assert pipeline.another_expert(shipped.metadata, ours) is None
   notice = pipeline.another_expert(demonstrator.metadata, ours)
   assert notice is not None and "another expert policy" in notice, notice
   assert theirs["policy_sha256"][:12] in notice and meta["sha256"][:12] in notice, notice

@@ -404,30 +404,55 @@ def test_demonstrator_tables_show_the_held_out_likelihood():
           "_file": "2026-12-01_effect_models.jsonl", "time": "t"}
   better = dict(base, settings=dict(base["settings"], beta_ar=0.01),
                 heldout_log_likelihood=[6.0, 5.0, 4.0, 3.0, 2.0])
-  best = report.effect_model_table([base, better])
-  assert ("| walker_walk | - | 2 | `gpu:X` | 1000 | 0.01 | 0.1 | 256 | - | - | 90,000 (80,000) | "
+  best = report.effect_model_table([base, better], shipped={})
+  assert ("| walker_walk | - | - | 2 | `gpu:X` | 1000 | 0.01 | 0.1 | 256 | - | - | 90,000 (80,000) | "
           "150 s | 6.00 / 5.00 / 4.00 / 3.00 / 2.00 | 2026-12-01_effect_models |") in best
   assert best.count("| walker_walk |") == 1
   # Another expert's demonstrations: a row of its own, even with a lower likelihood.
   other = dict(base, demonstrations={"sha256": "d" * 64, "expert_sha256": "a9395d5fd8f0" + "0" * 52,
                                      "expert_return": 963.69})
-  both = report.effect_model_table([base, better, other])
+  both = report.effect_model_table([base, better, other], shipped={})
   assert both.count("| walker_walk |") == 2
-  assert "| walker_walk | a9395d5fd8f0 (963.7) | 1 | `gpu:X` |" in both
+  assert "| walker_walk | a9395d5fd8f0 (963.7) | - | 1 | `gpu:X` |" in both
   # Demonstrations without a named expert (a --demos file): a row of their own; an expert
   # without its return.
   hand = dict(base, demonstrations={"sha256": "e" * 64, "expert_sha256": None})
   unscored = dict(base, demonstrations={"sha256": "f" * 64, "expert_sha256": "b" * 64})
-  rows = report.effect_model_table([base, hand, unscored]).splitlines()
+  rows = report.effect_model_table([base, hand, unscored], shipped={}).splitlines()
   assert sum(line.startswith("| walker_walk |") for line in rows) == 3
-  assert any(line.startswith("| walker_walk | none (demonstrations eeeeeeeeeeee) | 1 |")
+  assert any(line.startswith("| walker_walk | none (demonstrations eeeeeeeeeeee) | - | 1 |")
              for line in rows)
-  assert any(line.startswith("| walker_walk | bbbbbbbbbbbb | 1 |") for line in rows)
+  assert any(line.startswith("| walker_walk | bbbbbbbbbbbb | - | 1 |") for line in rows)
   turning = dict(base, settings=dict(base["settings"], period=[6.28, 0.0], batch_size=16,
                                      window=50))
-  every = report.effect_model_table([base, better, turning], best_per_task=False)
+  every = report.effect_model_table([base, better, turning], best_per_task=False,
+                                     shipped={})
   assert every.count("| walker_walk |") == 3 and "| 1 | 0.1 | 256 | - | - |" in every
   assert "| 1 | 0.1 | 256 | invariant | 16 x 50 |" in every
+  # The shipped training is its group's row and is marked, even below a better likelihood
+  # (cheetah_run ships a strongly regularised model: FORM learned more with it).
+  shipped = {"walker_walk": (90000, (5.0, 4.0, 3.0, 2.0, 1.0))}
+  marked = report.effect_model_table([base, better], shipped=shipped)
+  assert "| walker_walk | - | yes | 2 | `gpu:X` | 1000 | 1 | 0.1 |" in marked, marked
+  assert marked.count("| walker_walk |") == 1
+  every = report.effect_model_table([base, better], best_per_task=False, shipped=shipped)
+  assert "| walker_walk | - | yes |" in every and "| walker_walk | - | - |" in every
+  # Another task's or another length's training is not the shipped one.
+  assert "| yes |" not in report.effect_model_table(
+      [base], shipped={"walker_walk": (91000, (5.0, 4.0, 3.0, 2.0, 1.0))})
+  assert "| yes |" not in report.effect_model_table(
+      [base], shipped={"cheetah_run": (90000, (5.0, 4.0, 3.0, 2.0, 1.0))})
+
+
+def test_every_shipped_demonstrator_has_its_training_record():
+  """Each file in tasks/demonstrators/ is tied to the record of the training that wrote it."""
+  records = report.read_records()
+  shipped = report._shipped_demonstrators()
+  assert set(shipped) >= {"reacher_easy", "reacher_hard", "cheetah_run", "walker_stand",
+                          "walker_walk"}
+  for task in shipped:
+    assert any(r.get("kind") == "effect_model" and r["task"] == task
+               and report._is_shipped(r, shipped) for r in records), task
 
 
 def test_learning_tables_show_expert_runs_only():
