@@ -68,17 +68,18 @@ def test_stable_top_k_is_top_k_ties_nans_and_signed_zeros_included():
 def test_replacements_fail_loudly_where_mjx_no_longer_calls_them(monkeypatch):
   """A newer MJX whose solve stops looping in lax.while_loop (or whose forward stops calling
   solver.solve) must not silently run MJX's own loop."""
-  from mujoco.mjx._src import solver as mjx_solver
-  env, state = _states("hopper_stand", "fast", steps=2, num_envs=1)
-  data = jax.tree.map(lambda x: x[0], state.data)
+  import mujoco
   from mujoco.mjx._src import forward as mjx_forward
+  from mujoco.mjx._src import solver as mjx_solver
+  env = tasks.make("hopper_stand", "fast")
+  data = mjx.put_data(env.mj_model, mujoco.MjData(env.mj_model))  # (nothing to compile)
   m = env.mjx_model
   solve = mjx_solver.solve
   monkeypatch.setattr(mjx_solver, "solve", lambda m, d: d)
   with pytest.raises(RuntimeError, match="no longer iterates"):
     partitionable.solve(m, data)
   with pytest.raises(RuntimeError, match="no longer iterates"):  # (forward calls the same solve)
-    partitionable.forward(m, data)
+    jax.eval_shape(lambda d: partitionable.forward(m, d), data)  # (traced, not run)
   monkeypatch.setattr(mjx_solver, "solve", solve)
   # a forward that never calls the solver, and a step that never calls forward
   assert data._impl.efc_J.size  # (there are constraint rows to solve)
