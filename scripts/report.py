@@ -509,13 +509,18 @@ def _mean_std(values: list[float]) -> tuple[float, float]:
   return mean, (sum((v - mean) ** 2 for v in values) / len(values)) ** 0.5
 
 
+def _demonstrator_metadata(folders: tuple[str, ...]) -> list[dict]:
+  """Metadata of the demonstrator files in `folders` (checksums verified)."""
+  return [effect_models.load_effect_model(path).metadata
+          for path in sorted(p for f in folders for p in glob.glob(os.path.join(f, "*.npz")))]
+
+
 def _demonstration_returns(folders: tuple[str, ...] = (DEMONSTRATORS, FORMER_DEMONSTRATORS)
                            ) -> dict[str, float]:
   """{demonstrator sha256: mean return of the demonstrations it was trained on} of the shipped
   demonstrators and the former ones kept in benchmarks/demonstrators/ (checksums verified)."""
   out = {}
-  for path in sorted(p for folder in folders for p in glob.glob(os.path.join(folder, "*.npz"))):
-    meta = effect_models.load_effect_model(path).metadata
+  for meta in _demonstrator_metadata(folders):
     expert = meta["demonstrations"].get("expert", {})
     if "mean_return" in expert:
       out[meta["sha256"]] = expert["mean_return"]
@@ -876,12 +881,9 @@ def _shipped_demonstrators(folder: str = DEMONSTRATORS) -> dict[str, tuple]:
   """{task: (training steps, held-out log-likelihood by offset)} of the demonstrators shipped
   in `folder`: what ties a training's record to the file it wrote (records do not carry the
   file's checksum)."""
-  out = {}
-  for path in sorted(glob.glob(os.path.join(folder, "*.npz"))):
-    meta = effect_models.load_effect_model(path).metadata
-    training = meta["training"]
-    out[meta["task"]] = (training["steps"], tuple(training["heldout_log_likelihood"]))
-  return out
+  return {meta["task"]: (meta["training"]["steps"],
+                        tuple(meta["training"]["heldout_log_likelihood"]))
+          for meta in _demonstrator_metadata((folder,))}
 
 
 def _is_shipped(record: dict, shipped: dict[str, tuple]) -> bool:
