@@ -179,10 +179,12 @@ def parse_args(argv=None) -> argparse.Namespace:
                      help="the target critic's Q of the sampled actions in bfloat16 (half of an "
                           "update's time on a GPU is that Q; learning measured unchanged) or "
                           "float32, the paper's (default: see --preset)")
-  train.add_argument("--wrap_angles", action="store_true",
+  train.add_argument("--wrap_angles", action=argparse.BooleanOptionalAction, default=None,
                      help="the agent wraps the task's unbounded raw angles (hopper's and "
                           "cheetah's pitch, reacher's shoulder) into [-pi, pi) before "
-                          "standardising them; by default it sees them raw, as the paper's")
+                          "standardising them; by default it sees them raw, as the paper's "
+                          "(FORM: unless the task's entry in mjx_form/imitation/settings.py "
+                          "wraps them)")
   train.add_argument("--eval_envs", type=int, default=defaults.eval_envs)
   train.add_argument("--lockstep_episodes", action="store_true",
                      help="start every environment's first episode together (as runs before "
@@ -315,22 +317,30 @@ def train_config(args: argparse.Namespace) -> TrainConfig:
                      action_noise_correlation=chosen["action_noise_correlation"],
                      eval_envs=args.eval_envs, seed=seed,
                      stagger_episodes=not args.lockstep_episodes,
-                     wrap_angles=args.wrap_angles, learner=learner)
+                     wrap_angles=chosen.get("wrap_angles", False) if args.wrap_angles is None
+                     else args.wrap_angles, learner=learner)
 
 
 def recipe_applies(args: argparse.Namespace) -> bool:
-  """Whether an expert run takes its task's recipe (mjx_form/rl/recipes.py)."""
-  return args.method == "expert" and args.task in recipes.PER_TASK and args.preset != "paper"
+  """Whether the run takes its task's own settings: an expert run its recipe
+  (mjx_form/rl/recipes.py), a FORM run its entry in mjx_form/imitation/settings.py."""
+  own = recipes.PER_TASK if args.method == "expert" else settings.PER_TASK_RUN
+  return args.method in ("expert", "form") and args.task in own and args.preset != "paper"
 
 
 def recipe_line(args: argparse.Namespace) -> str:
-  """What an expert run prints when its task's recipe applies: the recipe, and the flags that
-  override it."""
-  recipe = recipes.PER_TASK[args.task]
-  flags = [f"--{'no-' if getattr(args, k) is False else ''}{k}" for k in recipes.KEYS
+  """What a run prints when its task's own settings apply (`recipe_applies`): those settings,
+  and the flags that override them."""
+  if args.method == "expert":
+    recipe, where = recipes.PER_TASK[args.task], "expert recipe (mjx_form/rl/recipes.py)"
+  else:
+    recipe = settings.PER_TASK_RUN[args.task]
+    where = "FORM settings (mjx_form/imitation/settings.py)"
+  keys = (*recipes.KEYS, "wrap_angles")
+  flags = [f"--{'no-' if getattr(args, k) is False else ''}{k}" for k in keys
            if getattr(args, k) is not None]
-  flags += [f"--grid {k}" for k in recipes.KEYS if k in (args.grid or {})]
-  return (f"{args.task}'s expert recipe (mjx_form/rl/recipes.py): "
+  flags += [f"--grid {k}" for k in keys if k in (args.grid or {})]
+  return (f"{args.task}'s {where}: "
           + ", ".join(f"{k} {v}" for k, v in recipe.items())
           + (f"; overridden by {', '.join(flags)}" if flags else "")
           + "; --preset paper for the paper's settings")
@@ -339,7 +349,7 @@ def recipe_line(args: argparse.Namespace) -> str:
 def recipe_hint(args: argparse.Namespace, error: ValueError) -> str:
   """For a resumed expert run refused for another config where the task's recipe applied: runs
   started before the recipe existed ran the paper's settings."""
-  if (recipe_applies(args) and args.resume and isinstance(error, checkpoint.CheckpointError)
+  if (args.method == "expert" and recipe_applies(args) and args.resume and isinstance(error, checkpoint.CheckpointError)
       and "was written with" in str(error)):
     return (f" ({args.task}'s expert runs take its recipe, mjx_form/rl/recipes.py; a run "
             "started with the paper's settings resumes with --preset paper)")

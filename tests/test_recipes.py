@@ -81,9 +81,24 @@ def test_run_applies_the_recipe_to_expert_runs_only_and_flags_win():
                 "--clip_critic_actions").learner.clip_critic_actions is True
   head = config("--task", "hopper_stand", "--method", "expert", "--policy_head", "paper")
   assert head.policy_head == "paper" and head.action_noise_correlation == 0.9
-  form = config("--task", "hopper_stand", "--method", "form")  # FORM has its own settings
-  assert (form.policy_head, form.action_noise_correlation) == ("paper", 0.0)
-  assert form.learner.target_update_period == 25
+  # FORM has its own settings: settings.PER_TASK_RUN's entry (hopper_stand's sets the actor),
+  # else the paper's actor; the expert recipe never applies to FORM.
+  form = config("--task", "hopper_stand", "--method", "form")
+  assert (form.policy_head, form.action_noise_correlation, form.wrap_angles) == (
+      "acme", 0.9, True)
+  assert form.learner.target_update_period == 100
+  raw = config("--task", "hopper_stand", "--method", "form", "--no-wrap_angles",
+               "--policy_head", "paper")
+  assert (raw.policy_head, raw.action_noise_correlation, raw.wrap_angles) == ("paper", 0.9, False)
+  paper = config("--task", "hopper_stand", "--method", "form", "--preset", "paper")
+  assert (paper.policy_head, paper.action_noise_correlation, paper.wrap_angles) == (
+      "paper", 0.0, False)
+  assert paper.learner.target_update_period == 200
+  walk = config("--task", "walker_walk", "--method", "form")
+  assert (walk.policy_head, walk.action_noise_correlation, walk.wrap_angles) == (
+      "paper", 0.0, False)
+  assert config("--task", "walker_walk", "--method", "expert", "--wrap_angles").wrap_angles
+  assert not config("--task", "hopper_stand", "--method", "expert").wrap_angles
 
 
 def test_run_names_the_recipe_and_its_overrides(capsys):
@@ -100,6 +115,14 @@ def test_run_names_the_recipe_and_its_overrides(capsys):
   line = cli.recipe_line(cli.parse_args(["--task", "walker_run", "--method", "expert",
                                          "--seeds", "0", "--grid", "clip_critic_actions=0,1"]))
   assert "overridden by --grid clip_critic_actions;" in line
+  line = cli.recipe_line(cli.parse_args(["--task", "hopper_stand", "--method", "form",
+                                         "--no-wrap_angles"]))
+  assert "hopper_stand's FORM settings" in line and "policy_head acme" in line
+  assert "overridden by --no-wrap_angles;" in line
+  assert cli.recipe_applies(cli.parse_args(["--task", "hopper_stand", "--method", "form"]))
+  assert not cli.recipe_applies(cli.parse_args(["--task", "walker_walk", "--method", "form"]))
+  assert not cli.recipe_applies(cli.parse_args(["--task", "hopper_stand", "--method", "form",
+                                                "--preset", "paper"]))
   with pytest.raises(SystemExit):
     cli.parse_args(["--method", "random", "--preset", "paper"])
   assert "--preset apply to --method form and expert" in capsys.readouterr().err

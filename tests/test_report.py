@@ -136,6 +136,14 @@ def test_default_form_variant_is_what_a_default_run_records():
           "_seeds012_41m")
   record = json.loads(open(os.path.join(report.RESULTS, name + ".jsonl")).readline())
   assert report._form_variant(record) == report._default_form_variant("cheetah_run")
+  # a task whose entry sets the actor: hopper_stand's T-100 members of its first FORM run
+  name = "2026-11-26_learning_curve_h100_hopper_stand_form_acme_noise09_wrap_t25_t100_seeds01"
+  with open(os.path.join(report.RESULTS, name + ".jsonl")) as f:
+    runs = [json.loads(line) for line in f]
+  variants = {report._form_variant(r) for r in runs if r["kind"] == "learning_curve"}
+  assert report._default_form_variant("hopper_stand") in variants and len(variants) == 2
+  assert "acme policy head, actor noise correlated 0.9, angles wrapped" in (
+      report._default_form_variant("hopper_stand"))
   # a turn-invariant run's effect models say so (a period of zeros is none)
   turned = json.loads(json.dumps(record))
   turned["settings"]["reward"]["effect_model"]["period"] = [0.0, 6.28] + [0.0] * 15

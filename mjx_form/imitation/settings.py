@@ -117,14 +117,26 @@ PAPER_RUN = {"standardise_reward": False, "reward_clip": 0.0, "target_update_per
              "sampled_q_bfloat16": False}
 DEFAULT_RUN = {"standardise_reward": True, "reward_clip": 3.0, "target_update_period": 25,
                "sampled_q_bfloat16": True}
-# A task's measured departures from DEFAULT_RUN (none so far).
-PER_TASK_RUN: dict[str, dict] = {}
+# A task's measured departures from DEFAULT_RUN. Besides DEFAULT_RUN's keys an entry may set the
+# actor (`policy_head`, `action_noise_correlation`, `wrap_angles`; the paper's head, independent
+# noise and raw angles otherwise).
+PER_TASK_RUN: dict[str, dict] = {
+    # hopper_stand: the actor of its expert recipe (mjx_form/rl/recipes.py: without the acme head
+    # and noise correlated at 0.9 the expert runs never rose; wrapped angles fixed its falls from
+    # starts past pi), not A/B'd under FORM. T 100 against 25, measured on one H100 (512 envs x
+    # 128 updates, seeds 0-1 x T in one population, 17.5M steps; benchmarks/NOTES.md session 35,
+    # 2026-11-26_learning_curve_h100_hopper_stand_form_acme_noise09_wrap_t25_t100_seeds01):
+    # fresh finals over 256 episodes 860.3 / 834.1 at T 100 against 646.2 / 602.3 at T 25 (0.92
+    # of the demonstrations' 921.1 against 0.68), as the expert runs declined at T 25.
+    "hopper_stand": {"target_update_period": 100, "policy_head": "acme",
+                     "action_noise_correlation": 0.9, "wrap_angles": True},
+}
 PRESETS = ("default", "paper")
 
 
 def run_settings(task: str, preset: str = "default") -> dict:
   """`standardise_reward`, `reward_clip`, `target_update_period` and `sampled_q_bfloat16` of a
-  FORM run of `task`."""
+  FORM run of `task`, and the actor settings its PER_TASK_RUN entry sets."""
   if preset not in PRESETS:
     raise ValueError(f"unknown preset {preset!r} (valid: {', '.join(PRESETS)})")
   if preset == "paper":
