@@ -74,3 +74,31 @@ def test_sampled_q_in_bfloat16_is_close_to_float32_and_only_when_asked():
                                             jax.random.PRNGKey(6)))
   state, metrics = update(state)
   assert all(np.isfinite(float(v)) for v in jax.tree.leaves(metrics))
+
+
+def test_sampled_q_diagnostics_measure_the_spread_and_bfloat16s_error():
+  """`sampled_q_spread` is the sd of the sampled actions' Q over the N samples, averaged over
+  states (numpy's, on the Q the E-step gets); `sampled_q_bf16_error`, only with bfloat16, is
+  the mean |bfloat16 - float32| of the first unroll's sampled Q, recomputed here with both
+  precisions from the same sampled actions (the key the loss draws them with)."""
+  config = dataclasses.replace(CONFIG, sampled_q_bfloat16=True)
+  state = learner.init(NETWORKS, CONFIG, jax.random.PRNGKey(0), D, A)
+  keys = jax.random.split(jax.random.PRNGKey(1), 3)
+  obs = jax.random.normal(keys[0], (B, T + 1, D))
+  batch = {"action": jnp.zeros((B, T, A)), "behaviour_log_prob": jnp.zeros((B, T)),
+           "discount": jnp.ones((B, T))}
+  online = (state.policy, state.critic, state.duals)
+  metrics = {bf16: learner.losses(NETWORKS, c, online, state, obs, batch, jnp.ones((B, T)),
+                                  keys[2])[1]
+             for bf16, c in ((False, CONFIG), (True, config))}
+  assert "sampled_q_bf16_error" not in metrics[False]
+  sampled = NETWORKS.policy.apply(state.target_policy, obs).sample(
+      keys[2], (CONFIG.num_action_samples,))
+  q = {bf16: np.asarray(learner.sampled_q(NETWORKS, c, state.target_critic, obs, sampled))
+       for bf16, c in ((False, CONFIG), (True, config))}
+  for bf16 in (False, True):
+    np.testing.assert_allclose(metrics[bf16]["sampled_q_spread"], q[bf16].std(axis=0).mean(),
+                               rtol=1e-5)
+  error = np.abs(q[True][:, :1] - q[False][:, :1]).mean()
+  assert error > 0
+  np.testing.assert_allclose(metrics[True]["sampled_q_bf16_error"], error, rtol=1e-5)

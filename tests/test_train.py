@@ -299,9 +299,11 @@ def test_command_line_trains_resumes_and_refuses_mismatches(tmp_path, capsys, mo
   assert 0 <= records[1]["sampled_out_of_bounds"] <= 1 and "penalty_temperature" not in records[1]
   # ... and MPO's diagnostics, so that a curve explains itself.
   for name in ("temperature", "alpha_mean", "alpha_scale", "kl_mean_rel", "kl_scale_rel",
-               "kl_nonparametric_rel", "scale_mean", "entropy", "q_online", "critic_loss"):
+               "kl_nonparametric_rel", "scale_mean", "entropy", "q_online", "critic_loss",
+               "sampled_q_spread"):
     assert records[1][name] == float(rows[1][name]), name
   assert records[1]["temperature"] > 0 and records[1]["scale_mean"] > 0
+  assert records[1]["sampled_q_spread"] > 0 and "sampled_q_bf16_error" not in records[1]
   assert records[0]["settings"]["replay_ratio"] == 2 * 4 / 4  # updates x batch / envs
   # Each process's start-up (before its first iteration) is recorded: the resumed process's
   # is its own, not the first's, and under the stopped run's wall clock.

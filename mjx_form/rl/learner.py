@@ -132,8 +132,24 @@ def losses(networks: Networks, config: LearnerConfig, online: tuple, state: Lear
       q_sampled[:, :, :-1].reshape((n, -1)), config.mpo)
   metrics = dict(metrics, critic_loss=critic_loss, q_online=jnp.mean(q_online),
                  retrace_target=jnp.mean(targets), reward=jnp.mean(rewards),
-                 importance_weight=jnp.mean(jnp.minimum(1.0, jnp.exp(log_rhos))))
+                 importance_weight=jnp.mean(jnp.minimum(1.0, jnp.exp(log_rhos))),
+                 **sampled_q_diagnostics(networks, config, state.target_critic, obs,
+                                         seen(sampled), q_sampled))
   return critic_loss + policy_loss, metrics
+
+
+def sampled_q_diagnostics(networks: Networks, config: LearnerConfig, critic_params,
+                          obs: jax.Array, actions: jax.Array, q_sampled: jax.Array) -> dict:
+  """What the E-step's weights exp(Q / temperature) have to go on: `sampled_q_spread`, the sd
+  of Q over a state's sampled actions (mean over states), and with `sampled_q_bfloat16`,
+  `sampled_q_bf16_error`, the mean |Q| error of bfloat16's rounding, against float32 on the
+  batch's first unroll (actions [N, B, T+1, A], q_sampled [N, B, T+1] as `sampled_q` gave).
+  Where the error nears the spread or the temperature, the weights follow the rounding."""
+  out = {"sampled_q_spread": jnp.mean(jnp.std(q_sampled, axis=0))}
+  if config.sampled_q_bfloat16:
+    exact = networks.critic.apply(critic_params, obs[:1], actions[:, :1])  # [N, 1, T+1]
+    out["sampled_q_bf16_error"] = jnp.mean(jnp.abs(q_sampled[:, :1] - exact))
+  return out
 
 
 def update(networks: Networks, config: LearnerConfig, state: LearnerState,

@@ -395,6 +395,8 @@ _CURVE_FIELDS = (
     # (> 1: constraint violated), the policy's mean scale and entropy, the critic
     "temperature", "alpha_mean", "alpha_scale", "kl_mean_rel", "kl_scale_rel",
     "kl_nonparametric_rel", "scale_mean", "entropy", "q_online", "critic_loss",
+    # what the E-step's weights go on: the sampled actions' Q spread, bfloat16's error in it
+    "sampled_q_spread", "sampled_q_bf16_error",
     # FORM: the reward, its running sd and clipped share, and both models' log-likelihoods on
     # the learner's batches
     "form_reward", "form_reward_std", "form_reward_clipped", "demonstrator_log_prob",
