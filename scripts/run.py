@@ -233,9 +233,9 @@ def parse_args(argv=None) -> argparse.Namespace:
   train.add_argument("--preset", default=None, choices=settings.PRESETS,
                      help="default: measured settings; paper: the paper's. For form: the "
                           "reward scale, reward clip, target period and sampled-Q precision "
-                          "(default: standardised, clipped at 3 sd, 25, bfloat16, "
-                          "mjx_form/imitation/settings.py; paper: raw, unclipped, 200, "
-                          "float32). For expert: the policy head, actor noise correlation, "
+                          "(default: standardised, clipped at 3 sd, 25, bfloat16, and a task's "
+                          "own entry, mjx_form/imitation/settings.py; paper: raw, unclipped, "
+                          "200, float32). For expert: the policy head, actor noise correlation, "
                           "target period, sampled-Q precision and the critic's view of actions "
                           "(default: the task's recipe in mjx_form/rl/recipes.py where it has "
                           "one, else the paper's: paper head, 0, 200, float32, tanh). Single "
@@ -349,8 +349,8 @@ def recipe_line(args: argparse.Namespace) -> str:
 def recipe_hint(args: argparse.Namespace, error: ValueError) -> str:
   """For a resumed expert run refused for another config where the task's recipe applied: runs
   started before the recipe existed ran the paper's settings."""
-  if (args.method == "expert" and recipe_applies(args) and args.resume and isinstance(error, checkpoint.CheckpointError)
-      and "was written with" in str(error)):
+  if (args.method == "expert" and recipe_applies(args) and args.resume
+      and isinstance(error, checkpoint.CheckpointError) and "was written with" in str(error)):
     return (f" ({args.task}'s expert runs take its recipe, mjx_form/rl/recipes.py; a run "
             "started with the paper's settings resumes with --preset paper)")
   return ""
