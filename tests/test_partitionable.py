@@ -107,10 +107,11 @@ def _states(name, physics_mode, steps=15, num_envs=4):
   """`num_envs` states of `name` after `steps` random-action steps (contacts by then)."""
   env = tasks.make(name, physics_mode)
   auto = AutoReset(env)
-  state = jax.jit(lambda k: auto.reset(k, num_envs))(jax.random.PRNGKey(0))
+  state = jax.jit(lambda k: auto.reset(k, num_envs), compiler_options=RUN_ONCE)(
+      jax.random.PRNGKey(0))
   actions = jax.random.uniform(jax.random.PRNGKey(1), (steps, num_envs, env.action_size),
                                minval=-1.0, maxval=1.0)
-  step = jax.jit(jax.vmap(env.step))
+  step = jax.jit(jax.vmap(env.step), compiler_options=RUN_ONCE)
   for action in actions:
     state = step(state, action)
   return env, state
@@ -131,7 +132,8 @@ def test_bounded_solve_steps_as_mjx_solve(name, iterations):
   assert int(jnp.sum(data._impl.contact.dist < 0)) > 0  # there is something to solve
   steps = {}
   for bounded in (False, True):
-    step = jax.jit(jax.vmap(lambda d: physics.physics_step(env.mjx_model, d, 1, bounded)))
+    step = jax.jit(jax.vmap(lambda d: physics.physics_step(env.mjx_model, d, 1, bounded)),
+                   compiler_options=RUN_ONCE)
     steps[bounded] = step(data)
   for field in ("qacc", "qpos", "qvel", "qfrc_constraint"):
     np.testing.assert_allclose(getattr(steps[True], field), getattr(steps[False], field),
@@ -141,13 +143,15 @@ def test_bounded_solve_steps_as_mjx_solve(name, iterations):
   # MJX's step against ours (its forward with the bounded solve: qacc and sensordata are
   # forward's; forward alone is not compiled again).
   m = env.mjx_model
-  a, b = (jax.jit(jax.vmap(lambda d, f=f: f(m, d)))(data) for f in (partitionable.step, mjx.step))
+  a, b = (jax.jit(jax.vmap(lambda d, f=f: f(m, d)), compiler_options=RUN_ONCE)(data)
+          for f in (partitionable.step, mjx.step))
   for field in ("qacc", "qpos", "qvel", "sensordata", "qfrc_constraint"):
     np.testing.assert_allclose(getattr(a, field), getattr(b, field), rtol=1e-5, atol=1e-5,
                                err_msg=f"step {field}")
   # One iteration fewer gives another answer.
   few = tasks.make(name, dataclasses.replace(settings, iterations=iterations - 1))
-  fewer = jax.jit(jax.vmap(lambda d: physics.physics_step(few.mjx_model, d, 1, True)))(data)
+  fewer = jax.jit(jax.vmap(lambda d: physics.physics_step(few.mjx_model, d, 1, True)),
+                  compiler_options=RUN_ONCE)(data)
   assert np.abs(np.asarray(fewer.qacc - steps[False].qacc)).max() > 1e-3
 
 
@@ -160,9 +164,10 @@ def test_solve_iterations_counts_the_passes_of_mjx_solve():
   env, state = _states("hopper_stand", "fast")
   capped = tasks.make("hopper_stand", dataclasses.replace(env.fast_settings, iterations=3))
   prepare = lambda m, d: mjx.fwd_acceleration(m, mjx.fwd_actuation(m, d))
-  data = jax.jit(jax.vmap(lambda d: prepare(env.mjx_model, d)))(state.data)
+  data = jax.jit(jax.vmap(lambda d: prepare(env.mjx_model, d)), compiler_options=RUN_ONCE)(
+      state.data)
   count = lambda m: tuple(map(np.asarray, jax.jit(jax.vmap(
-      lambda d: partitionable.solve_iterations(m, d)))(data)))
+      lambda d: partitionable.solve_iterations(m, d)), compiler_options=RUN_ONCE)(data)))
 
   def unrolled(m, d):
     searches = []  # line-search passes of each solver iteration, as traced values
@@ -194,7 +199,8 @@ def test_solve_iterations_counts_the_passes_of_mjx_solve():
     return result[0][1], jnp.stack(searches)
 
   few, few_passes = count(capped.mjx_model)
-  reference = jax.jit(jax.vmap(lambda d: unrolled(capped.mjx_model, d)))(data)
+  reference = jax.jit(jax.vmap(lambda d: unrolled(capped.mjx_model, d)),
+                      compiler_options=RUN_ONCE)(data)
   np.testing.assert_array_equal(few, reference[0])
   np.testing.assert_array_equal(few_passes, reference[1])
   counts, passes = count(env.mjx_model)
