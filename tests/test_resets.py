@@ -13,9 +13,13 @@ from mujoco import mjx
 from scipy import stats
 
 import tasks
+from mjx_form import cpu
 from mjx_form.sim import parity
 
 NUM_RESETS = 200
+# Every program here runs once (or a few times, on a few states): XLA's backend optimisation
+# would only cost compile time (CI time; mjx_form.cpu).
+RUN_ONCE = cpu.run_once_compiler_options()
 # One task per domain: the tasks of a domain share their reset (initialize_episode).
 DOMAIN_TASKS = [pytest.param(name, marks=pytest.mark.xdist_group(name.split("_")[0]))
                 for name in ("reacher_easy", "cheetah_run", "hopper_hop", "walker_walk",
@@ -25,7 +29,10 @@ DOMAIN_TASKS = [pytest.param(name, marks=pytest.mark.xdist_group(name.split("_")
 @functools.cache
 def our_resets(name: str):
   env = tasks.make(name)
-  reset = jax.jit(jax.vmap(env.reset))
+  # (quadruped's reset loops on contacts: at level 0 it runs 23 s instead of 6, more than the
+  # 8 s of compile time it saves; every other domain's compiles 3-7 s faster at level 0)
+  options = {} if name.startswith("quadruped") else RUN_ONCE
+  reset = jax.jit(jax.vmap(env.reset), compiler_options=options)
   states = reset(jax.random.split(jax.random.PRNGKey(7), NUM_RESETS))
   return env, jax.tree.map(np.asarray, states)
 
@@ -146,7 +153,8 @@ def test_cheetah_settling_is_dm_controls():
   limited = m.jnt_limited == 1
   with jax.enable_x64(True):
     env = tasks.make("cheetah_run", physics="parity")
-    settle = jax.jit(lambda qpos: env.settle(mjx.make_data(env.mjx_model), qpos))
+    settle = jax.jit(lambda qpos: env.settle(mjx.make_data(env.mjx_model), qpos),
+                     compiler_options=RUN_ONCE)
     for _ in range(3):
       qpos = np.zeros(m.nq)
       qpos[limited] = rng.uniform(*m.jnt_range[limited].T)
@@ -166,7 +174,7 @@ def test_reset_to_gives_back_a_drawn_start(name):
   """`reset_to` at the qpos/qvel/act and task variables `reset` drew: the same first state."""
   env, states = our_resets(name)
   n = 16
-  again = jax.jit(jax.vmap(env.reset_to))(
+  again = jax.jit(jax.vmap(env.reset_to), compiler_options=RUN_ONCE)(
       states.data.qpos[:n], states.data.qvel[:n], states.data.act[:n],
       jax.tree.map(lambda x: x[:n], states.task), jax.random.split(jax.random.PRNGKey(0), n))
   np.testing.assert_allclose(again.obs, states.obs[:n], atol=1e-6)
@@ -186,14 +194,17 @@ def test_reset_to_starts_where_dm_control_is():
   d = dm_env.physics.data
   assert np.abs(d.qvel).max() > 0.1  # the velocities are really tested
   env = tasks.make("hopper_stand", physics="parity")
-  state = env.reset_to(np.array(d.qpos), np.array(d.qvel), np.array(d.act), {},
-                       jax.random.PRNGKey(0))
+  # (compiled, not run op by op: one compile each costs less than MJX's ops one at a time)
+  reset_to = jax.jit(env.reset_to, compiler_options=RUN_ONCE)
+  step = jax.jit(env.step, compiler_options=RUN_ONCE)
+  state = reset_to(np.array(d.qpos), np.array(d.qvel), np.array(d.act), {},
+                   jax.random.PRNGKey(0))
   expected = parity.flat_observation(dm_env.task.get_observation(dm_env.physics))
   np.testing.assert_allclose(state.obs, expected, atol=1e-5)
   for _ in range(5):
     action = rng.uniform(-1, 1, env.action_size)
     theirs = dm_env.step(action)
-    state = env.step(state, jnp.asarray(action, jnp.float32))
+    state = step(state, jnp.asarray(action, jnp.float32))
     np.testing.assert_allclose(state.obs, parity.flat_observation(theirs.observation),
                                atol=1e-3)
     np.testing.assert_allclose(state.reward, theirs.reward, atol=1e-4)
