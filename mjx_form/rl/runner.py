@@ -298,6 +298,12 @@ def _final_evaluation(trainer: Trainer, state, best_paths: list[str], rows: list
     norms = [n if n.period is not None else n._replace(period=jnp.zeros_like(n.mean))
              for n in norms]
   best_norm = jax.tree.map(lambda *x: jnp.stack(x), *norms)
+  # Placed as the state's own policy and normaliser are, so that the best policy's evaluation
+  # is the final one's program (read from the files they would lie on one device: another
+  # input sharding, and the evaluation traced and compiled a second time).
+  best_policy, best_norm = jax.device_put(
+      (best_policy, best_norm), (trainer.state_sharding.learner.policy,
+                                 trainer.state_sharding.normalizer))
   keys = trainer.keys(2)
   for name, policy, norm in (("final", state.learner.policy, state.normalizer),
                              ("best", best_policy, best_norm)):
