@@ -409,9 +409,10 @@ def test_form_command_line_runs_every_stage(tmp_path, capsys):
   assert records[1]["settings"]["reward"]["demonstrator_sha256"] == meta["sha256"]
   assert records[1]["settings"]["reward"]["standardise_reward"] is True
   # --preset paper gives the paper's raw reward and target period, to the reward source (its
-  # arithmetic: the test above) and the learner; single flags override a preset.
+  # arithmetic: the test above) and the learner; single flags override a preset. (The saved
+  # demonstrations check the shipped demonstrator: nothing new to record or compile.)
   args = cli.parse_args(_readme_args(tmp_path / "paper", "--preset", "paper",
-                                     "--demo_episodes", "1", "--reward_clip", "3"))
+                                     "--demos", str(saved), "--reward_clip", "3"))
   source = cli.form_source(args, str(tmp_path / "paper"), None, print)
   assert not source.standardise_reward and source.settings()["standardise_reward"] is False
   assert source.settings()["reward_clip"] == 3.0  # --reward_clip reaches the source
@@ -439,7 +440,8 @@ def test_form_command_line_runs_every_stage(tmp_path, capsys):
   assert [r["policy"] for r in records[2:]] == ["final", "best"]
   assert records[2]["episodes"] == final_episodes and np.isfinite(records[2]["final_return"])
 
-  # Refusals: exit code 2, the file and the mismatch named, nothing written.
+  # Refusals: exit code 2, the file and the mismatch named, nothing written. (A run given a
+  # demonstrator checks it on demonstrations first: the saved ones, not 4 recorded episodes.)
   other_task = tmp_path / "cheetah_demonstrator.npz"
   effect_models.save_effect_model(other_task, demonstrator.params, np.zeros(17), np.ones(17), {
       **{k: v for k, v in meta.items() if k not in ("format", "version", "sha256")},
@@ -451,12 +453,13 @@ def test_form_command_line_runs_every_stage(tmp_path, capsys):
   demos.save_demonstrations(other_demos, np.zeros((2, 11, 17)), metadata={
       "task": "cheetah_run", "observation_layout": {"position": 8, "velocity": 9},
       "physics": "fast"})
+  checked_on = ["--demos", str(saved)]
   refusals = [
-      (["--demonstrator", str(other_task)], "the demonstrator is for cheetah_run"),
-      (["--demonstrator", str(truncated)], "truncated"),
-      (["--demonstrator", str(run_dir / "demonstrator.npz"), "--beta_ar", "0.5"],
+      (["--demonstrator", str(other_task), *checked_on], "the demonstrator is for cheetah_run"),
+      (["--demonstrator", str(truncated), *checked_on], "truncated"),
+      (["--demonstrator", str(run_dir / "demonstrator.npz"), "--beta_ar", "0.5", *checked_on],
        "trained with beta_ar="),
-      (["--demonstrator", str(run_dir / "demonstrator.npz"), "--turn_invariant"],
+      (["--demonstrator", str(run_dir / "demonstrator.npz"), "--turn_invariant", *checked_on],
        "trained with turn-invariance period (--turn_invariant)=()"),
       (["--task", "walker_walk", "--turn_invariant"],
        "walker_walk observes no unbounded angle"),
