@@ -18,6 +18,7 @@ import pytest
 from jax.extend import core as jax_core
 
 import tasks
+from mjx_form import cpu
 from mjx_form import mesh as mesh_lib
 from mjx_form.sim import env as env_lib
 from mjx_form.sim.wrappers import AutoReset
@@ -26,6 +27,9 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 NUM_ENVS = 4
 # The tests that use `compiled()` run in one xdist worker, which compiles reset and step once.
 COMPILED_ONCE = pytest.mark.xdist_group("env")
+# The programs here run a few times on a few environments (or are only read): XLA's backend
+# optimisation would only cost compile time (CI time; mjx_form.cpu).
+RUN_ONCE = cpu.run_once_compiler_options()
 
 
 @functools.cache
@@ -36,7 +40,8 @@ def reacher():
 @functools.cache
 def compiled():
   env = reacher()
-  return jax.jit(env.reset, static_argnums=1), jax.jit(env.step)
+  return (jax.jit(env.reset, static_argnums=1, compiler_options=RUN_ONCE),
+          jax.jit(env.step, compiler_options=RUN_ONCE))
 
 
 @COMPILED_ONCE
@@ -84,7 +89,7 @@ def test_nan_in_physics_state_is_detected():
 def test_episode_lasts_1000_steps_and_restarts_from_fresh_draws():
   env = reacher()
 
-  @jax.jit
+  @functools.partial(jax.jit, compiler_options=RUN_ONCE)
   def run(state):
     def body(state, _):
       state = env.step(state, jnp.full((NUM_ENVS, 2), 0.3))
@@ -121,7 +126,7 @@ def test_two_devices_match_one():
   for devices in (jax.devices()[:1], jax.devices()[:2]):
     mesh = mesh_lib.make_mesh(devices)
     state = mesh_lib.shard_batch(compiled()[0](jax.random.PRNGKey(6), NUM_ENVS), mesh)
-    run = jax.jit(rollout)
+    run = jax.jit(rollout, compiler_options=RUN_ONCE)
     final, rewards = run(state, mesh_lib.shard_batch(actions.swapaxes(0, 1), mesh))
     assert len(final.obs.sharding.device_set) == len(devices)
     results.append((np.asarray(final.obs), np.asarray(rewards)))
@@ -144,7 +149,7 @@ def test_each_device_steps_its_own_environments():
   stepped, collectives = [], []
   for per_device in (True, False):
     step = jax.jit(AutoReset(env, sharding, per_device=per_device).step)
-    compiled_step = step.lower(state, action).compile()
+    compiled_step = step.lower(state, action).compile(RUN_ONCE)
     collectives.append(re.findall(r"\b(all-reduce|all-gather|all-to-all|collective-permute)"
                                   r"(?:-start)?\(", compiled_step.as_text()))
     stepped.append(compiled_step(state, action))
