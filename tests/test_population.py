@@ -41,6 +41,14 @@ MEMBER_CONFIGS = (CONFIG, dataclasses.replace(
         mpo=dataclasses.replace(CONFIG.learner.mpo, action_penalty=True))))
 
 
+# Member 1's settings on the command line, and the directory name of a member with them.
+GRID = ("--grid", "target_update_period=2", "--grid", "learning_rate=0.001",
+        "--grid", "action_noise_correlation=0.9", "--grid", "action_penalty=1",
+        "--grid", "wrap_angles=1")
+MEMBER_1_DIR = ("action_noise_correlation0.9_action_penalty1_learning_rate0.001"
+                "_target_update_period2_wrap_angles1")
+
+
 @pytest.fixture(scope="module")
 def population():
   trainer = Trainer(CONFIG, mesh_lib.make_mesh(), seeds=SEEDS, overrides=OVERRIDES)
@@ -175,25 +183,25 @@ def test_a_failing_member_leaves_the_others_alone(population):
 def test_population_from_the_command_line_writes_each_member(tmp_path, capsys):
   cli = load_script("run")
   run_dir, curve = tmp_path / "pop", tmp_path / "curve.jsonl"
-  # Both seeds with member 1's settings (the fixture's iteration program: the members' values
-  # are data, so other values of the same settings compile nothing new).
-  grid = ("--grid", "target_update_period=2", "--grid", "learning_rate=0.001",
-          "--grid", "action_noise_correlation=0.9")
+  # Both seeds with member 1's settings, all five (the fixture's programs: the members' values
+  # are data, so other values of the same settings compile nothing new; CI time).
+  grid = GRID
   args = _cli_args(run_dir, "--seeds", "0,1", *grid, "--env_steps", "80",
                    "--results", str(curve))
   assert cli.train_config(cli.parse_args(args)) == CONFIG
   assert cli.main(args) == 0
   out = capsys.readouterr().out
-  names = [f"seed{s}_action_noise_correlation0.9_learning_rate0.001_target_update_period2"
-           for s in SEEDS]
-  own = "action_noise_correlation 0.9, learning_rate 0.001, target_update_period 2"
+  names = [f"seed{s}_{MEMBER_1_DIR}" for s in SEEDS]
+  own = ("action_noise_correlation 0.9, action_penalty 1, learning_rate 0.001, "
+         "target_update_period 2, wrap_angles 1")
   assert f"a population of 2 (seed 0, {own}; seed 1, {own})" in out
   assert "2 cpu device(s) (whole members per device)" in out
   assert f"seed 1, {own}: iter 1/2" in out
   assert f"seed 1, {own}: fresh evaluation of the best" in out
   stored = json.load(open(run_dir / "config.json"))
   assert stored["seeds"] == [0, 1] and stored["overrides"] == [
-      {"action_noise_correlation": 0.9, "learning_rate": 1e-3, "target_update_period": 2}] * 2
+      {"action_noise_correlation": 0.9, "action_penalty": True, "learning_rate": 1e-3,
+       "target_update_period": 2, "wrap_angles": True}] * 2
   assert checkpoint.latest_step(str(run_dir / "checkpoints")) == 2  # one for all members
   records = [json.loads(line) for line in open(curve)]
   for seed, name in zip(SEEDS, names):
@@ -204,6 +212,8 @@ def test_population_from_the_command_line_writes_each_member(tmp_path, capsys):
     assert meta["env_steps"] == 80 and meta["train_config"]["seed"] == seed
     assert meta["train_config"]["learner"]["target_update_period"] == 2
     assert meta["train_config"]["action_noise_correlation"] == 0.9
+    assert meta["train_config"]["learner"]["mpo"]["action_penalty"] is True
+    assert meta["train_config"]["wrap_angles"] is True
     assert policy_io.load_policy(member / "best_policy.npz")[1]["train_config"]["seed"] == seed
     mine = [r for r in records if r["seed"] == seed]
     assert [r["kind"] for r in mine] == ["learning_curve", "final_return", "final_return"]
@@ -245,8 +255,7 @@ def test_evaluate_run_scores_a_stopped_population_afterwards(tmp_path, capsys):
   evaluations gets them afterwards, each member's records placed in its own run."""
   cli, evaluate_run = load_script("run"), load_script("evaluate_run")
   run_dir, curve = tmp_path / "pop", tmp_path / "curve.jsonl"
-  grid = ("--grid", "target_update_period=2", "--grid", "learning_rate=0.001",
-          "--grid", "action_noise_correlation=0.9")  # the CLI test's programs
+  grid = GRID  # the CLI test's programs (the population fixture's)
   assert cli.main(_cli_args(run_dir, "--seeds", "0,1", *grid, "--env_steps", "80",
                             "--max_seconds", "0.001", "--final_eval_envs", "0",
                             "--results", str(curve))) == 0  # stops after iteration 1
@@ -279,8 +288,7 @@ def test_evaluate_run_scores_a_stopped_population_afterwards(tmp_path, capsys):
     assert (r["env_steps"], r["policy_env_steps"], r["finished"], r["episodes"]) == (
         40, 40, False, 2)
     assert r["population"] == 2 and r["method"] == "expert" and np.isfinite(r["final_return"])
-    member = run_dir / (f"seed{r['seed']}_action_noise_correlation0.9_learning_rate0.001"
-                        "_target_update_period2")
+    member = run_dir / f"seed{r['seed']}_{MEMBER_1_DIR}"
     name = "policy.npz" if r["policy"] == "final" else "best_policy.npz"
     assert r["policy_sha256"] == policy_io.load_policy(member / name)[1]["sha256"]
 
