@@ -15,6 +15,7 @@ from conftest import load_script
 from test_readme_commands import run_commands
 
 import tasks
+from mjx_form import cpu
 from mjx_form import mesh as mesh_lib
 from mjx_form.files import checkpoint, demos, effect_models, experts
 from mjx_form.imitation import effect_model as em
@@ -212,8 +213,9 @@ def test_unrolls_mark_every_episode_end_for_the_effect_models(form_trainer):
   steps = jnp.asarray([995, 950, 0, 0], env.info["step"].dtype)
   qvel = env.data.qvel.at[2].set(jnp.nan)  # env 2: a physics error at its first step
   env = env.replace(data=env.data.replace(qvel=qvel), info=dict(env.info, step=steps))
-  _, _, _, unrolls, stats = jax.jit(trainer._collect)(state._replace(env=env),
-                                                      jax.random.PRNGKey(1)[None])
+  # (run once: compiled without XLA's backend optimisation, CI time; mjx_form.cpu)
+  collect = jax.jit(trainer._collect, compiler_options=cpu.run_once_compiler_options())
+  _, _, _, unrolls, stats = collect(state._replace(env=env), jax.random.PRNGKey(1)[None])
   unrolls = trainer.member(unrolls, 0)  # [N, T(+1), ...] of the one member
   assert int(stats["physics_errors"][0]) == 1
   # transitions whose successor starts a new episode (995: after 5 steps; 950: on the last)

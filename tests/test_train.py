@@ -13,6 +13,7 @@ import pytest
 from conftest import load_script
 
 import tasks
+from mjx_form import cpu
 from mjx_form import mesh as mesh_lib
 from mjx_form.files import checkpoint, policy_io
 from mjx_form.rl import recipes, runner
@@ -489,7 +490,9 @@ def test_actors_noise_is_correlated_within_episodes_and_fresh_after_an_end():
   ends = np.arange(64) % 2 == 0  # half the envs end their episode after their 5th step
   state = state._replace(env=state.env.replace(info=dict(
       state.env.info, step=np.where(ends, 995, 0).astype(np.int32))))
-  env, _, noise, unrolls, _ = jax.jit(trainer._collect)(state, jax.random.PRNGKey(1)[None])
+  # (run once: compiled without XLA's backend optimisation, CI time; mjx_form.cpu)
+  collect = jax.jit(trainer._collect, compiler_options=cpu.run_once_compiler_options())
+  env, _, noise, unrolls, _ = collect(state, jax.random.PRNGKey(1)[None])
   obs = np.asarray(unrolls["observation"])[0, :, :-1]  # [N, T, D]
   pi = trainer._policies(state.learner.policy, state.normalizer, obs.reshape(-1, obs.shape[-1]))
   e = ((np.asarray(unrolls["action"])[0] - np.asarray(pi.mean).reshape(obs.shape[:2] + (2,)))
