@@ -511,3 +511,31 @@ def test_a_demonstrator_of_another_expert_is_named():
   same = {"expert": dict(ours["expert"], policy_sha256=theirs["policy_sha256"])}
   assert pipeline.another_expert(demonstrator.metadata, same) is None
   assert pipeline.another_expert(demonstrator.metadata, {"expert": {}}) is None  # unknown
+
+
+def test_a_demonstrator_that_does_not_fit_is_refused_before_anything_is_recorded(tmp_path,
+                                                                                   monkeypatch):
+  """A run given --demonstrator checks the file first: another task's or a damaged one is
+  refused before the expert's episodes are recorded (they take minutes on a large task), and
+  nothing is written in the run directory."""
+  from mjx_form.imitation import pipeline
+  def record(*args, **kwargs):
+    raise AssertionError("demonstrations were recorded before the demonstrator was checked")
+  monkeypatch.setattr(pipeline, "demonstrations", record)
+  env = tasks.make("reacher_easy")
+  config = settings.effect_model_config("reacher_easy", env)
+  truncated = tmp_path / "truncated.npz"
+  truncated.write_bytes(open(tasks.bundled_demonstrator("reacher_easy"), "rb").read()[:300])
+  for path, message in ((tasks.bundled_demonstrator("cheetah_run"), "cheetah_run"),
+                        (str(truncated), "truncated")):
+    run_dir = tmp_path / f"run_{len(message)}"
+    with pytest.raises(ValueError, match=message):
+      pipeline.prepare(env, config, {}, pipeline.Artefacts(demonstrator=path), str(run_dir),
+                       resume=False, physics="fast", seed=0, results_path=None,
+                       print_fn=lambda line: None)
+    assert not run_dir.exists()
+  # A file that fits goes on to the check on demonstrations (here: the stand-in's error).
+  with pytest.raises(AssertionError, match="were recorded"):
+    pipeline.prepare(env, config, {}, pipeline.Artefacts(
+        demonstrator=tasks.bundled_demonstrator("reacher_easy")), str(tmp_path / "fits"),
+        resume=False, physics="fast", seed=0, results_path=None, print_fn=lambda line: None)

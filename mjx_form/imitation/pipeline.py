@@ -128,6 +128,10 @@ def prepare(env, config: em.EffectModelConfig, explicit: dict, artefacts: Artefa
     else:
       print_fn(f"the shipped demonstrator {shipped} was trained with other settings "
                f"({file.metadata['config']}); training one with this run's")
+  if path is not None:  # a ready demonstrator: refused, if it does not fit, before recording
+    if file is None or path != shipped:  # (the shipped one is read already)
+      file = _load(path, env)
+    config, demonstrator = demonstrator_from_file(file, path, explicit)
   episodes = artefacts.demo_episodes or (DEFAULT_CHECK_EPISODES if path
                                          else DEFAULT_TRAINING_EPISODES)
   can_record = artefacts.demos is not None or artefacts.expert is not None or (
@@ -145,9 +149,6 @@ def prepare(env, config: em.EffectModelConfig, explicit: dict, artefacts: Artefa
     return FormReward(*demonstrator_from_file(file, kept, explicit), file.metadata["sha256"],
                       **reward)
 
-  if file is None or path != shipped:  # (the shipped one is read already)
-    file = _load(path, env)
-  config, demonstrator = demonstrator_from_file(file, path, explicit)
   print_fn(f"demonstrator {path}: best of {file.metadata['training'].get('steps')} training "
            f"steps at step {file.metadata['training'].get('best_step')}, held-out "
            f"log-likelihood by offset {file.metadata['training'].get('heldout_log_likelihood')}")
