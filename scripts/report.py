@@ -556,8 +556,7 @@ def _default_form_variant(task: str) -> str:
                  "effect_model": form_settings.effect_model_settings(task)},
       "learner": {"target_update_period": run["target_update_period"],
                   "sampled_q_bfloat16": run["sampled_q_bfloat16"]},
-      **{k: run[k] for k in ("policy_head", "action_noise_correlation", "wrap_angles")
-         if k in run}}})
+      **{k: run[k] for k in form_settings.ACTOR_KEYS if k in run}}})
 
 
 def form_runs_table(records: list[dict]) -> str:

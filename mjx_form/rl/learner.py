@@ -109,8 +109,8 @@ def losses(networks: Networks, config: LearnerConfig, online: tuple, state: Lear
   seen = lambda a: jnp.where(config.clip_critic_actions, jnp.clip(a, -1.0, 1.0), a)
   target_pi = networks.policy.apply(state.target_policy, obs)  # [B, T+1, A]
   sampled = target_pi.sample(key, (config.num_action_samples,))  # [N, B, T+1, A]
-  q_sampled = sampled_q(networks, config, state.target_critic, obs,
-                        seen(sampled))  # [N, B, T+1]
+  sampled_seen = seen(sampled)
+  q_sampled = sampled_q(networks, config, state.target_critic, obs, sampled_seen)  # [N, B, T+1]
   v = jnp.mean(q_sampled, axis=0)  # [B, T+1]
 
   obs_t = obs[:, :-1]
@@ -134,7 +134,7 @@ def losses(networks: Networks, config: LearnerConfig, online: tuple, state: Lear
                  retrace_target=jnp.mean(targets), reward=jnp.mean(rewards),
                  importance_weight=jnp.mean(jnp.minimum(1.0, jnp.exp(log_rhos))),
                  **sampled_q_diagnostics(networks, config, state.target_critic, obs,
-                                         seen(sampled), q_sampled))
+                                         sampled_seen, q_sampled))
   return critic_loss + policy_loss, metrics
 
 
