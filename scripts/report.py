@@ -277,6 +277,9 @@ def _learner_notes(record: dict, with_period: bool = True) -> list[str]:
     notes.append(f"actor noise correlated {correlation:g}")
   if settings.get("wrap_angles"):
     notes.append("angles wrapped")
+  if settings.get("init_policy"):  # "<task> <sha256>": the trained policy it started from
+    task, digest = settings["init_policy"].split()
+    notes.append(f"started from {task}'s policy {digest[:8]}")
   return notes
 
 

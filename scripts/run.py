@@ -35,7 +35,7 @@ import jax.numpy as jnp  # noqa: E402
 
 import tasks  # noqa: E402
 from mjx_form import mesh as mesh_lib  # noqa: E402
-from mjx_form.files import checkpoint  # noqa: E402
+from mjx_form.files import checkpoint, experts  # noqa: E402
 from mjx_form.imitation import demonstrator as demonstrator_lib  # noqa: E402
 from mjx_form.imitation import pipeline, settings  # noqa: E402
 from mjx_form.rl import grid, recipes, runner  # noqa: E402
@@ -195,6 +195,11 @@ def parse_args(argv=None) -> argparse.Namespace:
   train.add_argument("--max_seconds", type=float, default=None,
                      help="stop (checkpointed, policy exported) after this many seconds; "
                           "--resume continues")
+  train.add_argument("--init_policy", metavar="FILE",
+                     help="--method expert: every member starts from this trained policy (its "
+                          "parameters and observation statistics; a policy.npz of this task or "
+                          "of another with its observations, e.g. hopper_stand's expert for "
+                          "hopper_hop); default: random initialisation, as the paper")
   train.add_argument("--lean_checkpoints", action="store_true",
                      help="checkpoints without replay and environment states (a few MB, to "
                           "carry between machines); a resumed run then starts with an empty "
@@ -272,6 +277,9 @@ def parse_args(argv=None) -> argparse.Namespace:
   if args.method == "random" and (args.seeds or args.grid or args.preset):
     parser.error("--seeds, --grid and --preset apply to --method form and expert")
   args.grid = _grid(parser, args.grid, args.method)
+  if args.init_policy and args.method != "expert":
+    parser.error("--init_policy applies to --method expert (a FORM run imitates from "
+                 "observations alone; random steps no policy)")
   if args.method != "form":
     given = [f"--{name}" for name in FORM_ONLY
              if getattr(args, name) != parser.get_default(name)]
@@ -463,6 +471,10 @@ def main(argv=None) -> int:
     try:
       config = train_config(args)
       config.check(mesh.devices.size)
+      initial = None
+      if args.init_policy:  # refuses a file of another layout or a damaged one, by name
+        initial = experts.load_expert(args.init_policy, tasks.make(args.task), any_task=True)
+        config = dataclasses.replace(config, init_policy=experts.policy_id(initial))
       if recipe_applies(args):
         say(recipe_line(args))
       source = form_source(args, run_dir, results_path, say) if args.method == "form" else None
@@ -471,7 +483,8 @@ def main(argv=None) -> int:
                         checkpoint_every=args.checkpoint_every, max_seconds=args.max_seconds,
                         checkpoint_replay=not args.lean_checkpoints, results_path=results_path,
                         final_eval_envs=args.final_eval_envs, mesh=mesh, reward_source=source,
-                        seeds=seeds, overrides=overrides, print_fn=say)
+                        seeds=seeds, overrides=overrides, initial_policy=initial,
+                        print_fn=say)
     except ValueError as e:  # bad settings or artefacts, an existing run, another config
       print(f"error: {e}{recipe_hint(args, e)}", file=sys.stderr)
       return 2

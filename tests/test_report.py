@@ -317,6 +317,12 @@ def test_learner_label_names_what_differs_from_the_paper():
   assert report._learner_label(record) == "actor noise correlated 0.9"
   record = {"settings": {"action_noise_correlation": 0.0, "learner": {}}}
   assert report._learner_label(record) == "-"
+  record = {"settings": {"init_policy": "hopper_stand " + "ab12cd34" * 8, "learner": {},
+                         "policy_head": "acme", "wrap_angles": True}}
+  assert report._learner_label(record) == (
+      "acme policy head, angles wrapped, started from hopper_stand's policy ab12cd34")
+  record = {"settings": {"init_policy": None, "learner": {}}}
+  assert report._learner_label(record) == "-"
 
 
 def test_scaling_table_gives_the_efficiency_against_one_device():

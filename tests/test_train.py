@@ -15,8 +15,8 @@ from conftest import load_script
 import tasks
 from mjx_form import cpu
 from mjx_form import mesh as mesh_lib
-from mjx_form.files import checkpoint, policy_io
-from mjx_form.rl import recipes, runner
+from mjx_form.files import checkpoint, experts, policy_io
+from mjx_form.rl import normalizer, recipes, runner
 from mjx_form.rl.learner import LearnerConfig
 from mjx_form.rl.train import TrainConfig, Trainer
 
@@ -351,6 +351,71 @@ def test_command_line_trains_resumes_and_refuses_mismatches(tmp_path, capsys, mo
   assert "resumed from iteration 2" in capsys.readouterr().out
   assert policy_io.load_policy(run_dir / "best_policy.npz")[1]["eval_return"] == 1e9
   assert checkpoint.latest_step(str(run_dir / "checkpoints")) == 3
+
+
+def test_a_run_starts_from_a_trained_policy(trainers, tmp_path, capsys):
+  """--init_policy: every member starts from a policy file's parameters (policy and target
+  policy) and observation statistics; the config, the records and the exported policies name
+  it, a resumed run must too, and a file that does not fit is refused before anything is
+  written."""
+  trainer = trainers[1]  # two devices: the state is sharded
+  state, _ = trainer.iteration(trainer.init(jax.random.PRNGKey(3)[None]))
+  start = tmp_path / "start.npz"
+  runner.export_policy(trainer, state, 0, str(start), {"env_steps": 40, "eval_return": 1.0})
+  given = experts.load_expert(str(start), trainer.env)
+  fresh = trainer.init(jax.random.PRNGKey(4)[None])
+  started = trainer.start_from(fresh, given.params, given.normalizer)
+  leaves = jax.tree.leaves
+  for tree in (started.learner.policy, started.learner.target_policy):
+    for a, b in zip(leaves(tree), leaves(given.params), strict=True):
+      np.testing.assert_array_equal(np.asarray(a)[0], b)
+  for a, b in zip(leaves(started.learner.critic), leaves(fresh.learner.critic), strict=True):
+    np.testing.assert_array_equal(a, b)  # the critic (and all else) as init made it
+  np.testing.assert_array_equal(started.normalizer.mean[0], given.normalizer.mean)
+  np.testing.assert_array_equal(started.normalizer.var[0], given.normalizer.var)
+  assert all(a.sharding == b.sharding for a, b in zip(leaves(started), leaves(fresh)))
+  # The statistics count as long-run averages: the next update moves them by 1 - decay (a
+  # fresh normaliser's first update would replace them by the batch's).
+  member = jax.tree.map(lambda x: x[0], started.normalizer)
+  moved = normalizer.update(member, np.full((5, member.mean.shape[0]), 3.0), decay=0.99)
+  np.testing.assert_allclose(moved.mean, 0.99 * member.mean + 0.01 * 3.0, rtol=1e-5, atol=1e-6)
+  with pytest.raises(ValueError, match="do not fit this run's policy network"):
+    trainer.start_from(fresh, jax.tree.map(lambda x: x[..., :1], given.params),
+                       given.normalizer)
+
+  cli = load_script("run")
+  run_dir, curve = tmp_path / "run", tmp_path / "curve.jsonl"
+  name = f"reacher_easy {given.metadata['sha256']}"
+  assert cli.main(_cli_args(run_dir, "--env_steps", "40", "--init_policy", str(start),
+                            "--results", str(curve))) == 0
+  assert (f"every member starts from reacher_easy's policy {given.metadata['sha256'][:12]}"
+          in capsys.readouterr().out)
+  assert json.load(open(run_dir / "config.json"))["init_policy"] == name
+  records = [json.loads(line) for line in open(curve)]
+  assert records and all(r["settings"]["init_policy"] == name for r in records)
+  params, meta = policy_io.load_policy(run_dir / "policy.npz", task="reacher_easy")
+  assert meta["train_config"]["init_policy"] == name
+  # One iteration (two Adam steps of 1e-4) later the policy is the file's but for those steps;
+  # another initialisation is far from it.
+  distance = lambda x, y: max(float(np.max(np.abs(np.asarray(a) - np.asarray(b))))
+                              for a, b in zip(leaves(x), leaves(y), strict=True))
+  far = distance(trainer.member(fresh.learner.policy, 0), given.params)
+  assert distance(params["policy"], given.params) < 1e-2 < far
+  # The checkpoint names the policy it started from: resuming without it is refused.
+  assert cli.main(_cli_args(run_dir, "--env_steps", "80", "--resume")) == 2
+  assert "init_policy" in capsys.readouterr().err
+  # Files that do not fit the run are refused by name before anything is written.
+  for extra, message in (
+      (("--init_policy", tasks.bundled_expert("cheetah_run")), "observation size"),
+      (("--init_policy", str(start), "--network_width", "64"), "network_width 32"),
+      (("--init_policy", str(start), "--policy_head", "acme"), "pass --policy_head paper"),
+      (("--init_policy", str(start), "--wrap_angles"), "pass --no-wrap_angles")):
+    other = tmp_path / "other"
+    assert cli.main(_cli_args(other, *extra)) == 2
+    assert message in capsys.readouterr().err and not other.exists()
+  with pytest.raises(SystemExit):  # FORM imitates from observations alone
+    cli.parse_args(["--task", "reacher_easy", "--method", "form", "--init_policy", str(start)])
+  assert "--method expert" in capsys.readouterr().err
 
 
 def test_lean_checkpoints_hold_no_replay_and_resume(trainers, tmp_path):

@@ -37,11 +37,13 @@ def policy_network(metadata: dict, action_size: int) -> GaussianPolicy:
                        metadata.get("policy_head", "paper")).policy
 
 
-def load_expert(path: str, env: env_lib.Task) -> Expert:
-  """Loads an expert for `env`'s task; refuses files of another task or observation layout."""
+def load_expert(path: str, env: env_lib.Task, any_task: bool = False) -> Expert:
+  """Loads an expert for `env`'s task; refuses files of another task or observation layout.
+  `any_task`: a policy of any task with `env`'s observation layout and action size (e.g.
+  hopper_stand's for hopper_hop: a run that starts from it, `--init_policy`)."""
   arrays, metadata = policy_io.load_policy(
-      path, task=env.name, observation_size=env.observation_size, action_size=env.action_size,
-      observation_layout=env.observation_layout)
+      path, task=None if any_task else env.name, observation_size=env.observation_size,
+      action_size=env.action_size, observation_layout=env.observation_layout)
   stats = arrays["normalizer"]
   norm = normalizer.NormalizerState(
       jnp.asarray(stats["mean"]), jnp.asarray(stats["var"]), jnp.asarray(1, jnp.int32),
@@ -50,6 +52,11 @@ def load_expert(path: str, env: env_lib.Task) -> Expert:
     raise policy_io.PolicyFileError(f"{path}: normalizer/period has shape {norm.period.shape}, "
                                     f"normalizer/mean {norm.mean.shape}")
   return Expert(jax.tree.map(jnp.asarray, arrays["policy"]), norm, metadata)
+
+
+def policy_id(expert: Expert) -> str:
+  """How a run's config names the policy it starts from (`TrainConfig.init_policy`)."""
+  return f"{expert.metadata['task']} {expert.metadata['sha256']}"
 
 
 def record(env: env_lib.Task, expert: Expert, key: jax.Array, episodes: int,

@@ -47,7 +47,7 @@ RESUMABLE = ("total_env_steps", "log_every", "eval_every", "checkpoint_every")
 ADDED_SETTINGS = {"learner.mpo.action_penalty": False, "learner.mpo.epsilon_penalty": 1e-3,
                   "learner.clip_critic_actions": False, "learner.sampled_q_bfloat16": False,
                   "policy_head": "paper", "action_noise_correlation": 0.0,
-                  "wrap_angles": False}
+                  "wrap_angles": False, "init_policy": None}
 
 
 # Columns that not every row has (evaluation rows; devices that report memory).
@@ -125,6 +125,32 @@ def check_run_dir(directory: str, resume: bool, also: tuple[str, ...] = ()) -> N
     raise RunError(f"--resume: {directory} holds no run to continue")
 
 
+def check_initial_policy(trainer: Trainer, policy: experts.Expert | None) -> None:
+  """Refuses (RunError, naming the problem) a starting policy that the run's config does not
+  name, or whose network or angle wrapping differs from the run's members'."""
+  named = trainer.config.init_policy
+  if policy is None:
+    if named is not None:
+      raise RunError(f"the config starts from the policy {named!r}, but none was given")
+    return
+  meta = policy.metadata
+  if named != experts.policy_id(policy):
+    raise RunError(f"the config starts from {named!r}, the policy given is "
+                   f"{experts.policy_id(policy)!r}")
+  for key, default in (("network_width", None), ("policy_head", "paper")):
+    theirs, ours = meta.get(key, default), getattr(trainer.config, key)
+    if theirs != ours:
+      raise RunError(f"the starting policy ({meta['task']}) has {key} {theirs!r}, this run "
+                     f"{ours!r}: pass --{key} {theirs}")
+  wraps = policy.normalizer.period is not None and bool(jnp.any(policy.normalizer.period > 0))
+  for i in range(trainer.members):
+    if trainer.member_config(i).wrap_angles != wraps:
+      raise RunError(f"the starting policy ({meta['task']}) was trained "
+                     f"{'with' if wraps else 'without'} wrapped angles, member {i} of this run "
+                     f"{'does not wrap' if wraps else 'wraps'} them: pass "
+                     f"--{'' if wraps else 'no-'}wrap_angles")
+
+
 def member_dirs(directory: str, seeds: tuple[int, ...],
                 overrides: tuple[dict, ...] | None = None) -> list[str]:
   """Where each member writes its logs and policies: the run directory itself for a single
@@ -140,7 +166,7 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
         max_seconds: float | None = None, results_path: str | None = None,
         checkpoint_replay: bool = True, final_eval_envs: int = 0, mesh=None, reward_source=None,
         seeds: tuple[int, ...] | None = None, overrides: tuple[dict, ...] | None = None,
-        print_fn=print) -> list[dict]:
+        initial_policy: experts.Expert | None = None, print_fn=print) -> list[dict]:
   """Trains until `total_env_steps`; returns each member's last logged row (with its final
   evaluation).
 
@@ -159,6 +185,9 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
   the state is checkpointed and the policy exported, so `resume=True` continues the run.
   `results_path`: where `kind: learning_curve` records (one per evaluation) are appended.
   `checkpoint_replay`: False writes lean checkpoints (see the module docstring).
+  `initial_policy`: a trained policy (of this task or another with its observation layout) that
+  every member starts from (`Trainer.start_from`; a resumed run continues from its checkpoint);
+  `config.init_policy` must name it (`experts.policy_id`).
   """
   run_settings = {"total_env_steps": total_env_steps, "log_every": log_every,
                   "eval_every": eval_every, "checkpoint_every": checkpoint_every,
@@ -171,6 +200,7 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
 
   process_start = time.perf_counter()
   trainer = Trainer(config, mesh, reward_source, seeds, overrides)
+  check_initial_policy(trainer, initial_policy)
   full_config = {**config.to_dict(), "seeds": list(trainer.seeds),
                  "reward": trainer.source.settings(), **run_settings}
   if any(trainer.overrides):  # (absent otherwise: checkpoints from before grids match)
@@ -194,6 +224,12 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
   if restored is not None:
     state = restored if checkpoint_replay else state._replace(**restored)
     print_fn(f"resumed from iteration {int(state.iteration)} ({ckpt_dir})")
+  elif initial_policy is not None:
+    state = trainer.start_from(state, initial_policy.params, initial_policy.normalizer)
+    meta = initial_policy.metadata
+    print_fn(f"every member starts from {meta['task']}'s policy {meta['sha256'][:12]} "
+             f"(evaluated {meta.get('eval_return', float('nan')):.1f} on {meta['task']} at "
+             f"{meta.get('env_steps') or 0:,} env steps)")
   os.makedirs(directory, exist_ok=True)
   with open(config_path, "w") as f:
     json.dump(full_config, f, indent=1)

@@ -86,6 +86,10 @@ class TrainConfig:
   eval_envs: int = 16
   seed: int = 0
   stagger_episodes: bool = True  # first episodes start at random phases (see module docstring)
+  # The trained policy every member starts from, as "<its task> <its file's sha256>" (its
+  # parameters and observation statistics: `Trainer.start_from`, `--init_policy`); None: the
+  # networks' random initialisation (the paper's).
+  init_policy: str | None = None
   learner: learner_lib.LearnerConfig = learner_lib.LearnerConfig()
 
   def check(self, num_devices: int) -> None:
@@ -372,6 +376,36 @@ class Trainer:
         episode_return=jax.lax.with_sharding_constraint(episode_return, self._batch),
         iteration=jnp.zeros((), jnp.int32),
         settings=grid.arrays(self._settings, self._setting_names))
+
+  def start_from(self, state: TrainState, policy, norm: normalizer.NormalizerState
+                 ) -> TrainState:
+    """`state` (fresh from `init`) with every member's policy and target policy set to `policy`
+    (flax params of this run's policy network, e.g. a trained expert's) and its observation
+    statistics to `norm`'s mean and variance, as long-run averages (the next update moves
+    them by 1 - decay, not from scratch). Each member keeps its own `period`; the critic, the
+    duals and the optimisers start as `init` made them. ValueError where `policy` does not fit
+    this run's network."""
+    mine = jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape[1:], x.dtype),
+                        state.learner.policy)
+    given = jax.tree.map(lambda x: jax.ShapeDtypeStruct(jnp.shape(x), jnp.result_type(x)),
+                         policy)
+    if jax.tree.structure(mine) != jax.tree.structure(given) or any(
+        a.shape != b.shape for a, b in zip(jax.tree.leaves(mine), jax.tree.leaves(given))):
+      raise ValueError("the starting policy's parameters do not fit this run's policy network "
+                       f"(width {self.config.network_width}, head {self.config.policy_head})")
+    if jnp.shape(norm.mean) != state.normalizer.mean.shape[1:]:
+      raise ValueError(f"the starting policy's observation statistics have shape "
+                       f"{jnp.shape(norm.mean)}, this run's {state.normalizer.mean.shape[1:]}")
+    put = lambda new, old: jax.device_put(
+        jnp.broadcast_to(jnp.asarray(new, old.dtype), old.shape), old.sharding)
+    learner = state.learner._replace(
+        policy=jax.tree.map(put, policy, state.learner.policy),
+        target_policy=jax.tree.map(put, policy, state.learner.target_policy))
+    # A count past which the bias correction is 1 for any decay used (0.99: d**1e6 = 0).
+    stats = state.normalizer._replace(
+        mean=put(norm.mean, state.normalizer.mean), var=put(norm.var, state.normalizer.var),
+        count=put(1_000_000, state.normalizer.count))
+    return state._replace(learner=learner, normalizer=stats)
 
   def _shardings(self, abstract: TrainState) -> TrainState:
     per_member = lambda tree: jax.tree.map(lambda _: self._member, tree)  # [P, ...]
