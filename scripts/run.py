@@ -357,8 +357,14 @@ def recipe_line(args: argparse.Namespace) -> str:
 def recipe_hint(args: argparse.Namespace, error: ValueError) -> str:
   """For a resumed expert run refused for another config where the task's recipe applied: runs
   started before the recipe existed ran the paper's settings."""
-  if (args.method == "expert" and recipe_applies(args) and args.resume
-      and isinstance(error, checkpoint.CheckpointError) and "was written with" in str(error)):
+  if not (args.resume and isinstance(error, checkpoint.CheckpointError)
+          and "was written with" in str(error)):
+    return ""
+  written = str(error).split("; this run has")[0]
+  if "init_policy=" in written:  # the run started from a policy file
+    return (" (a run that started from a policy resumes with --init_policy and that file; one "
+            "that did not, without it)")
+  if args.method == "expert" and recipe_applies(args):
     return (f" ({args.task}'s expert runs take its recipe, mjx_form/rl/recipes.py; a run "
             "started with the paper's settings resumes with --preset paper)")
   return ""
@@ -473,7 +479,8 @@ def main(argv=None) -> int:
       config.check(mesh.devices.size)
       initial = None
       if args.init_policy:  # refuses a file of another layout or a damaged one, by name
-        initial = experts.load_expert(args.init_policy, tasks.make(args.task), any_task=True)
+        initial = experts.load_expert(args.init_policy, tasks.make(args.task, physics=args.physics),
+                                      any_task=True)
         config = dataclasses.replace(config, init_policy=experts.policy_id(initial))
       if recipe_applies(args):
         say(recipe_line(args))

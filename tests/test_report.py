@@ -490,6 +490,14 @@ def test_learning_tables_show_expert_runs_only():
   capped = [dict(r, physics="fast_ls4", _file="e.jsonl") for r in expert]
   table = report.learning_table([*curve, *capped])
   assert table.count("(fast_ls4 physics)") == 1 and "fast physics" not in table, table
+  # A run that started from a trained policy (--init_policy) counts for the highest evaluation,
+  # not for the times: its clock does not include the policy it started from.
+  started = [dict(r, _file="f.jsonl", wall_s=r["wall_s"] / 100, eval_return=r["eval_return"] + 9,
+                  settings=dict(base["settings"], init_policy="walker_stand " + "ab" * 32))
+             for r in expert]
+  summary = report.learning_summary([*curve, fast, *expert, *started])
+  assert "| walker_walk | 4 | 943.1 (5.0M, f) | 90 s (1.0M, b) |" in summary, summary
+  assert "| 934.0 | 500 s (5.0M, d) |" in summary, summary
 
 
 def test_expert_runs_tell_members_apart_by_every_grid_setting():
@@ -499,6 +507,7 @@ def test_expert_runs_tell_members_apart_by_every_grid_setting():
               "action_noise_correlation": 0.0, "wrap_angles": False}
   base = {"kind": "learning_curve", "task": "hopper_stand", "seed": 0, "_file": "a.jsonl"}
   variants = [settings, dict(settings, wrap_angles=True),
+              dict(settings, init_policy="hopper_stand " + "ab" * 32),
               dict(settings, action_noise_correlation=0.9),
               dict(settings, learner={"target_update_period": 100}),
               dict(settings, reward={"standardise_reward": True}),

@@ -6,6 +6,8 @@ import csv
 import dataclasses
 import json
 import re
+import shutil
+import types
 
 import jax
 import numpy as np
@@ -401,9 +403,19 @@ def test_a_run_starts_from_a_trained_policy(trainers, tmp_path, capsys):
                               for a, b in zip(leaves(x), leaves(y), strict=True))
   far = distance(trainer.member(fresh.learner.policy, 0), given.params)
   assert distance(params["policy"], given.params) < 1e-2 < far
-  # The checkpoint names the policy it started from: resuming without it is refused.
+  # The checkpoint names the policy it started from: resuming without it is refused, with it
+  # the run continues from its checkpoint (not from the file again).
   assert cli.main(_cli_args(run_dir, "--env_steps", "80", "--resume")) == 2
-  assert "init_policy" in capsys.readouterr().err
+  assert "resumes with --init_policy and that file" in capsys.readouterr().err
+  assert cli.main(_cli_args(run_dir, "--env_steps", "80", "--resume", "--init_policy",
+                            str(start))) == 0
+  out = capsys.readouterr().out
+  assert "resumed from iteration 1" in out and "starts from" not in out
+  # A run stopped before its first checkpoint is held to its config.json as well.
+  shutil.rmtree(run_dir / "checkpoints")
+  assert cli.main(_cli_args(run_dir, "--env_steps", "120", "--resume")) == 2
+  err = capsys.readouterr().err
+  assert "config.json was written with init_policy=" in err and "--init_policy" in err
   # Files that do not fit the run are refused by name before anything is written.
   for extra, message in (
       (("--init_policy", tasks.bundled_expert("cheetah_run")), "observation size"),
@@ -413,6 +425,27 @@ def test_a_run_starts_from_a_trained_policy(trainers, tmp_path, capsys):
     other = tmp_path / "other"
     assert cli.main(_cli_args(other, *extra)) == 2
     assert message in capsys.readouterr().err and not other.exists()
+  # Wrapping: the angles the policy saw wrapped must be those each member wraps; on a task
+  # without unbounded angles (walker) a policy trained either way fits a run either way.
+  for task, wrapped, member_wraps, fits in (("walker_walk", True, False, True),
+                                            ("walker_walk", False, True, True),
+                                            ("cheetah_run", False, True, False),
+                                            ("cheetah_run", True, False, False),
+                                            ("cheetah_run", True, True, True)):
+    env = tasks.make(task)
+    period = env.observation_period() if wrapped else None
+    policy = experts.Expert({}, normalizer.init(env.observation_size, period=period),
+                            {"task": task, "sha256": "0" * 64, "network_width": 32,
+                             "policy_head": "paper"})
+    config = dataclasses.replace(CONFIG, task=task, wrap_angles=member_wraps,
+                                 init_policy=experts.policy_id(policy))
+    stand_in = types.SimpleNamespace(config=config, env=env, members=1, overrides=({},),
+                                     member_config=lambda i, c=config: c)
+    if fits:
+      runner.check_initial_policy(stand_in, policy)
+    else:
+      with pytest.raises(runner.RunError, match="wrap_angles"):
+        runner.check_initial_policy(stand_in, policy)
   with pytest.raises(SystemExit):  # FORM imitates from observations alone
     cli.parse_args(["--task", "reacher_easy", "--method", "form", "--init_policy", str(start)])
   assert "--method expert" in capsys.readouterr().err

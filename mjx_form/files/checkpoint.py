@@ -169,14 +169,16 @@ def config_differences(stored: dict, config: dict, ignore: Iterable[str] = (),
           if not ignored(key) and a.get(key, _MISSING) != b.get(key, _MISSING)]
 
 
-def _check_config(where: str, stored: dict, config: dict, ignore: Iterable[str],
-                  added: dict[str, Any] | None) -> None:
+def check_config(where: str, stored: dict, config: dict, ignore: Iterable[str] = (),
+                 added: dict[str, Any] | None = None) -> None:
+  """Raises CheckpointError naming the keys where `config` differs from `stored` (written
+  in `where`), except those under `ignore` (`added`: see `config_differences`)."""
   keys = config_differences(stored, config, ignore, added)
   if keys:
     a, b = _flatten_config(_json(stored)), _flatten_config(_json(config))
     was = ", ".join(f"{k}={_show(a.get(k, _MISSING))}" for k in keys)
     now = ", ".join(f"{k}={_show(b.get(k, _MISSING))}" for k in keys)
-    raise CheckpointError(f"checkpoint in {where} was written with {was}; this run has {now}")
+    raise CheckpointError(f"{where} was written with {was}; this run has {now}")
 
 
 def _path_name(path) -> str:
@@ -275,7 +277,7 @@ def restore(directory, target, config: dict, step: int | None = None, *,
     step = _resolve_step(mngr, directory, step)
     where = os.path.join(directory, f"step_{step}")
     stored = mngr.restore(step, args=ocp.args.Composite(config=ocp.args.JsonRestore()))["config"]
-    _check_config(directory, stored, config, ignore, added)
+    check_config(f"checkpoint in {directory}", stored, config, ignore, added)
     metadata = mngr.item_metadata(step)["state"]
     _check_tree(where, getattr(metadata, "tree", metadata), target)
     abstract = {name: _abstract(x) for name, x in _flat(target).items()}

@@ -44,6 +44,10 @@ def load_expert(path: str, env: env_lib.Task, any_task: bool = False) -> Expert:
   arrays, metadata = policy_io.load_policy(
       path, task=None if any_task else env.name, observation_size=env.observation_size,
       action_size=env.action_size, observation_layout=env.observation_layout)
+  for group in ("policy", "normalizer"):
+    if not isinstance(arrays.get(group), dict) or (
+        group == "normalizer" and not {"mean", "var"} <= arrays[group].keys()):
+      raise policy_io.PolicyFileError(f"{path}: no {group} in the file (not a trained policy)")
   stats = arrays["normalizer"]
   norm = normalizer.NormalizerState(
       jnp.asarray(stats["mean"]), jnp.asarray(stats["var"]), jnp.asarray(1, jnp.int32),

@@ -142,13 +142,22 @@ def check_initial_policy(trainer: Trainer, policy: experts.Expert | None) -> Non
     if theirs != ours:
       raise RunError(f"the starting policy ({meta['task']}) has {key} {theirs!r}, this run "
                      f"{ours!r}: pass --{key} {theirs}")
-  wraps = policy.normalizer.period is not None and bool(jnp.any(policy.normalizer.period > 0))
+  # The angles the policy saw wrapped (its normaliser's period; none: zeros) must be the ones
+  # each member wraps (a task without unbounded angles wraps none either way).
+  size = trainer.env.observation_size
+  theirs = (np.zeros(size) if policy.normalizer.period is None
+            else np.asarray(policy.normalizer.period))
+  periods = trainer.env.observation_period()
+  wraps = bool(np.any(theirs > 0))
   for i in range(trainer.members):
-    if trainer.member_config(i).wrap_angles != wraps:
-      raise RunError(f"the starting policy ({meta['task']}) was trained "
-                     f"{'with' if wraps else 'without'} wrapped angles, member {i} of this run "
-                     f"{'does not wrap' if wraps else 'wraps'} them: pass "
-                     f"--{'' if wraps else 'no-'}wrap_angles")
+    ours = periods if trainer.member_config(i).wrap_angles else np.zeros(size)
+    if not np.array_equal(theirs, ours):
+      fix = ("give all members one setting (not --grid wrap_angles)"
+             if "wrap_angles" in trainer.overrides[i] else
+             f"pass --{'' if wraps else 'no-'}wrap_angles")
+      raise RunError(f"the starting policy ({meta['task']}) saw {'its' if wraps else 'no'} "
+                     f"angles wrapped, member {i} of this run "
+                     f"{'does not wrap them' if wraps else 'wraps them'}: {fix}")
 
 
 def member_dirs(directory: str, seeds: tuple[int, ...],
@@ -210,6 +219,9 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
     restored = checkpoint.restore(ckpt_dir, _checkpointed(trainer.abstract_state,
                                                           checkpoint_replay),
                                   full_config, ignore=RESUMABLE, added=ADDED_SETTINGS)
+  elif resume and os.path.exists(config_path):  # stopped before its first checkpoint
+    with open(config_path) as f:
+      checkpoint.check_config(config_path, json.load(f), full_config, RESUMABLE, ADDED_SETTINGS)
   eval_keys = trainer.keys(1)
   print_fn("compiling the run's programs (init, iteration, evaluation) ...")
   compile_start = time.perf_counter()
@@ -227,9 +239,10 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
   elif initial_policy is not None:
     state = trainer.start_from(state, initial_policy.params, initial_policy.normalizer)
     meta = initial_policy.metadata
+    returns = np.asarray(trainer.evaluate(state.learner.policy, state.normalizer, eval_keys))
     print_fn(f"every member starts from {meta['task']}'s policy {meta['sha256'][:12]} "
-             f"(evaluated {meta.get('eval_return', float('nan')):.1f} on {meta['task']} at "
-             f"{meta.get('env_steps') or 0:,} env steps)")
+             f"(exported at {meta.get('env_steps') or 0:,} env steps): it evaluates "
+             f"{returns.mean():.1f} on {config.task} ({returns.size} episodes)")
   os.makedirs(directory, exist_ok=True)
   with open(config_path, "w") as f:
     json.dump(full_config, f, indent=1)

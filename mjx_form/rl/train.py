@@ -401,7 +401,8 @@ class Trainer:
     learner = state.learner._replace(
         policy=jax.tree.map(put, policy, state.learner.policy),
         target_policy=jax.tree.map(put, policy, state.learner.target_policy))
-    # A count past which the bias correction is 1 for any decay used (0.99: d**1e6 = 0).
+    # A count past which the bias correction 1 - d**count is 1 (to float precision for decays up
+    # to ~0.99998; 0.99, the default: d**1e6 = 0).
     stats = state.normalizer._replace(
         mean=put(norm.mean, state.normalizer.mean), var=put(norm.var, state.normalizer.var),
         count=put(1_000_000, state.normalizer.count))
