@@ -305,6 +305,12 @@ def _eval_episodes(runs: dict[tuple, list[dict]]) -> str:
   return " or ".join(map(str, sizes))
 
 
+def _from_scratch(curve: list[dict]) -> bool:
+  """Whether a run started from its networks' initialisation, not from a trained policy
+  (`--init_policy`, whose clock does not include that policy's training)."""
+  return not curve[0].get("settings", {}).get("init_policy")
+
+
 def _fastest_to(curves: list[list[dict]], threshold: float, task: str) -> str:
   """Wall clock (env steps, run) of the fastest of `curves` to a first evaluation at or above
   `threshold`, or "not reached"."""
@@ -350,12 +356,12 @@ def learning_summary(records: list[dict], threshold: float = 800.0) -> str:
       lines.append(f"| {task} | 0 | - | - | {bar:.1f} | no runs yet |")
       continue
     best = max((r for c in curves for r in c), key=lambda r: r["eval_return"])
-    scratch = [c for c in curves if not c[0].get("settings", {}).get("init_policy")]
+    scratch = [c for c in curves if _from_scratch(c)]
     lines.append(f"| {task} | {len(curves)} | {best['eval_return']:.1f} "
                  f"({best['env_steps'] / 1e6:.1f}M, {_run_label(best['_file'], task)}) | "
                  f"{_fastest_to(scratch, threshold, task)} | {bar:.1f} | "
                  f"{_fastest_to(scratch, bar, task)} |")
-  cheetah = [c for c in curves_of["cheetah_run"] if not c[0].get("settings", {}).get("init_policy")]
+  cheetah = [c for c in curves_of["cheetah_run"] if _from_scratch(c)]
   cold = [c for c in cheetah if c[0].get("persistent_cache_hits") == 0]
   if cheetah and threshold == BRAX_PPO_CHEETAH_800["return"]:
     lines += ["", f"cheetah_run against Brax PPO: Brax's PPO reached "

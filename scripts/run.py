@@ -357,11 +357,9 @@ def recipe_line(args: argparse.Namespace) -> str:
 def recipe_hint(args: argparse.Namespace, error: ValueError) -> str:
   """For a resumed expert run refused for another config where the task's recipe applied: runs
   started before the recipe existed ran the paper's settings."""
-  if not (args.resume and isinstance(error, checkpoint.CheckpointError)
-          and "was written with" in str(error)):
+  if not (args.resume and isinstance(error, checkpoint.CheckpointError) and error.keys):
     return ""
-  written = str(error).split("; this run has")[0]
-  if "init_policy=" in written:  # the run started from a policy file
+  if "init_policy" in error.keys:  # the run started from a policy file, or this one does
     return (" (a run that started from a policy resumes with --init_policy and that file; one "
             "that did not, without it)")
   if args.method == "expert" and recipe_applies(args):

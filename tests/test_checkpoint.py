@@ -158,6 +158,7 @@ def test_config_mismatch(tmp_path):
     checkpoint.restore(tmp_path, state, run, ignore=("total_steps",))
   assert str(e.value) == (f"checkpoint in {tmp_path} was written with num_envs=64, "
                           "task=walker_walk; this run has num_envs=128, task=cheetah_run")
+  assert e.value.keys == ("num_envs", "task")  # what differs, for callers that explain it
   with pytest.raises(CheckpointError, match="total_steps=1000.*total_steps=5000"):
     checkpoint.restore(tmp_path, state, dict(CONFIG, total_steps=5000))
   # nested keys are named with dots; missing and added keys are reported as unset

@@ -39,7 +39,12 @@ _MISSING = object()
 
 
 class CheckpointError(ValueError):
-  """No usable checkpoint, or one that does not fit this run."""
+  """No usable checkpoint, or one that does not fit this run (`keys`: the dotted config keys
+  that differ, where that is why; empty otherwise)."""
+
+  def __init__(self, message: str, keys: tuple[str, ...] = ()):
+    super().__init__(message)
+    self.keys = tuple(keys)
 
 
 def package_versions() -> dict[str, str]:
@@ -178,7 +183,7 @@ def check_config(where: str, stored: dict, config: dict, ignore: Iterable[str] =
     a, b = _flatten_config(_json(stored)), _flatten_config(_json(config))
     was = ", ".join(f"{k}={_show(a.get(k, _MISSING))}" for k in keys)
     now = ", ".join(f"{k}={_show(b.get(k, _MISSING))}" for k in keys)
-    raise CheckpointError(f"{where} was written with {was}; this run has {now}")
+    raise CheckpointError(f"{where} was written with {was}; this run has {now}", keys)
 
 
 def _path_name(path) -> str:
