@@ -6,7 +6,8 @@ outlasts the machine. So a sitting of several runs starts them detached (`start`
 (`poll`, one call per command) until they end, and each poll writes the records, logs and
 status to `--out` (the device's $OUT) as one `records.tgz`, so that whatever the sitting ends
 like, the records already polled are safe. The last poll (`--final`, or once every job has
-ended) also packs the run directories (checkpoints left out) into parts of at most 15 MB.
+ended) also packs the run directories into parts of at most 15 MB, without checkpoints unless
+`--checkpoints` asks for each run's newest (lean ones, to resume in the next sitting).
 
   python scripts/gpu_jobs.py start jobs.txt --dir /tmp/sitting --deadline 1200
   python scripts/gpu_jobs.py poll --dir /tmp/sitting --wait 540 --out $OUT [--final]
@@ -146,19 +147,58 @@ def _tail(path: Path, lines: int) -> list[str]:
   return [line[:300] for line in kept[-lines:]]
 
 
-def _archive(path: Path, folder: Path, subs: tuple[str, ...]) -> None:
-  """folder's `subs` (files or folders; checkpoints left out) in one .tgz at `path`."""
+PACK_LIMIT = 56 * 2**20  # the packed runs that may come back (the device's limit: 64 MiB)
+
+
+def newest_checkpoints(folder: Path) -> set[Path]:
+  """Every `checkpoints/step_<N>` under folder with the largest N of its folder (finalised
+  ones: orbax's temporary folders are not named step_<N>)."""
+  newest = set()
+  for checkpoints in folder.rglob("checkpoints"):
+    steps = [p for p in checkpoints.iterdir() if re.fullmatch(r"step_\d+", p.name)]
+    if steps:
+      newest.add(max(steps, key=lambda p: int(p.name[5:])))
+  return newest
+
+
+def _archive(path: Path, folder: Path, subs: tuple[str, ...], keep=frozenset()) -> None:
+  """folder's `subs` in one .tgz at `path`, checkpoints left out except the folders `keep`."""
+  keep = {str(p.relative_to(folder)) for p in keep}
+
+  def kept(info):
+    if "checkpoint" not in info.name:
+      return info
+    parts = Path(info.name).parts
+    inside = any(str(Path(*parts[:i])) in keep for i in range(1, len(parts) + 1))
+    return info if inside or (keep and parts[-1] == "checkpoints") else None
+
   with tarfile.open(path, "w:gz") as tar:
     for sub in subs:
-      tar.add(folder / sub, arcname=sub,
-              filter=lambda info: None if "checkpoint" in info.name else info)
+      tar.add(folder / sub, arcname=sub, filter=kept)
 
 
-def pack(folder: Path, out: Path) -> list[Path]:
-  """folder's runs (no checkpoints) in one .tgz, split into parts of at most PART_BYTES under
-  `out` (runs.tgz.part00, ...); returns the parts."""
+def _bytes(path: Path, skip_checkpoints: bool = False) -> int:
+  """The bytes of the files under path (checkpoints left out if `skip_checkpoints`)."""
+  return sum(f.stat().st_size for f in path.rglob("*") if f.is_file() and not (
+      skip_checkpoints and "checkpoint" in str(f.relative_to(path))))
+
+
+def pack(folder: Path, out: Path, checkpoints: bool = False) -> list[Path]:
+  """folder's runs in one .tgz, split into parts of at most PART_BYTES under `out`
+  (runs.tgz.part00, ...); returns the parts. Checkpoints are left out, except with
+  `checkpoints` each run's newest (lean ones, `--lean_checkpoints`, are a few MB), smallest
+  first, as many as keep the files under PACK_LIMIT (it names those left out)."""
+  keep, total = set(), _bytes(folder / "runs", skip_checkpoints=True)
+  if checkpoints:
+    for step in sorted(newest_checkpoints(folder / "runs"), key=_bytes):
+      if total + _bytes(step) <= PACK_LIMIT:
+        keep.add(step)
+        total += _bytes(step)
+      else:
+        print(f"left out {step.relative_to(folder)} ({_bytes(step) / 2**20:.0f} MiB): the packed "
+              f"runs may not pass {PACK_LIMIT / 2**20:.0f} MiB (use --lean_checkpoints)")
   archive = folder / "runs.tgz"
-  _archive(archive, folder, ("runs",))
+  _archive(archive, folder, ("runs",), keep)
   parts, data = [], archive.read_bytes()
   for i in range(0, max(len(data), 1), PART_BYTES):
     part = out / f"runs.tgz.part{i // PART_BYTES:02d}"
@@ -167,10 +207,12 @@ def pack(folder: Path, out: Path) -> list[Path]:
   return parts
 
 
-def poll(folder: Path, wait_s: float, out: Path | None, final: bool, lines: int = 3) -> bool:
+def poll(folder: Path, wait_s: float, out: Path | None, final: bool, lines: int = 3,
+         checkpoints: bool = False) -> bool:
   """Waits until every job has ended or `wait_s` has passed; prints each job's state and last
-  log lines; copies the records and status to `out`; packs the runs there once every job has
-  ended or `final`. Returns whether every job has ended."""
+  log lines; copies the records and status to `out`; packs the runs there (with their newest
+  checkpoints if `checkpoints`) once every job has ended or `final`. Returns whether every job
+  has ended."""
   if not (folder / "status.json").exists():
     raise JobsError(f"{folder} holds no sitting (no status.json): run `start` first")
   end = time.time() + wait_s
@@ -187,7 +229,7 @@ def poll(folder: Path, wait_s: float, out: Path | None, final: bool, lines: int 
     _archive(out / "records.tgz", folder, ("res", "logs", "status.json"))
     print(f"records, logs and status in {out / 'records.tgz'}")
     if done or final:
-      parts = pack(folder, out)
+      parts = pack(folder, out, checkpoints)
       print(f"runs packed into {len(parts)} part(s) under {out}: cat runs.tgz.part* | tar xz")
   print("every job has ended" if done else "jobs still running")
   return done
@@ -209,6 +251,9 @@ def main(argv=None) -> int:
   p.add_argument("--out", type=Path, default=None, help="where to copy (the device's $OUT)")
   p.add_argument("--final", action="store_true", help="pack the runs even if jobs still run")
   p.add_argument("--lines", type=int, default=3, help="log lines per job")
+  p.add_argument("--checkpoints", action="store_true",
+                 help="pack each run's newest checkpoint too (to resume on another machine: "
+                      "run with --lean_checkpoints; as many as keep the whole under 56 MiB)")
   p = sub.add_parser("_schedule")  # the detached scheduler `start` launches
   p.add_argument("--dir", type=Path, required=True)
   p.add_argument("--deadline", type=float, required=True)
@@ -218,7 +263,7 @@ def main(argv=None) -> int:
     if args.action == "start":
       start(args.jobs, args.dir, args.deadline, args.gpus)
     elif args.action == "poll":
-      poll(args.dir, args.wait, args.out, args.final, args.lines)
+      poll(args.dir, args.wait, args.out, args.final, args.lines, args.checkpoints)
     else:
       jobs = json.loads((args.dir / "jobs.json").read_text())
       schedule(jobs, args.gpus, args.dir, args.deadline)

@@ -85,3 +85,28 @@ def test_pack_splits_into_parts_that_join_again(tmp_path, monkeypatch):
   assert len(parts) >= 5 and all(p.stat().st_size <= 1000 for p in parts)
   with tarfile.open(fileobj=io.BytesIO(b"".join(p.read_bytes() for p in parts))) as tar:
     assert tar.extractfile("runs/big.npz").read() == (tmp_path / "runs" / "big.npz").read_bytes()
+
+
+def test_pack_keeps_only_each_runs_newest_checkpoint_and_only_if_it_fits(tmp_path, monkeypatch,
+                                                                        capsys):
+  for sub in ("logs", "res", "runs"):
+    (tmp_path / sub).mkdir()
+  for step in ("step_5", "step_10", "step_10.orbax-checkpoint-tmp-3"):
+    state = tmp_path / "runs" / "wr" / "checkpoints" / step / "state"
+    state.mkdir(parents=True)
+    (state / "data").write_bytes(__import__("os").urandom(3000))
+  (tmp_path / "runs" / "wr" / "policy.npz").write_text("policy")
+
+  def packed(**kwargs):
+    out = tmp_path / f"out{len(list(tmp_path.glob('out*')))}"
+    out.mkdir()
+    data = b"".join(p.read_bytes() for p in gpu_jobs.pack(tmp_path, out, **kwargs))
+    with tarfile.open(fileobj=io.BytesIO(data)) as tar:
+      return {n for n in tar.getnames() if tar.getmember(n).isfile()}
+
+  assert packed() == {"runs/wr/policy.npz"}
+  assert packed(checkpoints=True) == {"runs/wr/policy.npz",
+                                      "runs/wr/checkpoints/step_10/state/data"}
+  monkeypatch.setattr(gpu_jobs, "PACK_LIMIT", 2000)
+  assert packed(checkpoints=True) == {"runs/wr/policy.npz"}
+  assert "left out runs/wr/checkpoints/step_10" in capsys.readouterr().out
