@@ -1,0 +1,192 @@
+#!/usr/bin/env python3
+"""Does reacher's demonstrator reward settling on the target over hovering near it? (FORM)
+
+reacher_hard's FORM imitators get within ~3 cm of the target and do not settle, where the task
+pays only within 2 cm (benchmarks/NOTES.md, session 36). This scores, with the demonstrator's
+log pD(x_t | x_{t-1}), the transitions of the shipped expert where it has settled (fingertip
+within `--settled` of the target, joints nearly still), as recorded and with the target moved
+by d (`--offsets`, metres, a random direction per transition, in both observations: the arm
+is as still as before, the target elsewhere). If log pD falls with d, the demonstrator tells
+"still at the target" from "still 3 cm away"; if it is flat, FORM's reward cannot pull the last
+centimetres. With `--policy` files (e.g. FORM imitators), also their transitions by distance
+to the target and joint speed, as they visit them, and (over `--target_episodes` episodes)
+where their failed episodes (return under 100) have the target: the failure rate by quartile
+of the target's distance from the arm's base and by its angle. Appends `kind:
+reacher_settling` records.
+
+  python benchmarks/reacher_settling.py --task reacher_hard --episodes 32 \\
+      --policy runs/rh/seed0/policy.npz --results benchmarks/results/<date>_reacher_settling.jsonl
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+
+import common  # noqa: E402
+from mjx_form.cpu import configure_cpu_xla  # noqa: E402  (before JAX starts)
+
+configure_cpu_xla()
+
+import jax  # noqa: E402
+import jax.numpy as jnp  # noqa: E402
+import numpy as np  # noqa: E402
+
+import tasks  # noqa: E402
+from form_reward_landscape import rollout  # noqa: E402
+from mjx_form.files import effect_models, experts, results  # noqa: E402
+from mjx_form.imitation import effect_model as em  # noqa: E402
+from mjx_form.imitation import pipeline  # noqa: E402
+from mjx_form.rl import normalizer  # noqa: E402
+from mjx_form.sim import env as env_lib  # noqa: E402
+
+SPEED_BINS = (0.0, 0.5, 2.0, np.inf)  # joint speed |qvel| (rad/s): still, slow, moving
+DISTANCE_BINS = (0.0, 0.01, 0.02, 0.03, 0.05, 0.1, np.inf)  # fingertip to target (m)
+
+
+def main(argv=None) -> int:
+  parser = argparse.ArgumentParser(description=__doc__,
+                                   formatter_class=argparse.RawDescriptionHelpFormatter)
+  parser.add_argument("--task", default="reacher_hard", choices=("reacher_easy", "reacher_hard"))
+  parser.add_argument("--episodes", type=int, default=32)
+  parser.add_argument("--settled", type=float, default=0.01, help="metres (default 0.01)")
+  parser.add_argument("--offsets", default="0,0.01,0.02,0.03,0.05,0.1")
+  parser.add_argument("--policy", action="append", default=[])
+  parser.add_argument("--target_episodes", type=int, default=512,
+                      help="episodes per policy for the failures by target position")
+  parser.add_argument("--results", default=None)
+  args = parser.parse_args(argv)
+  env = tasks.make(args.task)
+  layout = list(env.observation_layout.items())
+  start = {name: sum(size for _, size in layout[:i]) for i, (name, _) in enumerate(layout)}
+  to_target = slice(start["to_target"], start["to_target"] + 2)
+  velocity = slice(start["velocity"], start["velocity"] + 2)
+  path = tasks.bundled_demonstrator(args.task)
+  file = effect_models.load_effect_model(path, task=args.task,
+                                         observation_layout=env.observation_layout)
+  config, demonstrator = pipeline.demonstrator_from_file(file, path)
+  model = em.make_model(config, env.observation_size)
+  score = jax.jit(lambda prev, nxt: em.transition_log_prob(
+      model, demonstrator.params, demonstrator.normalizer, prev, nxt))
+  writer = results.ResultWriter(args.results) if args.results else None
+  common_fields = dict(task=args.task, method="form", demonstrator_sha256=file.metadata["sha256"])
+
+  expert = experts.load_expert(tasks.bundled_expert(args.task), env)
+  obs, returns, _, _ = rollout(env, expert, 0.0, jax.random.PRNGKey(0), args.episodes)
+  prev, nxt = obs[:, :-1].reshape(-1, obs.shape[-1]), obs[:, 1:].reshape(-1, obs.shape[-1])
+  distance = np.linalg.norm(nxt[:, to_target], axis=-1)
+  speed = np.linalg.norm(nxt[:, velocity], axis=-1)
+  settled = ((distance < args.settled) & (np.linalg.norm(prev[:, to_target], axis=-1)
+             < args.settled) & (speed < SPEED_BINS[1]))
+  print(f"{args.task}: expert return {returns.mean():.1f} over {args.episodes} episodes; "
+        f"{settled.sum()} settled transitions ({settled.mean():.0%}); demonstrator {path}")
+  rng = np.random.default_rng(0)
+  angle = rng.uniform(0, 2 * np.pi, settled.sum())
+  direction = np.stack([np.cos(angle), np.sin(angle)], axis=-1)  # [S, 2]
+  for d in (float(x) for x in args.offsets.split(",")):
+    p, n = prev[settled].copy(), nxt[settled].copy()
+    p[:, to_target] += d * direction
+    n[:, to_target] += d * direction
+    log_d = np.asarray(score(jnp.asarray(p), jnp.asarray(n)))
+    q = np.percentile(log_d, [10, 50, 90])
+    print(f"  expert settled, target moved {d * 100:4.1f} cm: log pD mean {log_d.mean():8.2f}  "
+          f"p10/p50/p90 {q[0]:8.2f} {q[1]:8.2f} {q[2]:8.2f}")
+    if writer:
+      writer.write(kind="reacher_settling", probe="expert_settled_target_moved", offset_m=d,
+                   transitions=int(settled.sum()), log_pd_mean=float(log_d.mean()),
+                   log_pd_percentiles={"p10": q[0], "p50": q[1], "p90": q[2]},
+                   expert_return=float(returns.mean()), **common_fields)
+
+  behaviours = [("expert", obs, returns)]
+  for i, policy_path in enumerate(args.policy):
+    agent = experts.load_expert(policy_path, env)
+    p_obs, p_returns, _, _ = rollout(env, agent, 0.0, jax.random.PRNGKey(100 + i), args.episodes)
+    behaviours.append((policy_path, p_obs, p_returns))
+  for name, b_obs, b_returns in behaviours:
+    prev, nxt = b_obs[:, :-1].reshape(-1, b_obs.shape[-1]), b_obs[:, 1:].reshape(-1, b_obs.shape[-1])
+    log_d = np.asarray(score(jnp.asarray(prev), jnp.asarray(nxt)))
+    distance = np.linalg.norm(nxt[:, to_target], axis=-1)
+    speed = np.linalg.norm(nxt[:, velocity], axis=-1)
+    print(f"  {name}: return {b_returns.mean():.1f}; mean log pD by distance (cm) x joint speed "
+          f"(rad/s), share of transitions in brackets")
+    cells = []
+    for lo, hi in zip(DISTANCE_BINS[:-1], DISTANCE_BINS[1:]):
+      row = []
+      for slo, shi in zip(SPEED_BINS[:-1], SPEED_BINS[1:]):
+        m = (distance >= lo) & (distance < hi) & (speed >= slo) & (speed < shi)
+        cell = {"distance_m": [lo, None if np.isinf(hi) else hi],
+                "speed": [slo, None if np.isinf(shi) else shi], "share": float(m.mean()),
+                "log_pd_mean": float(log_d[m].mean()) if m.any() else None}
+        cells.append(cell)
+        row.append("        -        " if not m.any()
+                   else f"{cell['log_pd_mean']:8.2f} ({cell['share']:5.1%})")
+      print(f"    {lo * 100:4.0f}-{hi * 100:4.0f} cm: " + "  ".join(row))
+    if writer:
+      writer.write(kind="reacher_settling", probe="visited_by_distance_and_speed",
+                   behaviour=name, episodes=args.episodes, task_return=float(b_returns.mean()),
+                   cells=cells, **common_fields)
+  for name, agent in [("expert", expert)] + [(p, experts.load_expert(p, env))
+                                               for p in args.policy]:
+    target, returns, late_distance, late_speed = targets_and_returns(env, agent,
+                                                                     args.target_episodes)
+    radius, angle = np.linalg.norm(target, axis=-1), np.arctan2(target[:, 0], target[:, 1])
+    failed = returns < 100.0
+    edges = np.quantile(radius, [0, 0.25, 0.5, 0.75, 1])
+    by_radius = [float(failed[(radius >= lo) & (radius <= hi)].mean())
+                 for lo, hi in zip(edges[:-1], edges[1:])]
+    by_angle = [float(failed[(angle >= lo) & (angle < lo + np.pi / 2)].mean())
+                for lo in (-np.pi, -np.pi / 2, 0, np.pi / 2)]
+    print(f"  {name}: return {returns.mean():.1f} over {args.target_episodes} episodes, "
+          f"{failed.mean():.1%} under 100; by target radius quartile (edges "
+          + "/".join(f"{e * 100:.1f}" for e in edges) + " cm): "
+          + " ".join(f"{r:.1%}" for r in by_radius) + "; by target angle quadrant: "
+          + " ".join(f"{r:.1%}" for r in by_angle))
+    late = {"failed": {"distance_m": float(np.median(late_distance[failed])) if failed.any()
+                       else None, "speed": float(np.median(late_speed[failed])) if failed.any()
+                       else None},
+            "over_800": {"distance_m": float(np.median(late_distance[returns > 800]))
+                         if (returns > 800).any() else None,
+                         "speed": float(np.median(late_speed[returns > 800]))
+                         if (returns > 800).any() else None}}
+    print("    second half of the episodes (medians): "
+          + "; ".join(f"{k}: {v['distance_m'] * 100:.1f} cm, {v['speed']:.2f} rad/s"
+                      for k, v in late.items() if v["distance_m"] is not None))
+    if writer:
+      writer.write(kind="reacher_settling", probe="failures_by_target_position", behaviour=name,
+                   episodes=args.target_episodes, task_return=float(returns.mean()),
+                   share_under_100=float(failed.mean()), radius_quartile_edges_m=edges.tolist(),
+                   share_under_100_by_radius_quartile=by_radius,
+                   share_under_100_by_angle_quadrant=by_angle, second_half_medians=late,
+                   **common_fields)
+  return 0
+
+
+def targets_and_returns(env, agent, episodes: int, seed: int = 7):
+  """The target positions [K, 2], returns [K], and median fingertip distance (m) and joint
+  speed (rad/s) over the second half [K] of `episodes` episodes of `agent`'s mean action."""
+  policy = experts.policy_network(agent.metadata, env.action_size)
+
+  @jax.jit
+  def run(key):
+    states = jax.vmap(env.reset)(jax.random.split(key, episodes))
+
+    def step(states, _):
+      pi = policy.apply(agent.params, normalizer.normalize(agent.normalizer, states.obs))
+      nxt = jax.vmap(env.step)(states, jnp.clip(pi.mode(), -1.0, 1.0))
+      return nxt, (nxt.reward, jnp.linalg.norm(nxt.obs_parts["to_target"], axis=-1),
+                   jnp.linalg.norm(nxt.obs_parts["velocity"], axis=-1))
+
+    final, (rewards, distance, speed) = jax.lax.scan(step, states, None,
+                                                     length=env_lib.EPISODE_LENGTH)
+    half = env_lib.EPISODE_LENGTH // 2  # the second half of each episode: where it ended up
+    return (states.task["target"], rewards.sum(0), jnp.median(distance[half:], axis=0),
+            jnp.median(speed[half:], axis=0))
+
+  return tuple(np.asarray(x) for x in jax.device_get(run(jax.random.PRNGKey(seed))))
+
+
+if __name__ == "__main__":
+  sys.exit(main())
