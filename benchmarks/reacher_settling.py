@@ -87,9 +87,7 @@ def main(argv=None) -> int:
   angle = rng.uniform(0, 2 * np.pi, settled.sum())
   direction = np.stack([np.cos(angle), np.sin(angle)], axis=-1)  # [S, 2]
   for d in (float(x) for x in args.offsets.split(",")):
-    p, n = prev[settled].copy(), nxt[settled].copy()
-    p[:, to_target] += d * direction
-    n[:, to_target] += d * direction
+    p, n = move_target(prev[settled], nxt[settled], to_target, d * direction)
     log_d = np.asarray(score(jnp.asarray(p), jnp.asarray(n)))
     q = np.percentile(log_d, [10, 50, 90])
     print(f"  expert settled, target moved {d * 100:4.1f} cm: log pD mean {log_d.mean():8.2f}  "
@@ -134,11 +132,7 @@ def main(argv=None) -> int:
                                                                      args.target_episodes)
     radius, angle = np.linalg.norm(target, axis=-1), np.arctan2(target[:, 0], target[:, 1])
     failed = returns < 100.0
-    edges = np.quantile(radius, [0, 0.25, 0.5, 0.75, 1])
-    by_radius = [float(failed[(radius >= lo) & (radius <= hi)].mean())
-                 for lo, hi in zip(edges[:-1], edges[1:])]
-    by_angle = [float(failed[(angle >= lo) & (angle < lo + np.pi / 2)].mean())
-                for lo in (-np.pi, -np.pi / 2, 0, np.pi / 2)]
+    edges, by_radius, by_angle = failure_shares(failed, radius, angle)
     print(f"  {name}: return {returns.mean():.1f} over {args.target_episodes} episodes, "
           f"{failed.mean():.1%} under 100; by target radius quartile (edges "
           + "/".join(f"{e * 100:.1f}" for e in edges) + " cm): "
@@ -162,6 +156,26 @@ def main(argv=None) -> int:
                    share_under_100_by_angle_quadrant=by_angle, second_half_medians=late,
                    **common_fields)
   return 0
+
+
+def move_target(prev, nxt, to_target: slice, shift):
+  """Copies of the transitions' observations prev, nxt [S, D] with the target moved by shift
+  [S, 2] (metres): the finger-to-target vector grows by shift in both, nothing else changes."""
+  prev, nxt = prev.copy(), nxt.copy()
+  prev[:, to_target] += shift
+  nxt[:, to_target] += shift
+  return prev, nxt
+
+
+def failure_shares(failed, radius, angle):
+  """The quartile edges of radius [K], the share of `failed` [K] episodes in each radius
+  quartile, and in each quadrant of angle (in [-pi, pi])."""
+  edges = np.quantile(radius, [0, 0.25, 0.5, 0.75, 1])
+  by_radius = [float(failed[(radius >= lo) & (radius <= hi)].mean())
+               for lo, hi in zip(edges[:-1], edges[1:])]
+  by_angle = [float(failed[(angle >= lo) & ((angle < lo + np.pi / 2) | (lo == np.pi / 2))].mean())
+              for lo in (-np.pi, -np.pi / 2, 0, np.pi / 2)]
+  return edges, by_radius, by_angle
 
 
 def targets_and_returns(env, agent, episodes: int, seed: int = 7):

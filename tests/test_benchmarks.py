@@ -480,3 +480,26 @@ def test_solver_sweep_tries_the_iteration_pairs_it_is_given():
   for bad in ("10", "10/x", "0/4"):
     with pytest.raises(argparse.ArgumentTypeError):
       bench._pair(bad)
+
+
+def test_reacher_settling_moves_only_the_target_and_splits_failures_by_its_place():
+  """benchmarks/reacher_settling.py: a moved target changes to_target in both observations and
+  nothing else; failures are shared out by radius quartile and angle quadrant."""
+  bench = load_script("reacher_settling", folder="benchmarks")
+  rng = np.random.default_rng(0)
+  prev, nxt = rng.normal(size=(5, 6)), rng.normal(size=(5, 6))
+  shift = rng.normal(size=(5, 2))
+  p, n = bench.move_target(prev, nxt, slice(2, 4), shift)
+  np.testing.assert_allclose(p[:, 2:4] - prev[:, 2:4], shift, rtol=1e-12, atol=1e-12)
+  np.testing.assert_allclose(n[:, 2:4] - nxt[:, 2:4], shift, rtol=1e-12, atol=1e-12)
+  np.testing.assert_array_equal(np.delete(p, [2, 3], 1), np.delete(prev, [2, 3], 1))
+  np.testing.assert_array_equal(np.delete(n, [2, 3], 1), np.delete(nxt, [2, 3], 1))
+  radius = np.arange(1.0, 9.0)  # quartiles {1,2} {3,4} {5,6} {7,8}
+  angle = np.array([-3.0, -1.0, 0.5, 2.0, np.pi, -2.0, 1.0, 3.0])
+  failed = np.array([1, 1, 0, 0, 0, 1, 0, 1], bool)
+  edges, by_radius, by_angle = bench.failure_shares(failed, radius, angle)
+  np.testing.assert_allclose(edges, [1, 2.75, 4.5, 6.25, 8])
+  assert by_radius == [1.0, 0.0, 0.5, 0.5]
+  # quadrants [-pi,-pi/2): -3, -2 -> 1, 1; [-pi/2,0): -1 -> 1; [0,pi/2): 0.5, 1 -> 0, 0;
+  # [pi/2, pi]: 2, pi, 3 -> 0, 0, 1
+  np.testing.assert_allclose(by_angle, [1.0, 1.0, 0.0, 1 / 3])
