@@ -83,10 +83,12 @@ def main(argv=None) -> int:
              < args.settled) & (speed < SPEED_BINS[1]))
   print(f"{args.task}: expert return {returns.mean():.1f} over {args.episodes} episodes; "
         f"{settled.sum()} settled transitions ({settled.mean():.0%}); demonstrator {path}")
+  if not settled.any():
+    print(f"  no settled transitions within {args.settled} m: the target-moved probe is skipped")
   rng = np.random.default_rng(0)
   angle = rng.uniform(0, 2 * np.pi, settled.sum())
   direction = np.stack([np.cos(angle), np.sin(angle)], axis=-1)  # [S, 2]
-  for d in (float(x) for x in args.offsets.split(",")):
+  for d in (float(x) for x in args.offsets.split(",")) if settled.any() else ():
     p, n = move_target(prev[settled], nxt[settled], to_target, d * direction)
     log_d = np.asarray(score(jnp.asarray(p), jnp.asarray(n)))
     q = np.percentile(log_d, [10, 50, 90])
@@ -130,14 +132,16 @@ def main(argv=None) -> int:
                                                for p in args.policy]:
     target, returns, late_distance, late_speed = targets_and_returns(env, agent,
                                                                      args.target_episodes)
+    # The task draws target = radius * (sin a, cos a) (tasks/reacher.py): a = arctan2(x, y).
     radius, angle = np.linalg.norm(target, axis=-1), np.arctan2(target[:, 0], target[:, 1])
     failed = returns < 100.0
     edges, by_radius, by_angle = failure_shares(failed, radius, angle)
     print(f"  {name}: return {returns.mean():.1f} over {args.target_episodes} episodes, "
           f"{failed.mean():.1%} under 100; by target radius quartile (edges "
           + "/".join(f"{e * 100:.1f}" for e in edges) + " cm): "
-          + " ".join(f"{r:.1%}" for r in by_radius) + "; by target angle quadrant: "
-          + " ".join(f"{r:.1%}" for r in by_angle))
+          + " ".join("-" if r is None else f"{r:.1%}" for r in by_radius)
+          + "; by target angle quadrant: "
+          + " ".join("-" if r is None else f"{r:.1%}" for r in by_angle))
     late = {"failed": {"distance_m": float(np.median(late_distance[failed])) if failed.any()
                        else None, "speed": float(np.median(late_speed[failed])) if failed.any()
                        else None},
@@ -169,13 +173,16 @@ def move_target(prev, nxt, to_target: slice, shift):
 
 def failure_shares(failed, radius, angle):
   """The quartile edges of radius [K], the share of `failed` [K] episodes in each radius
-  quartile, and in each quadrant of angle (in [-pi, pi])."""
+  quartile (each episode in one: bins closed on the right) and in each quadrant of angle (in
+  [-pi, pi]); None for an empty bin."""
   edges = np.quantile(radius, [0, 0.25, 0.5, 0.75, 1])
-  by_radius = [float(failed[(radius >= lo) & (radius <= hi)].mean())
-               for lo, hi in zip(edges[:-1], edges[1:])]
-  by_angle = [float(failed[(angle >= lo) & ((angle < lo + np.pi / 2) | (lo == np.pi / 2))].mean())
-              for lo in (-np.pi, -np.pi / 2, 0, np.pi / 2)]
-  return edges, by_radius, by_angle
+  quartile = np.digitize(radius, edges[1:-1], right=True)  # 0..3
+  quadrant = np.clip(np.floor((angle + np.pi) / (np.pi / 2)).astype(int), 0, 3)
+
+  def shares(bins):
+    return [float(failed[bins == b].mean()) if (bins == b).any() else None for b in range(4)]
+
+  return edges, shares(quartile), shares(quadrant)
 
 
 def targets_and_returns(env, agent, episodes: int, seed: int = 7):

@@ -12,21 +12,24 @@ ended) also packs the run directories into parts of at most 15 MB, without check
   python scripts/gpu_jobs.py start jobs.txt --dir /tmp/sitting --deadline 1200
   python scripts/gpu_jobs.py poll --dir /tmp/sitting --wait 540 --out $OUT [--final]
 
+--dir must lie outside the repository (the device refreshes its copy of the tree at each call).
 The jobs file has one job per line, `NAME: COMMAND` (blank lines and `#` comments skipped);
-`NAME [gpus=N]: COMMAND` gives a job N GPUs (default 1). Jobs start in order as soon as
-enough GPUs are free. Each job runs from the working directory in its own session with
-`CUDA_VISIBLE_DEVICES` set to its GPUs and these variables:
-  RES   the folder for its records (`--results $RES/NAME.jsonl`), copied back at every poll;
+`NAME gpus=N: COMMAND` gives a job N GPUs (default 1). Jobs start in order as soon as enough
+GPUs are free; one that would start after the deadline is skipped. Each job runs from the
+working directory in its own session with `CUDA_VISIBLE_DEVICES` set to its GPUs (of those
+the machine lists, or of an inherited CUDA_VISIBLE_DEVICES) and these variables:
+  RES   the folder for its records (`--results $RES/NAME.jsonl`), brought back at every poll;
   RUNS  the folder for its run directories (`--run_dir $RUNS/NAME`), packed at the end;
   LEFT  seconds left until the deadline at the job's start (`--max_seconds $LEFT` makes a
         queued job fit the sitting; the deadline counts from `start`).
-Its output goes to `logs/NAME.log` under --dir; `status.json` says which jobs run, wait or
-ended, and with which exit code.
+Its output goes to `logs/NAME.log` under --dir; `status.json` says which jobs run, wait, ended
+(with their exit code) or were skipped.
 """
 
 from __future__ import annotations
 
 import argparse
+import io
 import json
 import os
 import re
@@ -37,6 +40,8 @@ import time
 from pathlib import Path
 
 PART_BYTES = 15 * 2**20  # a part of the packed runs; under the device's limit on a file
+PACK_LIMIT = 56 * 2**20  # the packed runs that may come back (the device's limit: 64 MiB)
+MAX_PARTS = 7  # the device brings back 8 files: records.tgz and the parts
 LINE = re.compile(r"^(?P<name>[A-Za-z0-9_.-]+)(\s+gpus=(?P<gpus>\d+))?\s*:\s*(?P<cmd>.+)$")
 
 
@@ -69,126 +74,164 @@ def parse_jobs(text: str, num_gpus: int) -> list[dict]:
   return jobs
 
 
-def count_gpus() -> int:
-  """The GPUs `nvidia-smi -L` lists (0 where it is missing)."""
+def machine_gpus() -> list[str]:
+  """The GPUs jobs may use: an inherited CUDA_VISIBLE_DEVICES's entries, else the indices of
+  those `nvidia-smi -L` lists (none where it is missing)."""
+  inherited = os.environ.get("CUDA_VISIBLE_DEVICES")
+  if inherited:
+    return [d.strip() for d in inherited.split(",") if d.strip()]
   try:
     out = subprocess.run(["nvidia-smi", "-L"], capture_output=True, text=True, check=True).stdout
   except (OSError, subprocess.CalledProcessError):
-    return 0
-  return sum(line.startswith("GPU ") for line in out.splitlines())
+    return []
+  return [str(i) for i in range(sum(line.startswith("GPU ") for line in out.splitlines()))]
 
 
-def schedule(jobs: list[dict], num_gpus: int, folder: Path, deadline_s: float,
+def schedule(jobs: list[dict], gpus: list[str], folder: Path, end_time: float,
              poll_s: float = 2.0) -> None:
-  """Runs `jobs` in order on `num_gpus` GPUs, each as soon as it has enough free ones; writes
+  """Runs `jobs` in order on the devices `gpus`, each as soon as it has enough free ones (one
+  that would start at or after `end_time`, a time.time(), is skipped); writes
   folder/status.json whenever a job starts or ends; returns when every job has ended."""
   start = time.time()
-  free, running, status = list(range(num_gpus)), {}, {j["name"]: {"state": "waiting"} for j in jobs}
+  free, running, status = list(gpus), {}, {j["name"]: {"state": "waiting"} for j in jobs}
   waiting = list(jobs)
-
-  def write_status():
-    tmp = folder / "status.json.tmp"
-    tmp.write_text(json.dumps(status, indent=1))
-    tmp.replace(folder / "status.json")
-
-  write_status()
+  write_status(folder, status)
   while waiting or running:
     while waiting and len(free) >= waiting[0]["gpus"]:
       job = waiting.pop(0)
-      gpus, free = free[:job["gpus"]], free[job["gpus"]:]
-      left = max(int(deadline_s - (time.time() - start)), 1)
-      env = {**os.environ, "CUDA_VISIBLE_DEVICES": ",".join(map(str, gpus)),
+      left = int(end_time - time.time())
+      if left <= 0:
+        status[job["name"]] = {"state": "skipped (past the deadline)"}
+        write_status(folder, status)
+        continue
+      mine, free = free[:job["gpus"]], free[job["gpus"]:]
+      env = {**os.environ, "CUDA_VISIBLE_DEVICES": ",".join(mine),
              "RES": str(folder / "res"), "RUNS": str(folder / "runs"), "LEFT": str(left)}
       log = open(folder / "logs" / f"{job['name']}.log", "w")
       process = subprocess.Popen(["bash", "-c", job["cmd"]], env=env, stdout=log,
                                  stderr=subprocess.STDOUT, start_new_session=True)
-      running[job["name"]] = (process, gpus, log)
-      status[job["name"]] = {"state": "running", "gpus": gpus, "left_s": left,
+      running[job["name"]] = (process, mine, log)
+      status[job["name"]] = {"state": "running", "gpus": mine, "left_s": left,
                              "started_s": round(time.time() - start, 1)}
-      write_status()
+      write_status(folder, status)
     time.sleep(poll_s)
-    for name, (process, gpus, log) in list(running.items()):
+    for name, (process, mine, log) in list(running.items()):
       if process.poll() is not None:
         log.close()
-        free = sorted(free + gpus)
+        free = [g for g in gpus if g in free or g in mine]
         del running[name]
         status[name].update(state="ended", rc=process.returncode,
                             ended_s=round(time.time() - start, 1))
-        write_status()
+        write_status(folder, status)
   (folder / "all_done").touch()
+
+
+def write_status(folder: Path, status: dict) -> None:
+  """folder/status.json, replaced whole (a reader never sees half of it)."""
+  tmp = folder / "status.json.tmp"
+  tmp.write_text(json.dumps(status, indent=1))
+  tmp.replace(folder / "status.json")
 
 
 def start(jobs_file: Path, folder: Path, deadline_s: float, num_gpus: int | None) -> None:
   """Checks the jobs, makes the folders and runs `schedule` detached (it outlives the command)."""
-  num_gpus = count_gpus() if num_gpus is None else num_gpus
-  if num_gpus < 1:
+  gpus = machine_gpus()
+  if num_gpus is not None:
+    if gpus and not 1 <= num_gpus <= len(gpus):
+      raise JobsError(f"--gpus {num_gpus}: this machine has {len(gpus)} GPU(s) ({','.join(gpus)})")
+    gpus = gpus[:num_gpus] if gpus else [str(i) for i in range(num_gpus)]
+  if not gpus:
     raise JobsError("no GPU found (nvidia-smi -L lists none); pass --gpus to say how many")
-  jobs = parse_jobs(jobs_file.read_text(), num_gpus)
+  if deadline_s <= 0:
+    raise JobsError(f"--deadline {deadline_s}: must be positive (seconds from now)")
+  jobs = parse_jobs(jobs_file.read_text(), len(gpus))
   if (folder / "status.json").exists():
     raise JobsError(f"{folder} already holds a sitting (status.json); pick another --dir")
   for sub in ("logs", "res", "runs"):
     (folder / sub).mkdir(parents=True, exist_ok=True)
-  (folder / "jobs.json").write_text(json.dumps(jobs, indent=1))
-  (folder / "status.json").write_text(json.dumps({j["name"]: {"state": "waiting"} for j in jobs}))
-  subprocess.Popen([sys.executable, __file__, "_schedule", "--dir", str(folder),
-                    "--deadline", str(deadline_s), "--gpus", str(num_gpus)],
-                   stdout=open(folder / "scheduler.log", "w"), stderr=subprocess.STDOUT,
-                   stdin=subprocess.DEVNULL, start_new_session=True)
-  print(f"{len(jobs)} jobs on {num_gpus} GPUs, deadline {deadline_s:.0f} s: "
+  (folder / "jobs.json").write_text(json.dumps({"jobs": jobs, "gpus": gpus,
+                                                "end_time": time.time() + deadline_s}))
+  write_status(folder, {j["name"]: {"state": "waiting"} for j in jobs})
+  scheduler = subprocess.Popen([sys.executable, __file__, "_schedule", "--dir", str(folder)],
+                               stdout=open(folder / "scheduler.log", "w"),
+                               stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
+                               start_new_session=True)
+  (folder / "scheduler.pid").write_text(str(scheduler.pid))
+  print(f"{len(jobs)} jobs on GPUs {','.join(gpus)}, deadline {deadline_s:.0f} s: "
         + ", ".join(f"{j['name']} ({j['gpus']} GPU{'s' if j['gpus'] > 1 else ''})" for j in jobs))
 
 
 def _tail(path: Path, lines: int) -> list[str]:
   """The last `lines` lines of a log, warnings left out, each cut to 300 characters."""
-  if not path.exists():
+  if not path.exists() or lines <= 0:
     return []
   text = path.read_text(errors="replace").splitlines()
   kept = [line for line in text if "warn" not in line.lower()]
   return [line[:300] for line in kept[-lines:]]
 
 
-PACK_LIMIT = 56 * 2**20  # the packed runs that may come back (the device's limit: 64 MiB)
+def _in_checkpoints(relative: Path) -> bool:
+  """Whether a path lies in (or is) a run's `checkpoints` folder."""
+  return "checkpoints" in relative.parts
 
 
 def newest_checkpoints(folder: Path) -> set[Path]:
-  """Every `checkpoints/step_<N>` under folder with the largest N of its folder (finalised
-  ones: orbax's temporary folders are not named step_<N>)."""
+  """Every `checkpoints/step_<N>` folder under folder with the largest N of its folder
+  (finalised ones: orbax's temporary folders are not named step_<N>)."""
   newest = set()
   for checkpoints in folder.rglob("checkpoints"):
-    steps = [p for p in checkpoints.iterdir() if re.fullmatch(r"step_\d+", p.name)]
+    if not checkpoints.is_dir():
+      continue
+    steps = [p for p in checkpoints.iterdir() if p.is_dir() and re.fullmatch(r"step_\d+", p.name)]
     if steps:
       newest.add(max(steps, key=lambda p: int(p.name[5:])))
   return newest
 
 
-def _archive(path: Path, folder: Path, subs: tuple[str, ...], keep=frozenset()) -> None:
-  """folder's `subs` in one .tgz at `path`, checkpoints left out except the folders `keep`."""
-  keep = {str(p.relative_to(folder)) for p in keep}
-
-  def kept(info):
-    if "checkpoint" not in info.name:
-      return info
-    parts = Path(info.name).parts
-    inside = any(str(Path(*parts[:i])) in keep for i in range(1, len(parts) + 1))
-    return info if inside or (keep and parts[-1] == "checkpoints") else None
-
-  with tarfile.open(path, "w:gz") as tar:
-    for sub in subs:
-      tar.add(folder / sub, arcname=sub, filter=kept)
+def _files(folder: Path, subs: tuple[str, ...], keep=frozenset()) -> list[Path]:
+  """The files of folder's `subs`, those in checkpoints folders left out except under `keep`."""
+  files = []
+  for sub in subs:
+    root = folder / sub
+    for path in sorted(root.rglob("*")) if root.is_dir() else [root]:
+      relative = path.relative_to(folder)
+      if path.is_file() and (not _in_checkpoints(relative)
+                             or any(k in path.parents for k in keep)):
+        files.append(path)
+  return files
 
 
-def _bytes(path: Path, skip_checkpoints: bool = False) -> int:
-  """The bytes of the files under path (checkpoints left out if `skip_checkpoints`)."""
-  return sum(f.stat().st_size for f in path.rglob("*") if f.is_file() and not (
-      skip_checkpoints and "checkpoint" in str(f.relative_to(path))))
+def _archive(path: Path, folder: Path, files: list[Path], extra: dict[str, bytes] = {}) -> None:
+  """The files (named relative to folder) and `extra` {name: bytes} in one .tgz at `path`,
+  written beside it and renamed; a file that vanishes meanwhile is skipped."""
+  tmp = path.with_name(path.name + ".tmp")
+  with tarfile.open(tmp, "w:gz") as tar:
+    for file in files:
+      try:
+        tar.add(file, arcname=str(file.relative_to(folder)), recursive=False)
+      except FileNotFoundError:
+        pass
+    for name, data in extra.items():
+      info = tarfile.TarInfo(name)
+      info.size, info.mtime = len(data), time.time()
+      tar.addfile(info, io.BytesIO(data))
+  tmp.replace(path)
+
+
+def _bytes(paths) -> int:
+  """The bytes of the files `paths`, or of the files under one folder."""
+  if isinstance(paths, Path):
+    paths = [f for f in paths.rglob("*") if f.is_file()]
+  return sum(f.stat().st_size for f in paths)
 
 
 def pack(folder: Path, out: Path, checkpoints: bool = False) -> list[Path]:
   """folder's runs in one .tgz, split into parts of at most PART_BYTES under `out`
   (runs.tgz.part00, ...); returns the parts. Checkpoints are left out, except with
   `checkpoints` each run's newest (lean ones, `--lean_checkpoints`, are a few MB), smallest
-  first, as many as keep the files under PACK_LIMIT (it names those left out)."""
-  keep, total = set(), _bytes(folder / "runs", skip_checkpoints=True)
+  first, as many as keep the files under PACK_LIMIT (it names those left out). JobsError,
+  nothing packed, where the runs alone pass PACK_LIMIT."""
+  keep, total = set(), _bytes(_files(folder, ("runs",)))
   if checkpoints:
     for step in sorted(newest_checkpoints(folder / "runs"), key=_bytes):
       if total + _bytes(step) <= PACK_LIMIT:
@@ -198,7 +241,12 @@ def pack(folder: Path, out: Path, checkpoints: bool = False) -> list[Path]:
         print(f"left out {step.relative_to(folder)} ({_bytes(step) / 2**20:.0f} MiB): the packed "
               f"runs may not pass {PACK_LIMIT / 2**20:.0f} MiB (use --lean_checkpoints)")
   archive = folder / "runs.tgz"
-  _archive(archive, folder, ("runs",), keep)
+  _archive(archive, folder, _files(folder, ("runs",), keep))
+  size = archive.stat().st_size
+  if size > PACK_LIMIT or -(-size // PART_BYTES) > MAX_PARTS:
+    raise JobsError(f"the runs packed take {size / 2**20:.0f} MiB, over the "
+                    f"{PACK_LIMIT / 2**20:.0f} MiB that come back: not packed; pack a part of "
+                    f"{folder / 'runs'} by hand")
   parts, data = [], archive.read_bytes()
   for i in range(0, max(len(data), 1), PART_BYTES):
     part = out / f"runs.tgz.part{i // PART_BYTES:02d}"
@@ -207,26 +255,39 @@ def pack(folder: Path, out: Path, checkpoints: bool = False) -> list[Path]:
   return parts
 
 
+def _scheduler_alive(folder: Path) -> bool:
+  """Whether the detached scheduler of folder's sitting still runs."""
+  try:
+    os.kill(int((folder / "scheduler.pid").read_text()), 0)
+  except (OSError, ValueError):
+    return False
+  return True
+
+
 def poll(folder: Path, wait_s: float, out: Path | None, final: bool, lines: int = 3,
          checkpoints: bool = False) -> bool:
   """Waits until every job has ended or `wait_s` has passed; prints each job's state and last
-  log lines; copies the records and status to `out`; packs the runs there (with their newest
-  checkpoints if `checkpoints`) once every job has ended or `final`. Returns whether every job
-  has ended."""
+  log lines; writes the records, logs and status to `out`; packs the runs there (with their
+  newest checkpoints if `checkpoints`) once every job has ended or `final`. Returns whether
+  every job has ended."""
   if not (folder / "status.json").exists():
     raise JobsError(f"{folder} holds no sitting (no status.json): run `start` first")
   end = time.time() + wait_s
   while not (folder / "all_done").exists() and time.time() < end:
     time.sleep(min(5.0, max(end - time.time(), 0.0)))
   done = (folder / "all_done").exists()
-  status = json.loads((folder / "status.json").read_text())
-  for name, state in status.items():
+  status_bytes = (folder / "status.json").read_bytes()
+  for name, state in json.loads(status_bytes).items():
     print(f"== {name}: " + ", ".join(f"{k} {v}" for k, v in state.items()))
     for line in _tail(folder / "logs" / f"{name}.log", lines):
       print("   " + line)
+  if not done and not _scheduler_alive(folder):
+    print(f"the scheduler is not running and the jobs have not all ended: see "
+          f"{folder / 'scheduler.log'}")
   if out is not None:  # few files: the device brings back at most 8
     out.mkdir(parents=True, exist_ok=True)
-    _archive(out / "records.tgz", folder, ("res", "logs", "status.json"))
+    _archive(out / "records.tgz", folder, _files(folder, ("res", "logs", "scheduler.log")),
+             {"status.json": status_bytes})
     print(f"records, logs and status in {out / 'records.tgz'}")
     if done or final:
       parts = pack(folder, out, checkpoints)
@@ -256,8 +317,6 @@ def main(argv=None) -> int:
                       "run with --lean_checkpoints; as many as keep the whole under 56 MiB)")
   p = sub.add_parser("_schedule")  # the detached scheduler `start` launches
   p.add_argument("--dir", type=Path, required=True)
-  p.add_argument("--deadline", type=float, required=True)
-  p.add_argument("--gpus", type=int, required=True)
   args = parser.parse_args(argv)
   try:
     if args.action == "start":
@@ -265,9 +324,9 @@ def main(argv=None) -> int:
     elif args.action == "poll":
       poll(args.dir, args.wait, args.out, args.final, args.lines, args.checkpoints)
     else:
-      jobs = json.loads((args.dir / "jobs.json").read_text())
-      schedule(jobs, args.gpus, args.dir, args.deadline)
-  except (JobsError, OSError) as error:
+      plan = json.loads((args.dir / "jobs.json").read_text())
+      schedule(plan["jobs"], plan["gpus"], args.dir, plan["end_time"])
+  except (ValueError, OSError) as error:  # JobsError, unreadable or corrupt files
     print(f"error: {error}", file=sys.stderr)
     return 2
   return 0

@@ -503,3 +503,10 @@ def test_reacher_settling_moves_only_the_target_and_splits_failures_by_its_place
   # quadrants [-pi,-pi/2): -3, -2 -> 1, 1; [-pi/2,0): -1 -> 1; [0,pi/2): 0.5, 1 -> 0, 0;
   # [pi/2, pi]: 2, pi, 3 -> 0, 0, 1
   np.testing.assert_allclose(by_angle, [1.0, 1.0, 0.0, 1 / 3])
+  # Five episodes: the quantiles fall on data points; each episode counts in one quartile only,
+  # and a quadrant without episodes is None.
+  edges, by_radius, by_angle = bench.failure_shares(
+      np.array([1, 0, 0, 0, 1], bool), np.arange(1.0, 6.0), np.full(5, 0.1))
+  np.testing.assert_allclose(edges, [1, 2, 3, 4, 5])
+  assert by_radius == [0.5, 0.0, 0.0, 1.0]  # {1, 2}, {3}, {4}, {5}
+  assert by_angle == [None, None, 0.4, None]

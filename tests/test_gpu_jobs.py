@@ -2,14 +2,22 @@
 
 import io
 import json
+import os
 import sys
 import tarfile
+import time
 from pathlib import Path
 
 import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
 import gpu_jobs  # noqa: E402
+
+
+def sitting(folder):
+  for sub in ("logs", "res", "runs"):
+    (folder / sub).mkdir(parents=True)
+  return folder
 
 
 def test_jobs_file_parsing_and_its_refusals():
@@ -25,19 +33,17 @@ def test_jobs_file_parsing_and_its_refusals():
 
 
 def test_jobs_wait_for_free_gpus_and_get_their_own(tmp_path):
-  for sub in ("logs", "res", "runs"):
-    (tmp_path / sub).mkdir()
   jobs = gpu_jobs.parse_jobs(
       "a: echo $CUDA_VISIBLE_DEVICES > $RES/a.txt; sleep 0.5\n"
       "b: echo $CUDA_VISIBLE_DEVICES > $RES/b.txt; sleep 1.5\n"
       "c gpus=2: echo $CUDA_VISIBLE_DEVICES $LEFT > $RES/c.txt\n"
       "d: echo d; exit 3\n", num_gpus=2)
-  gpu_jobs.schedule(jobs, 2, tmp_path, deadline_s=100, poll_s=0.05)
+  gpu_jobs.schedule(jobs, ["4", "6"], sitting(tmp_path), time.time() + 100, poll_s=0.05)
   res = tmp_path / "res"
-  assert (res / "a.txt").read_text().split() == ["0"]
-  assert (res / "b.txt").read_text().split() == ["1"]
+  assert (res / "a.txt").read_text().split() == ["4"]
+  assert (res / "b.txt").read_text().split() == ["6"]
   gpus, left = (res / "c.txt").read_text().split()
-  assert gpus == "0,1" and 90 <= int(left) < 100  # c waited for both a and b
+  assert gpus == "4,6" and 90 <= int(left) < 100  # c waited for both a and b
   status = json.loads((tmp_path / "status.json").read_text())
   assert status["c"]["started_s"] >= status["b"]["ended_s"]
   assert status["d"]["started_s"] >= status["c"]["ended_s"]
@@ -46,10 +52,20 @@ def test_jobs_wait_for_free_gpus_and_get_their_own(tmp_path):
   assert (tmp_path / "all_done").exists()
 
 
-def test_start_poll_copy_and_pack(tmp_path, capsys):
+def test_a_job_that_would_start_after_the_deadline_is_skipped(tmp_path):
+  jobs = gpu_jobs.parse_jobs("a: sleep 2\nb: touch $RES/b\n", num_gpus=1)
+  gpu_jobs.schedule(jobs, ["0"], sitting(tmp_path), time.time() + 1.8, poll_s=0.05)
+  status = json.loads((tmp_path / "status.json").read_text())
+  assert status["a"]["rc"] == 0 and status["b"]["state"].startswith("skipped")
+  assert not (tmp_path / "res" / "b").exists()
+
+
+def test_start_poll_copy_and_pack(tmp_path, capsys, monkeypatch):
+  monkeypatch.delenv("CUDA_VISIBLE_DEVICES", raising=False)
   jobs = tmp_path / "jobs.txt"
-  jobs.write_text("one: mkdir -p $RUNS/one && echo policy > $RUNS/one/policy.npz && "
-                  "echo ckpt > $RUNS/one/checkpoint_7 && echo '{\"kind\": \"x\"}' > $RES/one.jsonl"
+  jobs.write_text("resume_checkpoint: R=$RUNS/resume_checkpoint && mkdir -p $R/checkpoints/step_7"
+                  " && echo policy > $R/policy.npz && echo ckpt > $R/checkpoints/step_7/state && "
+                  "echo '{\"kind\": \"x\"}' > $RES/one.jsonl"
                   " && echo 'step 1' && echo 'UserWarning: noise' && echo 'step 2'\n")
   folder, out = tmp_path / "sitting", tmp_path / "out"
   assert gpu_jobs.main(["start", str(jobs), "--dir", str(folder), "--gpus", "1"]) == 0
@@ -60,42 +76,62 @@ def test_start_poll_copy_and_pack(tmp_path, capsys):
   assert "every job has ended" in printed and "step 2" in printed and "noise" not in printed
   with tarfile.open(out / "records.tgz") as tar:
     assert json.loads(tar.extractfile("res/one.jsonl").read()) == {"kind": "x"}
-    assert json.loads(tar.extractfile("status.json").read())["one"]["rc"] == 0
-    assert "logs/one.log" in tar.getnames()
+    assert json.loads(tar.extractfile("status.json").read())["resume_checkpoint"]["rc"] == 0
+    assert "logs/resume_checkpoint.log" in tar.getnames()
   data = b"".join(p.read_bytes() for p in sorted(out.glob("runs.tgz.part*")))
   with tarfile.open(fileobj=io.BytesIO(data)) as tar:
     names = tar.getnames()
-  assert "runs/one/policy.npz" in names and not any("checkpoint" in n for n in names)
-  assert len(list(out.iterdir())) == 2  # records.tgz and one part: the device's limit is 8
+  assert names == ["runs/resume_checkpoint/policy.npz"]  # the checkpoints folder left out
+  assert sorted(p.name for p in out.iterdir()) == ["records.tgz", "runs.tgz.part00"]
 
 
-def test_poll_of_no_sitting_is_an_error(tmp_path, capsys):
+def test_start_hands_out_an_inherited_cuda_visible_devices(tmp_path, capsys, monkeypatch):
+  monkeypatch.setenv("CUDA_VISIBLE_DEVICES", "3,5")
+  jobs = tmp_path / "jobs.txt"
+  jobs.write_text("a: echo $CUDA_VISIBLE_DEVICES > $RES/a\n")
+  assert gpu_jobs.main(["start", str(jobs), "--dir", str(tmp_path / "s1"), "--gpus", "3"]) == 2
+  assert "this machine has 2 GPU(s) (3,5)" in capsys.readouterr().err
+  assert not (tmp_path / "s1").exists()
+  assert gpu_jobs.main(["start", str(jobs), "--dir", str(tmp_path / "s2"), "--gpus", "1"]) == 0
+  assert gpu_jobs.main(["poll", "--dir", str(tmp_path / "s2"), "--wait", "60"]) == 0
+  assert (tmp_path / "s2" / "res" / "a").read_text().strip() == "3"  # the first of those given
+
+
+def test_poll_says_when_the_scheduler_died_and_refuses_no_sitting(tmp_path, capsys):
+  folder = sitting(tmp_path / "s")
+  gpu_jobs.write_status(folder, {"a": {"state": "running"}})
+  (folder / "scheduler.pid").write_text("999999999")
+  assert gpu_jobs.main(["poll", "--dir", str(folder), "--lines", "0"]) == 0
+  assert "scheduler is not running" in capsys.readouterr().out
   assert gpu_jobs.main(["poll", "--dir", str(tmp_path / "none")]) == 2
   assert "no status.json" in capsys.readouterr().err
 
 
 def test_pack_splits_into_parts_that_join_again(tmp_path, monkeypatch):
-  for sub in ("logs", "res", "runs"):
-    (tmp_path / sub).mkdir()
-  (tmp_path / "runs" / "big.npz").write_bytes(__import__("os").urandom(5000))
+  sitting(tmp_path)
+  (tmp_path / "runs" / "big.npz").write_bytes(os.urandom(5000))
   monkeypatch.setattr(gpu_jobs, "PART_BYTES", 1000)
   out = tmp_path / "out"
   out.mkdir()
   parts = gpu_jobs.pack(tmp_path, out)
-  assert len(parts) >= 5 and all(p.stat().st_size <= 1000 for p in parts)
+  assert len(parts) >= 5
   with tarfile.open(fileobj=io.BytesIO(b"".join(p.read_bytes() for p in parts))) as tar:
     assert tar.extractfile("runs/big.npz").read() == (tmp_path / "runs" / "big.npz").read_bytes()
+  monkeypatch.setattr(gpu_jobs, "PACK_LIMIT", 3000)  # the runs alone pass it
+  with pytest.raises(gpu_jobs.JobsError, match="not packed"):
+    gpu_jobs.pack(tmp_path, out)
 
 
 def test_pack_keeps_only_each_runs_newest_checkpoint_and_only_if_it_fits(tmp_path, monkeypatch,
                                                                         capsys):
-  for sub in ("logs", "res", "runs"):
-    (tmp_path / sub).mkdir()
+  sitting(tmp_path)
   for step in ("step_5", "step_10", "step_10.orbax-checkpoint-tmp-3"):
     state = tmp_path / "runs" / "wr" / "checkpoints" / step / "state"
     state.mkdir(parents=True)
-    (state / "data").write_bytes(__import__("os").urandom(3000))
+    (state / "data").write_bytes(os.urandom(3000))
   (tmp_path / "runs" / "wr" / "policy.npz").write_text("policy")
+  (tmp_path / "runs" / "other").mkdir()
+  (tmp_path / "runs" / "other" / "checkpoints").write_text("a file, not a folder")
 
   def packed(**kwargs):
     out = tmp_path / f"out{len(list(tmp_path.glob('out*')))}"
