@@ -106,7 +106,8 @@ def main(argv=None) -> int:
     p_obs, p_returns, _, _ = rollout(env, agent, 0.0, jax.random.PRNGKey(100 + i), args.episodes)
     behaviours.append((policy_path, p_obs, p_returns))
   for name, b_obs, b_returns in behaviours:
-    prev, nxt = b_obs[:, :-1].reshape(-1, b_obs.shape[-1]), b_obs[:, 1:].reshape(-1, b_obs.shape[-1])
+    size = b_obs.shape[-1]
+    prev, nxt = b_obs[:, :-1].reshape(-1, size), b_obs[:, 1:].reshape(-1, size)
     log_d = np.asarray(score(jnp.asarray(prev), jnp.asarray(nxt)))
     distance = np.linalg.norm(nxt[:, to_target], axis=-1)
     speed = np.linalg.norm(nxt[:, velocity], axis=-1)
