@@ -255,6 +255,37 @@ def test_training_never_sees_the_task_reward(form_trainer, monkeypatch):
   assert np.isfinite(metrics[-1]["form_reward"][0]) and metrics[-1]["imitator_log_prob"][0] != 0
 
 
+def test_fresh_metrics_score_the_new_transitions_under_the_imitator_before_it_saw_them(
+    form_trainer):
+  """fresh_metrics: both models' mean log-likelihood over the valid transitions of unrolls; the
+  trainer computes them on each iteration's collected unrolls with the source state from
+  before the iteration's updates (read back from the replay's first slots here)."""
+  source = FormReward(EFFECT, _demonstrator(0))
+  state = source.init(jax.random.PRNGKey(1), D, 2)
+  rng = np.random.default_rng(3)
+  obs = jnp.asarray(rng.normal(size=(3, 5, D)), jnp.float32)
+  discount = jnp.ones((3, 4)).at[2, 1].set(0.0)
+  fresh = source.fresh_metrics(state, {"observation": obs, "discount": discount})
+  log_d, log_i = (np.asarray(x) for x in source.log_probs(state, obs))
+  valid = np.asarray(discount) > 0
+  np.testing.assert_allclose(fresh["demonstrator_fresh_log_prob"], log_d[valid].mean(), rtol=1e-5)
+  np.testing.assert_allclose(fresh["imitator_fresh_log_prob"], log_i[valid].mean(), rtol=1e-5)
+  np.testing.assert_allclose(fresh["form_reward_fresh"], (log_d - log_i)[valid].mean(),
+                             rtol=1e-5, atol=1e-5)
+  # In the loop: the first iteration's unrolls are the replay's first num_envs slots.
+  member = lambda tree: jax.tree.map(lambda x: np.asarray(x)[0], tree)
+  before = form_trainer.init(jax.random.PRNGKey(0)[None])
+  before_source = member(before.source)  # (the iteration donates its state's buffers)
+  after, metrics = form_trainer.iteration(before)
+  new = jax.tree.map(lambda x: x[:CONFIG.num_envs], member(after.replay.data))
+  expected = source.fresh_metrics(before_source, new)
+  for key in ("demonstrator_fresh_log_prob", "imitator_fresh_log_prob", "form_reward_fresh"):
+    np.testing.assert_allclose(np.asarray(metrics[key])[0], expected[key], rtol=1e-4, err_msg=key)
+  # ... and not with the updated imitator model (the check above can tell them apart).
+  moved = source.fresh_metrics(member(after.source), new)
+  assert abs(moved["imitator_fresh_log_prob"] - expected["imitator_fresh_log_prob"]) > 1e-4
+
+
 def test_form_run_settings_take_the_task_entry_then_the_preset_then_the_flags(monkeypatch):
   """DEFAULT_RUN's measured reward clip (3 sd) and bfloat16 sampled Q are every task's default;
   a task's entry in settings.PER_TASK_RUN overrides them; --preset paper replaces both; a flag

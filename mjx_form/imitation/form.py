@@ -148,6 +148,19 @@ class FormReward:
     log_d, log_i = self.log_probs(state, batch["observation"])
     return log_d - log_i, batch["discount"] > 0
 
+  def fresh_metrics(self, state: FormState, unrolls: dict) -> dict:
+    """Both models' mean log-likelihood of one iteration's new transitions (`unrolls` as
+    collected: observation [N, T+1, D], discount [N, T]), under the imitator model from before
+    it trained on them. The batches' `imitator_batch_log_prob` is over the replay, older
+    behaviour included, which the imitator model trains on: where `imitator_fresh_log_prob`
+    falls below it, the imitator model lags the policy (its replay staleness), and the reward
+    of what the policy does now is overestimated by the difference."""
+    log_d, log_i = self.log_probs(state, unrolls["observation"])
+    valid = unrolls["discount"] > 0
+    mean = lambda v: jnp.sum(jnp.where(valid, v, 0.0)) / jnp.maximum(jnp.sum(valid), 1)
+    return {"demonstrator_fresh_log_prob": mean(log_d), "imitator_fresh_log_prob": mean(log_i),
+            "form_reward_fresh": mean(log_d - log_i)}
+
   def relabel(self, state: FormState, batch: dict) -> tuple[jax.Array, dict]:
     log_d, log_i = self.log_probs(state, batch["observation"])
     raw, valid = log_d - log_i, batch["discount"] > 0

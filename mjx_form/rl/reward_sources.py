@@ -13,6 +13,9 @@ A source is an object with:
   relabel(state, batch) -> (rewards [B, T], metrics)
   settings() -> dict: what the source's results depend on beyond the TrainConfig (its model
       settings, the checksum of a demonstrator), JSON; stored with checkpoints and records
+  fresh_metrics(state, unrolls) -> metrics (optional): diagnostics of each iteration's newly
+      collected unrolls (same keys as a batch, [N, ...]), under the state before the
+      iteration's updates; nothing in training depends on them
 where `batch` is a dict of unrolls: observation [B, T+1, D] (raw, not standardised), action
 [B, T, A], discount [B, T], and reward [B, T] only when needs_task_reward is set.
 """

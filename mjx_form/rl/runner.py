@@ -389,7 +389,7 @@ def _progress_line(row: dict, total_iterations: int, steps_per_iteration: int) -
     line += (f"  form reward {row['form_reward']:.2f} (sd {row['form_reward_std']:.2f}"
              + (f", {100 * clipped:.1f}% clipped" if clipped > 0 else "")
              + f"; log pD {row['demonstrator_log_prob']:.1f}, log pI "
-             f"{row['imitator_batch_log_prob']:.1f})")
+             f"{row['imitator_batch_log_prob']:.1f}, fresh {row['imitator_fresh_log_prob']:.1f})")
   return line + (f"  q {row['q_mean']:.2f}  critic {row['critic_loss']:.3f}  mean out of bounds "
                  f"{row['mean_out_of_bounds']:.2f}")
 
@@ -453,9 +453,11 @@ _CURVE_FIELDS = (
     # what the E-step's weights go on: the sampled actions' Q spread, bfloat16's error in it
     "sampled_q_spread", "sampled_q_bf16_error",
     # FORM: the reward, its running sd and clipped share, and both models' log-likelihoods on
-    # the learner's batches
+    # the learner's batches, and on the iteration's new transitions before the imitator model
+    # saw them (form.py: fresh_metrics; fresh below batch: the imitator model lags the policy)
     "form_reward", "form_reward_std", "form_reward_clipped", "demonstrator_log_prob",
-    "imitator_batch_log_prob", "imitator_log_prob")
+    "imitator_batch_log_prob", "imitator_log_prob", "demonstrator_fresh_log_prob",
+    "imitator_fresh_log_prob", "form_reward_fresh")
 
 
 def _write_curve_point(writer: results.ResultWriter, trainer: Trainer, member: int, row: dict, *,

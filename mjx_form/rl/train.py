@@ -512,6 +512,10 @@ class Trainer:
     key, collect_key, learn_key = jnp.moveaxis(
         jax.vmap(lambda k: jax.random.split(k, 3))(state.key), 1, 0)  # [3, P, 2]
     env_state, running, noise, unrolls, stats = self._collect(state, collect_key)
+    if hasattr(self.source, "fresh_metrics"):  # diagnostics only (reward_sources.py)
+      source_values = grid.split(state.settings)[2]
+      stats = {**stats, **jax.vmap(lambda s, u, v: self._source_with(v).fresh_metrics(s, u))(
+          state.source, unrolls, source_values)}
     norm = jax.vmap(lambda n, obs: normalizer.update(n, obs, cfg.normalizer_decay))(
         state.normalizer, unrolls["observation"][:, :, :-1])
     buffer = jax.vmap(replay.insert)(state.replay, unrolls)
