@@ -572,6 +572,8 @@ def test_progress_line_shows_the_form_reward_and_its_clipped_share():
          "mean_out_of_bounds": 0.5}
   line = runner._progress_line(row, 20, 100)
   assert "form reward -2.50 (sd 4.00, 25.0% clipped; log pD 3.0, log pI 5.5)" in line, line
+  line = runner._progress_line({**row, "imitator_fresh_log_prob": 4.25}, 20, 100)
+  assert "log pD 3.0, log pI 5.5, fresh 4.2)" in line, line  # the imitator model's staleness
   line = runner._progress_line({**row, "form_reward_clipped": 0.0}, 20, 100)
   assert "form reward -2.50 (sd 4.00; log pD 3.0" in line and "clipped" not in line, line
 

@@ -389,7 +389,9 @@ def _progress_line(row: dict, total_iterations: int, steps_per_iteration: int) -
     line += (f"  form reward {row['form_reward']:.2f} (sd {row['form_reward_std']:.2f}"
              + (f", {100 * clipped:.1f}% clipped" if clipped > 0 else "")
              + f"; log pD {row['demonstrator_log_prob']:.1f}, log pI "
-             f"{row['imitator_batch_log_prob']:.1f}, fresh {row['imitator_fresh_log_prob']:.1f})")
+             f"{row['imitator_batch_log_prob']:.1f}"
+             + (f", fresh {row['imitator_fresh_log_prob']:.1f}"
+                if "imitator_fresh_log_prob" in row else "") + ")")
   return line + (f"  q {row['q_mean']:.2f}  critic {row['critic_loss']:.3f}  mean out of bounds "
                  f"{row['mean_out_of_bounds']:.2f}")
 
