@@ -156,8 +156,7 @@ class FormReward:
     falls below it, the imitator model lags the policy (its replay staleness), and the reward
     of what the policy does now is overestimated by the difference."""
     log_d, log_i = self.log_probs(state, unrolls["observation"])
-    valid = unrolls["discount"] > 0
-    mean = lambda v: jnp.sum(jnp.where(valid, v, 0.0)) / jnp.maximum(jnp.sum(valid), 1)
+    mean = lambda v: _valid_mean(v, unrolls["discount"] > 0)
     return {"demonstrator_fresh_log_prob": mean(log_d), "imitator_fresh_log_prob": mean(log_i),
             "form_reward_fresh": mean(log_d - log_i)}
 
@@ -168,11 +167,15 @@ class FormReward:
     given = jnp.where(self.standardise_reward,
                       normalizer.normalize(state.reward, bounded[..., None])[..., 0], bounded)
     rewards = jnp.where(valid, given, 0.0)
-    count = jnp.maximum(jnp.sum(valid), 1)
-    mean = lambda v: jnp.sum(jnp.where(valid, v, 0.0)) / count
+    mean = lambda v: _valid_mean(v, valid)
     metrics = {"form_reward": mean(raw), "demonstrator_log_prob": mean(log_d),
                "imitator_batch_log_prob": mean(log_i),
                "form_reward_std": jnp.sqrt(state.reward.var[0]),
                # share of the batch's transitions whose reward the clip bounded (0 when off)
                "form_reward_clipped": mean(self.clipped(state.reward, raw).astype(jnp.float32))}
     return rewards, metrics
+
+
+def _valid_mean(values: jax.Array, valid: jax.Array) -> jax.Array:
+  """The mean of `values` where `valid` (0 where none is)."""
+  return jnp.sum(jnp.where(valid, values, 0.0)) / jnp.maximum(jnp.sum(valid), 1)
