@@ -5,9 +5,8 @@ reacher_hard's FORM imitators get within ~3 cm of the target and do not settle, 
 pays only within 2.5 cm (target 1.5 cm + finger 1 cm; benchmarks/NOTES.md, sessions 36-37).
 This scores, with the demonstrator's log pD(x_t | x_{t-1}), the transitions of the shipped
 expert where it has settled (fingertip within `--settled` of the target, joints nearly still),
-as recorded and with the target moved
-by d (`--offsets`, metres, a random direction per transition, in both observations: the arm
-is as still as before, the target elsewhere). If log pD falls with d, the demonstrator tells
+as recorded and with the target moved by d (`--offsets`, metres, a random direction per
+transition, in both observations: the arm is as still as before, the target elsewhere). If log pD falls with d, the demonstrator tells
 "still at the target" from "still 3 cm away"; if it is flat, FORM's reward cannot pull the last
 centimetres. With `--policy` files (e.g. FORM imitators), also their transitions by distance
 to the target and joint speed, as they visit them, and (over `--target_episodes` episodes)
