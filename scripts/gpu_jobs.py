@@ -201,7 +201,8 @@ def _files(folder: Path, subs: tuple[str, ...], keep=frozenset()) -> list[Path]:
   return files
 
 
-def _archive(path: Path, folder: Path, files: list[Path], extra: dict[str, bytes] = {}) -> None:
+def _archive(path: Path, folder: Path, files: list[Path],
+             extra: dict[str, bytes] | None = None) -> None:
   """The files (named relative to folder) and `extra` {name: bytes} in one .tgz at `path`,
   written beside it and renamed; a file that vanishes meanwhile is skipped."""
   tmp = path.with_name(path.name + ".tmp")
@@ -211,7 +212,7 @@ def _archive(path: Path, folder: Path, files: list[Path], extra: dict[str, bytes
         tar.add(file, arcname=str(file.relative_to(folder)), recursive=False)
       except FileNotFoundError:
         pass
-    for name, data in extra.items():
+    for name, data in (extra or {}).items():
       info = tarfile.TarInfo(name)
       info.size, info.mtime = len(data), time.time()
       tar.addfile(info, io.BytesIO(data))
@@ -233,12 +234,13 @@ def pack(folder: Path, out: Path, checkpoints: bool = False) -> list[Path]:
   nothing packed, where the runs alone pass PACK_LIMIT."""
   keep, total = set(), _bytes(_files(folder, ("runs",)))
   if checkpoints:
-    for step in sorted(newest_checkpoints(folder / "runs"), key=_bytes):
-      if total + _bytes(step) <= PACK_LIMIT:
+    sizes = {step: _bytes(step) for step in newest_checkpoints(folder / "runs")}
+    for step in sorted(sizes, key=sizes.get):
+      if total + sizes[step] <= PACK_LIMIT:
         keep.add(step)
-        total += _bytes(step)
+        total += sizes[step]
       else:
-        print(f"left out {step.relative_to(folder)} ({_bytes(step) / 2**20:.0f} MiB): the packed "
+        print(f"left out {step.relative_to(folder)} ({sizes[step] / 2**20:.0f} MiB): the packed "
               f"runs may not pass {PACK_LIMIT / 2**20:.0f} MiB (use --lean_checkpoints)")
   archive = folder / "runs.tgz"
   _archive(archive, folder, _files(folder, ("runs",), keep))
