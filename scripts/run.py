@@ -165,10 +165,11 @@ def parse_args(argv=None) -> argparse.Namespace:
                      help="learner updates between copies of the online networks to the "
                           "targets (default: see --preset; the paper's is "
                           f"{defaults.learner.target_update_period})")
-  train.add_argument("--action_penalty", action="store_true",
+  train.add_argument("--action_penalty", action=argparse.BooleanOptionalAction, default=None,
                      help="MPO's penalty on sampled actions outside [-1, 1] (multi-objective "
                           "MPO, epsilon 1e-3; on by default in Acme, not stated in the paper): "
-                          "keeps the policy's mean from drifting out of the action bounds")
+                          "keeps the policy's mean from drifting out of the action bounds "
+                          "(default: off, but see --preset for expert)")
   train.add_argument("--clip_critic_actions", action=argparse.BooleanOptionalAction,
                      default=None,
                      help="the critic sees clip(a, -1, 1), the action the environment applies "
@@ -313,7 +314,7 @@ def train_config(args: argparse.Namespace) -> TrainConfig:
       LearnerConfig(), num_action_samples=args.num_action_samples,
       target_update_period=period, clip_critic_actions=chosen["clip_critic_actions"],
       sampled_q_bfloat16=bfloat16,
-      mpo=dataclasses.replace(LearnerConfig().mpo, action_penalty=args.action_penalty))
+      mpo=dataclasses.replace(LearnerConfig().mpo, action_penalty=chosen["action_penalty"]))
   seed = args.seeds[0] if args.seeds else args.seed
   return TrainConfig(task=args.task, physics=args.physics,
                      reward_source="form" if args.method == "form" else "task",

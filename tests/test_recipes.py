@@ -16,8 +16,9 @@ def test_paper_preset_is_the_paper_learner_and_actor():
   paper = recipes.expert_settings("hopper_stand", "paper")
   assert paper == {"policy_head": "paper", "action_noise_correlation": 0.0,
                    "target_update_period": 200, "sampled_q_bfloat16": False,
-                   "clip_critic_actions": False}
+                   "clip_critic_actions": False, "action_penalty": False}
   assert paper["target_update_period"] == LearnerConfig().target_update_period
+  assert paper["action_penalty"] == LearnerConfig().mpo.action_penalty
   assert paper["clip_critic_actions"] == LearnerConfig().clip_critic_actions
   assert paper["policy_head"] == TrainConfig().policy_head
 
@@ -30,7 +31,7 @@ def test_recipes_name_real_tasks_and_valid_settings():
     assert 0.0 <= recipe.get("action_noise_correlation", 0.0) < 1.0
     assert recipe.get("target_update_period", 1) >= 1
     assert all(isinstance(recipe.get(k, False), bool)
-               for k in ("clip_critic_actions", "sampled_q_bfloat16")), task
+               for k in ("clip_critic_actions", "sampled_q_bfloat16", "action_penalty")), task
 
 
 def test_expert_and_form_presets_share_names():
@@ -41,10 +42,13 @@ def test_expert_and_form_presets_share_names():
 def test_default_preset_is_the_task_recipe_else_the_paper():
   assert recipes.expert_settings("hopper_stand") == {
       "policy_head": "acme", "action_noise_correlation": 0.9, "target_update_period": 100,
-      "sampled_q_bfloat16": True, "clip_critic_actions": False}
+      "sampled_q_bfloat16": True, "clip_critic_actions": False, "action_penalty": False}
   assert recipes.expert_settings("walker_run") == {
       "policy_head": "paper", "action_noise_correlation": 0.0, "target_update_period": 25,
-      "sampled_q_bfloat16": True, "clip_critic_actions": True}
+      "sampled_q_bfloat16": True, "clip_critic_actions": True, "action_penalty": False}
+  assert recipes.expert_settings("reacher_hard") == {
+      "policy_head": "paper", "action_noise_correlation": 0.0, "target_update_period": 25,
+      "sampled_q_bfloat16": True, "clip_critic_actions": False, "action_penalty": True}
   assert recipes.expert_settings("cheetah_run") == recipes.expert_settings("cheetah_run", "paper")
   with pytest.raises(ValueError, match="unknown preset 'fast'"):
     recipes.expert_settings("hopper_stand", "fast")
@@ -79,6 +83,19 @@ def test_run_applies_the_recipe_to_expert_runs_only_and_flags_win():
   assert form.learner.clip_critic_actions is False
   assert config("--task", "walker_run", "--method", "form",
                 "--clip_critic_actions").learner.clip_critic_actions is True
+  # reacher_hard's recipe turns MPO's action penalty on; the flag turns it off; FORM, the paper
+  # preset and a task without it in its recipe keep it off unless asked.
+  reach = config("--task", "reacher_hard", "--method", "expert")
+  assert reach.learner.mpo.action_penalty is True
+  assert (reach.learner.target_update_period, reach.learner.sampled_q_bfloat16) == (25, True)
+  assert config("--task", "reacher_hard", "--method", "expert",
+                "--no-action_penalty").learner.mpo.action_penalty is False
+  assert config("--task", "reacher_hard", "--method", "expert",
+                "--preset", "paper").learner == LearnerConfig()
+  assert config("--task", "reacher_hard", "--method", "form").learner.mpo.action_penalty is False
+  assert config("--task", "reacher_hard", "--method", "form",
+                "--action_penalty").learner.mpo.action_penalty is True
+  assert config("--task", "walker_run", "--method", "expert").learner.mpo.action_penalty is False
   head = config("--task", "hopper_stand", "--method", "expert", "--policy_head", "paper")
   assert head.policy_head == "paper" and head.action_noise_correlation == 0.9
   # FORM has its own settings: settings.PER_TASK_RUN's entry (hopper_stand's sets the actor),
@@ -115,6 +132,9 @@ def test_run_names_the_recipe_and_its_overrides(capsys):
   line = cli.recipe_line(cli.parse_args(["--task", "walker_run", "--method", "expert",
                                          "--seeds", "0", "--grid", "clip_critic_actions=0,1"]))
   assert "overridden by --grid clip_critic_actions;" in line
+  line = cli.recipe_line(cli.parse_args(["--task", "reacher_hard", "--method", "expert",
+                                         "--no-action_penalty"]))
+  assert "action_penalty True" in line and "overridden by --no-action_penalty;" in line
   line = cli.recipe_line(cli.parse_args(["--task", "hopper_stand", "--method", "form",
                                          "--no-wrap_angles"]))
   assert "hopper_stand's FORM settings" in line and "policy_head acme" in line

@@ -31,9 +31,9 @@ class DemonstratorTraining:
   eval_every: int = 2_000
   # Evaluations without a better held-out likelihood before stopping. The held-out curve
   # rises in steps with gaps of up to 5 evaluations between new bests while it still gains
-  # nats (reacher_hard, walker_walk, quadruped_walk records); 5 stopped reacher_hard's at
-  # 48k steps, 24.0 nats at offset 1, where a run left going was at 27.3 by 140k (NOTES,
-  # session 38). 15 is three of those gaps.
+  # nats (reacher_hard, walker_walk, quadruped_walk records); 5 stopped reacher_hard's at 58k
+  # steps (kept 48k: 24.0 nats at offset 1), where a run left going was at 27.3 by 140k
+  # (NOTES, session 38). 15 is three of those gaps.
   patience: int = 15
   heldout_fraction: float = 0.05
   seed: int = 0

@@ -19,13 +19,14 @@ from mjx_form.rl.train import TrainConfig
 
 PRESETS = ("default", "paper")
 KEYS = ("policy_head", "action_noise_correlation", "target_update_period", "sampled_q_bfloat16",
-        "clip_critic_actions")
+        "clip_critic_actions", "action_penalty")
 
 PAPER = {"policy_head": TrainConfig().policy_head,
          "action_noise_correlation": TrainConfig().action_noise_correlation,
          "target_update_period": LearnerConfig().target_update_period,
          "sampled_q_bfloat16": LearnerConfig().sampled_q_bfloat16,
-         "clip_critic_actions": LearnerConfig().clip_critic_actions}
+         "clip_critic_actions": LearnerConfig().clip_critic_actions,
+         "action_penalty": LearnerConfig().mpo.action_penalty}
 
 PER_TASK: dict[str, dict] = {
     # hopper_stand. The paper's settings plateau at ~330-360 (standing from some starts only;
@@ -78,6 +79,22 @@ PER_TASK: dict[str, dict] = {
     # fresh CPU episodes, 924.5 from starts on its back (2026-11-26_expert_eval_cpu_...).
     "quadruped_walk": {"target_update_period": 25, "clip_critic_actions": True,
                        "sampled_q_bfloat16": True},
+    # reacher_hard. The paper's settings at 512 envs x 64 updates: first evaluation >= 932.2
+    # (0.95x the paper's expert) after 451 s, 57.3M steps (2026-11-21; that run's policy was
+    # the shipped expert until 2026-11-27, 904.9 over 1024 fresh episodes, and never still at
+    # the target: 0.3% of its transitions within 2 cm with the joints under 0.5 rad/s). T 25,
+    # bf16 sampled Q, 512 envs x 256 updates, seeds 0-1 x MO-MPO's action penalty off/on as one
+    # population on one H100: first evaluation >= 932.2 after 124 s (2.6M steps), fresh finals
+    # 970.0 / 969.9 without the penalty, 966.1 / 971.2 with it, at 41.6M steps (20 min;
+    # 2026-11-27_learning_curve_h100_reacher_hard_t25_bf16_replay_ratio32_penalty_grid_
+    # seeds01). The penalty changes how, not how well: with it the policies settle on the
+    # target (89.6% / 95.1% of transitions within 2 cm and still, against 17.9% / 45.8%;
+    # 2026-11-27_reacher_settling_cpu_reacher_hard_expert_candidates_...), which FORM's
+    # demonstrator then rewards (benchmarks/NOTES.md, session 38). Seed 1 with the penalty is
+    # the shipped expert: 968.6 +- 1.7 over 1024 fresh CPU episodes. Not a same-scale A/B
+    # against the paper's run (4x its updates per env step).
+    "reacher_hard": {"target_update_period": 25, "sampled_q_bfloat16": True,
+                     "action_penalty": True},
 }
 
 
