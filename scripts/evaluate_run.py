@@ -46,17 +46,14 @@ class RunFilesError(ValueError):
 
 
 def _read_json_lines(path: str) -> list[dict]:
-  out = []
-  with open(path) as f:
-    for n, line in enumerate(f, 1):
-      if line.strip():
-        try:
-          record = json.loads(line)
-        except json.JSONDecodeError as e:
-          raise RunFilesError(f"{path}: line {n} is not JSON ({e.msg})") from None
-        if not isinstance(record, dict) or not isinstance(record.get("settings", {}), dict):
-          raise RunFilesError(f"{path}: line {n} is not a result record")
-        out.append(record)
+  """The file's records, whole (compact rows filled in: mjx_form/files/results.py)."""
+  try:
+    out = results.read_records(path)
+  except results.ResultFileError as e:
+    raise RunFilesError(str(e)) from None
+  for record in out:
+    if not isinstance(record.get("settings", {}), dict):
+      raise RunFilesError(f"{path}: a record's settings are not an object")
   return out
 
 

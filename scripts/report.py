@@ -24,7 +24,7 @@ import sys
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
 
-from mjx_form.files import effect_models, policy_io  # noqa: E402  (numpy only; no JAX)
+from mjx_form.files import effect_models, policy_io, results  # noqa: E402  (no JAX)
 from mjx_form import paper  # noqa: E402  (constants only)
 from mjx_form.imitation import settings as form_settings  # noqa: E402  (constants; no JAX)
 from mjx_form.cpu import CPU_XLA_FLAG  # noqa: E402  (os only)
@@ -44,13 +44,11 @@ TASK_ORDER = ["reacher_easy", "reacher_hard", "cheetah_run", "quadruped_walk", "
 
 
 def read_records(folder: str = RESULTS) -> list[dict]:
-  records = []
-  for path in sorted(glob.glob(os.path.join(folder, "*.jsonl"))):
-    with open(path) as f:
-      for line in f:
-        if line.strip():
-          records.append({**json.loads(line), "_file": os.path.basename(path)})
-  return records
+  """Every record of the folder's `.jsonl` files, whole (compact rows filled in), each with the
+  name of its file as `_file`."""
+  return [{**record, "_file": os.path.basename(path)}
+          for path in sorted(glob.glob(os.path.join(folder, "*.jsonl")))
+          for record in results.read_records(path)]
 
 
 def _newest(records: list[dict], key) -> dict:

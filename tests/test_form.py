@@ -17,7 +17,7 @@ from test_readme_commands import run_commands
 import tasks
 from mjx_form import cpu
 from mjx_form import mesh as mesh_lib
-from mjx_form.files import checkpoint, demos, effect_models, experts
+from mjx_form.files import checkpoint, demos, effect_models, experts, results
 from mjx_form.imitation import effect_model as em
 from mjx_form.imitation import settings
 from mjx_form.imitation.form import Demonstrator, FormReward
@@ -391,7 +391,7 @@ def test_form_command_line_runs_every_stage(tmp_path, capsys):
   shipped = effect_models.load_effect_model(tasks.bundled_demonstrator("reacher_easy"))
   assert (first / "demonstrator.npz").read_bytes() == open(
       tasks.bundled_demonstrator("reacher_easy"), "rb").read()
-  records = [json.loads(line) for line in open(curve)]
+  records = results.read_records(str(curve))
   assert [r["kind"] for r in records] == ["learning_curve", "final_return", "final_return"]
   assert all(r["method"] == "form" for r in records)
   assert all(np.isfinite(records[0][k]) for k in ("form_reward", "demonstrator_log_prob",
@@ -432,7 +432,7 @@ def test_form_command_line_runs_every_stage(tmp_path, capsys):
   assert meta["demonstrations"]["episodes"] == k and meta["demonstrations"]["file"] == "demos.npz"
   assert meta["demonstrations"]["expert"]["policy_file"] == "reacher_easy.npz"
   assert demos.load_demonstrations(saved, task="reacher_easy").actions.shape == (k, 1000, 2)
-  records = [json.loads(line) for line in open(curve)][3:]
+  records = results.read_records(str(curve))[3:]
   kinds = [r["kind"] for r in records]
   assert kinds == ["effect_model", "learning_curve", "final_return", "final_return"]
   assert len(records[0]["heldout_log_likelihood"]) == 5 and records[0]["steps"] == 20

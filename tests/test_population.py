@@ -17,7 +17,7 @@ from test_train import CONFIG, _cli_args, run_iterations
 
 from mjx_form import cpu
 from mjx_form import mesh as mesh_lib
-from mjx_form.files import checkpoint, policy_io
+from mjx_form.files import checkpoint, policy_io, results
 from mjx_form.rl import train as train_lib
 from mjx_form.rl.train import Trainer
 
@@ -206,7 +206,7 @@ def test_population_from_the_command_line_writes_each_member(tmp_path, capsys):
       {"action_noise_correlation": 0.9, "action_penalty": True, "learning_rate": 1e-3,
        "target_update_period": 2, "wrap_angles": True}] * 2
   assert checkpoint.latest_step(str(run_dir / "checkpoints")) == 2  # one for all members
-  records = [json.loads(line) for line in open(curve)]
+  records = results.read_records(str(curve))
   for seed, name in zip(SEEDS, names):
     member = run_dir / name
     with open(member / "progress.csv") as f:
@@ -263,7 +263,7 @@ def test_evaluate_run_scores_a_stopped_population_afterwards(tmp_path, capsys):
                             "--max_seconds", "0.001", "--final_eval_envs", "0",
                             "--results", str(curve))) == 0  # stops after iteration 1
   capsys.readouterr()
-  trained = [json.loads(line) for line in open(curve)]
+  trained = results.read_records(str(curve))
   assert [r["kind"] for r in trained] == ["learning_curve"] * 2
   # A curve file without seed 1's records is refused before anything is written.
   partial = tmp_path / "partial.jsonl"
@@ -282,7 +282,7 @@ def test_evaluate_run_scores_a_stopped_population_afterwards(tmp_path, capsys):
 
   assert evaluate_run.main(["--run_dir", str(run_dir), "--curve", str(curve),
                             "--episodes", "2", "--chunk", "2"]) == 0
-  finals = [json.loads(line) for line in open(curve)][2:]
+  finals = results.read_records(str(curve))[2:]
   assert [(r["kind"], r["seed"], r["policy"]) for r in finals] == [
       ("final_return", s, p) for s in SEEDS for p in ("final", "best")]
   for r in finals:

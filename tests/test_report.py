@@ -11,6 +11,8 @@ sys.path.insert(0, os.path.join(ROOT, "scripts"))
 
 import report  # noqa: E402
 
+from mjx_form.files import results  # noqa: E402
+
 
 def test_readme_tables_are_generated_from_results():
   result = subprocess.run([sys.executable, os.path.join(ROOT, "scripts", "report.py"), "--check"],
@@ -138,8 +140,7 @@ def test_default_form_variant_is_what_a_default_run_records():
   assert report._form_variant(record) == report._default_form_variant("cheetah_run")
   # a task whose entry sets the actor: hopper_stand's T-100 members of its first FORM run
   name = "2026-11-26_learning_curve_h100_hopper_stand_form_acme_noise09_wrap_t25_t100_seeds01"
-  with open(os.path.join(report.RESULTS, name + ".jsonl")) as f:
-    runs = [json.loads(line) for line in f]
+  runs = results.read_records(os.path.join(report.RESULTS, name + ".jsonl"))
   variants = {report._form_variant(r) for r in runs if r["kind"] == "learning_curve"}
   assert report._default_form_variant("hopper_stand") in variants and len(variants) == 2
   assert "acme policy head, actor noise correlated 0.9, angles wrapped" in (

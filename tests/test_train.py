@@ -17,7 +17,7 @@ from conftest import load_script
 import tasks
 from mjx_form import cpu
 from mjx_form import mesh as mesh_lib
-from mjx_form.files import checkpoint, experts, policy_io
+from mjx_form.files import checkpoint, experts, policy_io, results
 from mjx_form.rl import normalizer, recipes, runner
 from mjx_form.rl.learner import LearnerConfig
 from mjx_form.rl.train import TrainConfig, Trainer
@@ -283,7 +283,7 @@ def test_command_line_trains_resumes_and_refuses_mismatches(tmp_path, capsys, mo
   assert [int(r["iteration"]) for r in rows] == [1, 2]
   assert all(r["eval_return"] != "" for r in rows)  # both evaluated (the stop, then the end)
   assert float(rows[1]["wall_s"]) > float(rows[0]["wall_s"]) > 0
-  records = [json.loads(line) for line in open(curve)]
+  records = results.read_records(str(curve))
   # The run evaluated its final and its best policy afresh (--final_eval_envs 2) where its
   # time budget stopped it, marked unfinished, and again at its end.
   finals = [r for r in records if r["kind"] == "final_return"]
@@ -393,7 +393,7 @@ def test_a_run_starts_from_a_trained_policy(trainers, tmp_path, capsys):
   assert (f"every member starts from reacher_easy's policy {given.metadata['sha256'][:12]}"
           in capsys.readouterr().out)
   assert json.load(open(run_dir / "config.json"))["init_policy"] == name
-  records = [json.loads(line) for line in open(curve)]
+  records = results.read_records(str(curve))
   assert records and all(r["settings"]["init_policy"] == name for r in records)
   params, meta = policy_io.load_policy(run_dir / "policy.npz", task="reacher_easy")
   assert meta["train_config"]["init_policy"] == name

@@ -471,7 +471,8 @@ def _write_curve_point(writer: results.ResultWriter, trainer: Trainer, member: i
   """
   settings = {**_record_settings(trainer, member, total_env_steps),
               "eval_episodes": eval_episodes}
-  writer.write(kind="learning_curve", **_record_base(trainer, member), settings=settings,
+  writer.write(compact=True, kind="learning_curve", **_record_base(trainer, member),
+               settings=settings,
                **startup,
                **{k: row[k] for k in _CURVE_FIELDS if k in row and np.isfinite(row[k])})
 
