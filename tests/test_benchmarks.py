@@ -510,3 +510,30 @@ def test_reacher_settling_moves_only_the_target_and_splits_failures_by_its_place
   np.testing.assert_allclose(edges, [1, 2, 3, 4, 5])
   assert by_radius == [0.5, 0.0, 0.0, 1.0]  # {1, 2}, {3}, {4}, {5}
   assert by_angle == [None, None, 0.4, None]
+
+
+def test_locomotion_speed_factors_are_the_tasks_reward(tmp_path, capsys):
+  """benchmarks/locomotion_speed.py: its posture and speed factors multiply to the reward the
+  environment gives at every step (the script refuses to report otherwise), its summary is
+  numpy's over the second half, and a policy of another task is refused, nothing written."""
+  bench = load_script("locomotion_speed", folder="benchmarks")
+  import tasks
+  out = tmp_path / "speed.jsonl"
+  assert bench.main(["--tasks", "walker_run", "--policy", tasks.bundled_expert("cheetah_run"),
+                     "--out", str(out)]) == 2
+  assert "cheetah_run" in capsys.readouterr().err and not out.exists()
+  assert bench.main(["--tasks", "walker_walk", "--policy", tasks.bundled_expert("walker_walk"),
+                     "--episodes", "2", "--out", str(out)]) == 0
+  record = json.loads(out.read_text())
+  assert record["kind"] == "locomotion_speed" and record["max_factor_error"] <= 1e-4
+  assert record["target_speed"] == 1.0 and record["speed_mean"] > 1.0  # the expert walks
+  assert record["mean_return"] > 900 and record["posture_factor_mean"] > 0.9
+  # the summary against numpy on made-up steps [T=4, K=2]
+  env = tasks.make("walker_run")
+  speed = np.array([[0.0, 1.0], [2.0, 3.0], [7.0, 8.0], [9.0, 4.0]])
+  posture, move = np.full((4, 2), 0.5), np.full((4, 2), 0.25)
+  reward = posture * (5 * move + 1) / 6
+  row = bench.summary(env, reward, speed, posture, move, reward)
+  assert row["speed_mean"] == pytest.approx(7.0) and row["share_at_target_speed"] == 0.5
+  assert row["mean_return"] == pytest.approx(reward.sum(0).mean())
+  assert row["speed_p10_p50_p90"][1] == pytest.approx(7.5) and row["max_factor_error"] == 0.0
