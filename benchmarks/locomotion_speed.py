@@ -10,7 +10,7 @@ velocimeter), the share of steps at the task's speed, and both factors' means, e
 second half of the episodes (the gait, not the start). It also checks that the factors'
 product is the environment's reward, step by step. Appends `kind: locomotion_speed` records.
 
-  python benchmarks/locomotion_speed.py --tasks walker_run --policy runs/wr/seed0/policy.npz
+  python benchmarks/locomotion_speed.py --task walker_run --policy runs/wr/seed0/policy.npz
 """
 
 from __future__ import annotations
@@ -94,7 +94,7 @@ def summary(env, reward, speed, posture, move, product) -> dict:
 def main(argv=None) -> int:
   parser = argparse.ArgumentParser(description=__doc__,
                                    formatter_class=argparse.RawDescriptionHelpFormatter)
-  parser.add_argument("--tasks", required=True, choices=TASKS)
+  parser.add_argument("--task", required=True, choices=TASKS)
   parser.add_argument("--policy", action="append", required=True,
                       help="a policy file of the task (repeatable)")
   parser.add_argument("--episodes", type=int, default=32)
@@ -106,7 +106,7 @@ def main(argv=None) -> int:
   loaded = []
   for path in args.policy:  # every file checked before anything runs or is written
     try:
-      loaded.append((path, *common.load_expert(args.tasks, path)))
+      loaded.append((path, *common.load_expert(args.task, path)))
     except (OSError, ValueError, KeyError) as e:
       print(f"error: {e}", file=sys.stderr)
       return 2
@@ -120,13 +120,13 @@ def main(argv=None) -> int:
             f"{row['max_factor_error']:.2g}; the task's reward is not what this script assumes",
             file=sys.stderr)
       return 1
-    print(f"{args.tasks} {path}: return {row['mean_return']:.1f} +- {row['return_std']:.1f}; "
+    print(f"{args.task} {path}: return {row['mean_return']:.1f} +- {row['return_std']:.1f}; "
           f"second half: speed {row['speed_mean']:.2f} m/s (p10/50/90 "
           + "/".join(f"{v:.2f}" for v in row["speed_p10_p50_p90"])
           + f"; target {row['target_speed']:g}, reached in {100 * row['share_at_target_speed']:.1f}%"
           f" of steps), posture factor {row['posture_factor_mean']:.3f}, speed factor "
           f"{row['speed_factor_mean']:.3f}, reward per step {row['reward_mean_second_half']:.3f}")
-    writer.write(kind="locomotion_speed", task=args.tasks, physics=env.physics,
+    writer.write(kind="locomotion_speed", task=args.task, physics=env.physics,
                  policy_file=path, policy_sha256=agent.metadata.get("sha256"),
                  policy_env_steps=agent.metadata.get("env_steps"), episodes=args.episodes,
                  seed=args.seed, **row)

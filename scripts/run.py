@@ -169,7 +169,8 @@ def parse_args(argv=None) -> argparse.Namespace:
                      help="MPO's penalty on sampled actions outside [-1, 1] (multi-objective "
                           "MPO, epsilon 1e-3; on by default in Acme, not stated in the paper): "
                           "keeps the policy's mean from drifting out of the action bounds "
-                          "(default: off, but see --preset for expert)")
+                          "(default: on in an expert recipe that says so, reacher_hard's, "
+                          "else off)")
   train.add_argument("--clip_critic_actions", action=argparse.BooleanOptionalAction,
                      default=None,
                      help="the critic sees clip(a, -1, 1), the action the environment applies "

@@ -190,7 +190,7 @@ def test_population_from_the_command_line_writes_each_member(tmp_path, capsys):
   # are data, so other values of the same settings compile nothing new; CI time).
   grid = GRID
   args = _cli_args(run_dir, "--seeds", "0,1", *grid, "--env_steps", "80",
-                   "--results", str(curve))
+                   "--results", str(curve), "--eval_every", "1")  # a curve row per iteration
   assert cli.train_config(cli.parse_args(args)) == CONFIG
   assert cli.main(args) == 0
   out = capsys.readouterr().out
@@ -219,11 +219,18 @@ def test_population_from_the_command_line_writes_each_member(tmp_path, capsys):
     assert meta["train_config"]["wrap_angles"] is True
     assert policy_io.load_policy(member / "best_policy.npz")[1]["train_config"]["seed"] == seed
     mine = [r for r in records if r["seed"] == seed]
-    assert [r["kind"] for r in mine] == ["learning_curve", "final_return", "final_return"]
+    assert [r["kind"] for r in mine] == ["learning_curve"] * 2 + ["final_return"] * 2
+    assert [r["iteration"] for r in mine[:2]] == [1, 2]
     assert all(r["population"] == 2 and r["settings"]["seed"] == seed
                and r["settings"]["learner"]["learning_rate"] == 1e-3
                and r["settings"]["action_noise_correlation"] == 0.9
                and r["learner_preset"] == "custom" for r in mine)
+  # Each member's second curve row names its first row's settings instead of repeating them
+  # (mjx_form/files/results.py; read_records above gave them back whole).
+  raw = [json.loads(line) for line in open(curve)]
+  assert [("settings" in r, r.get(results.REFERENCE)) for r in raw[:4]] == [
+      (True, None), (True, None), (False, results.shared_digest(records[0])),
+      (False, results.shared_digest(records[1]))]
   # The members' policies are their own.
   policies = [policy_io.load_policy(run_dir / n / "policy.npz")[1]["sha256"] for n in names]
   assert len(set(policies)) == 2

@@ -40,9 +40,15 @@ def _lines(path):
   return [json.loads(line) for line in open(path)]
 
 
-def test_compact_rows_name_an_earlier_row_and_read_back_whole(tmp_path):
+def _refs(path):
+  """Each line's reference to its shared fields (None: written whole)."""
+  return [r.get(results.REFERENCE) for r in _lines(path)]
+
+
+def test_compact_rows_name_an_earlier_rows_fields_and_read_back_whole(tmp_path):
   """A learning curve's rows after the first of each member leave out the settings, versions
-  and flags they share with it; read_records gives every record whole, as written."""
+  and flags they share with it and name them by digest; read_records gives every record whole,
+  as written."""
   path = str(tmp_path / "curve.jsonl")
   writer = results.ResultWriter(path)
   written = []
@@ -53,21 +59,22 @@ def test_compact_rows_name_an_earlier_row_and_read_back_whole(tmp_path):
   written.append(writer.write(kind="final_return", seed=0, settings={"seed": 0, "lr": 1e-4}))
   raw = _lines(path)
   assert ["settings" in r for r in raw] == [True, True, False, False, False, False, True]
-  assert [r.get("same_as_line") for r in raw] == [None, None, 1, 2, 1, 2, None]
+  first, second = results.shared_digest(written[0]), results.shared_digest(written[1])
+  assert first != second and _refs(path) == [None, None, first, second, first, second, None]
   assert all("versions" not in r and "device" in r for r in raw[2:6])
   assert results.read_records(path) == written
   # A member whose settings change (e.g. resumed with other ones) writes them again.
-  written.append(writer.write(compact=True, kind="learning_curve", seed=0, env_steps=3,
-                              settings={"seed": 0, "lr": 3e-4}))
-  written.append(writer.write(compact=True, kind="learning_curve", seed=0, env_steps=4,
-                              settings={"seed": 0, "lr": 3e-4}))
-  assert [r.get("same_as_line") for r in _lines(path)[-2:]] == [None, 8]
+  for step in (3, 4):
+    written.append(writer.write(compact=True, kind="learning_curve", seed=0, env_steps=step,
+                                settings={"seed": 0, "lr": 3e-4}))
+  assert _refs(path)[-2:] == [None, results.shared_digest(written[-1])]
   assert results.read_records(path) == written
 
 
-def test_compact_rows_survive_other_writers_and_resumes(tmp_path):
-  """Line numbers are the file's: another writer appending in between, or a new writer on the
-  same file (a resumed run), keeps every reference right; a replaced file starts afresh."""
+def test_compact_rows_survive_other_writers_deleted_rows_and_resumes(tmp_path):
+  """Another writer appending in between, a new writer on the same file (a resumed run) and
+  rows deleted from the file leave every compact row its own fields; a row whose fields are
+  gone is refused; a replaced file starts afresh."""
   path = str(tmp_path / "curve.jsonl")
   first, other = results.ResultWriter(path), results.ResultWriter(path)
   expected = [first.write(compact=True, kind="learning_curve", settings={"a": 1}),
@@ -76,8 +83,17 @@ def test_compact_rows_survive_other_writers_and_resumes(tmp_path):
   resumed = results.ResultWriter(path)
   expected += [resumed.write(compact=True, kind="learning_curve", settings={"a": 1}),
                resumed.write(compact=True, kind="learning_curve", settings={"a": 1})]
-  assert [r.get("same_as_line") for r in _lines(path)] == [None, None, 1, None, 4]
+  a = results.shared_digest(expected[0])
+  assert _refs(path) == [None, None, a, None, a]
   assert results.read_records(path) == expected
+  lines = open(path).readlines()
+  with open(path, "w") as f:  # the other writer's row deleted
+    f.writelines(lines[:1] + lines[2:])
+  assert results.read_records(path) == expected[:1] + expected[2:]
+  with open(path, "w") as f:  # the first whole row deleted: its compact row refers to nothing
+    f.writelines(lines[1:])
+  with pytest.raises(results.ResultFileError, match=f"line 2 takes its settings .*{a}"):
+    results.read_records(path)
   os.remove(path)
   again = first.write(compact=True, kind="learning_curve", settings={"a": 1})
   assert "settings" in _lines(path)[0] and results.read_records(path) == [again]
@@ -89,7 +105,9 @@ def test_compact_records_inverts_read_records(tmp_path):
               "versions": {"jax": "x"}} for i in range(3) for s in (0, 1)]
   records.append({"kind": "other", "value": 1})  # no shared fields: kept as it is
   compact = results.compact_records(records)
-  assert [r.get("same_as_line") for r in compact] == [None, None, 1, 2, 1, 2, None]
+  assert ["settings" in r for r in compact] == [True, True] + [False] * 4 + [False]
+  assert [r.get(results.REFERENCE) for r in compact][2:4] == [
+      results.shared_digest(records[0]), results.shared_digest(records[1])]
   path = tmp_path / "c.jsonl"
   path.write_text("".join(json.dumps(r) + "\n" for r in compact))
   assert results.read_records(str(path)) == records
@@ -97,13 +115,15 @@ def test_compact_records_inverts_read_records(tmp_path):
 
 def test_broken_files_are_refused_naming_the_line(tmp_path):
   path = tmp_path / "bad.jsonl"
+  ref = results.REFERENCE
   for text, message in [('{"kind": "a", "settings": {}}\n{"kind": "b"', "line 2 is not JSON"),
                         ("[1]\n", "line 1 is not a result record"),
-                        ('{"kind": "a", "same_as_line": 1}\n', "line 1 takes its settings"),
-                        ('{"kind": "a"}\n{"kind": "b", "same_as_line": 1}\n',
-                         "line 2 takes its settings from line 1"),
-                        ('{"kind": "a", "settings": {}}\n\n{"kind": "b", "same_as_line": 2}\n',
-                         "line 3 takes its settings from line 2")]:
+                        ('{"kind": "a", "%s": "0123"}\n' % ref, "line 1 takes its settings"),
+                        ('{"kind": "a"}\n{"kind": "b", "%s": "0123"}\n' % ref,
+                         "line 2 takes its settings from an earlier row with"),
+                        ('{"kind": "b", "%s": "%s"}\n{"kind": "a", "settings": {}}\n'
+                         % (ref, results.shared_digest({"settings": {}})),
+                         "line 1 takes its settings")]:  # the whole row comes after it
     path.write_text(text)
     with pytest.raises(results.ResultFileError, match=message):
       results.read_records(str(path))

@@ -7,53 +7,63 @@ the measured fields).
 
 Compact rows: a run's learning curve repeats its settings, package versions and compiler flags
 (SHARED_FIELDS) in every row, about half of its bytes. A row written with `compact=True` whose
-shared fields equal an earlier row's of the same file leaves them out and names that row
-instead, `"same_as_line": n` (1-based line number in the file); `read_records` puts them back,
-so readers see every record whole.
+shared fields an earlier row of the file has in full leaves them out and names them by their
+digest instead, `"shared_sha256": "<16 hex digits>"` (`shared_digest`); `read_records` puts them
+back from that earlier row, so readers see every record whole. A digest, not a line number:
+rows deleted, files joined or appended by other writers cannot make it point at another row.
 """
 
 from __future__ import annotations
 
 import contextlib
 import datetime
+import hashlib
 import json
 import os
 import sys
 
 SHARED_FIELDS = ("settings", "versions", "xla_flags", "physics_matmul_precision")
+REFERENCE = "shared_sha256"  # a compact row's name for its shared fields
 
 
 class ResultFileError(ValueError):
   """A result file that cannot be read: a line that is not a JSON object, or a compact row
-  naming a line that is not an earlier record of the file."""
+  whose shared fields no earlier row of the file has."""
 
 
 def _shared(record: dict) -> dict:
   return {k: record[k] for k in SHARED_FIELDS if k in record}
 
 
-def _shared_key(record: dict) -> str:
-  return json.dumps(_shared(record), sort_keys=True)
+def shared_digest(record: dict) -> str:
+  """The first 16 hex digits of the sha256 of `record`'s shared fields (sorted JSON)."""
+  text = json.dumps(_shared(record), sort_keys=True)
+  return hashlib.sha256(text.encode("utf-8")).hexdigest()[:16]
+
+
+def _compact(record: dict, digest: str) -> dict:
+  return {**{k: v for k, v in record.items() if k not in SHARED_FIELDS}, REFERENCE: digest}
 
 
 def compact_records(records: list[dict]) -> list[dict]:
-  """`records` as lines of one file in the compact form: each record whose shared fields equal
-  an earlier (whole) record's gets `same_as_line` instead of them. `read_records` inverts it."""
-  first, out = {}, []
-  for line, record in enumerate(records, 1):
-    key = _shared_key(record)
-    if _shared(record) and key in first:
-      out.append({**{k: v for k, v in record.items() if k not in SHARED_FIELDS},
-                  "same_as_line": first[key]})
-    else:
-      first.setdefault(key, line)
-      out.append(record)
+  """`records` as lines of one file in the compact form: each record whose shared fields an
+  earlier record has in full names them by digest instead. `read_records` inverts it."""
+  whole, out = set(), []
+  for record in records:
+    digest = shared_digest(record)
+    if _shared(record) and digest in whole:
+      out.append(_compact(record, digest))
+      continue
+    if _shared(record):
+      whole.add(digest)
+    out.append(record)
   return out
 
 
 def read_records(path: str) -> list[dict]:
   """The records of a `.jsonl` result file, compact rows made whole (blank lines skipped)."""
-  by_line: dict[int, dict] = {}
+  shared_by_digest: dict[str, dict] = {}
+  out = []
   with open(path) as f:
     for n, text in enumerate(f, 1):
       if not text.strip():
@@ -64,15 +74,16 @@ def read_records(path: str) -> list[dict]:
         raise ResultFileError(f"{path}: line {n} is not JSON ({e.msg})") from None
       if not isinstance(record, dict):
         raise ResultFileError(f"{path}: line {n} is not a result record")
-      if "same_as_line" in record:
-        ref = record.pop("same_as_line")
-        whole = by_line.get(ref) if isinstance(ref, int) and ref < n else None
-        if whole is None or not _shared(whole):
-          raise ResultFileError(f"{path}: line {n} takes its settings from line {ref!r}, which "
-                                "is not an earlier record with settings")
-        record.update(_shared(whole))
-      by_line[n] = record
-  return list(by_line.values())
+      if REFERENCE in record:
+        digest = record.pop(REFERENCE)
+        if digest not in shared_by_digest:
+          raise ResultFileError(f"{path}: line {n} takes its settings from an earlier row with "
+                                f"{REFERENCE} {digest!r}, and the file has none")
+        record.update(shared_by_digest[digest])
+      elif _shared(record):
+        shared_by_digest.setdefault(shared_digest(record), _shared(record))
+      out.append(record)
+  return out
 
 
 def versions() -> dict:
@@ -129,36 +140,25 @@ class ResultWriter:
                     "physics_matmul_precision": PHYSICS_MATMUL_PRECISION}
     if os.environ.get("XLA_FLAGS"):  # compiler settings that change speed, e.g. command buffers
       self._common["xla_flags"] = os.environ["XLA_FLAGS"]
-    self._first: dict[str, int] = {}  # shared fields (as JSON) -> line of this writer's row
-    self._lines = 0  # the file's lines after this writer's last row
+    self._whole: set[str] = set()  # digests of the shared fields this writer wrote in full
+    self._size = 0  # the file's size after this writer's last row
 
   def write(self, compact: bool = False, **record) -> dict:
     """Appends `record` (with the device, versions and time); with `compact`, as a compact row
-    where an earlier row of the file has the same shared fields (module docstring). Returns
-    the whole record."""
+    where this writer has written its shared fields in full to the file before (module
+    docstring). Returns the whole record."""
     record = {**record, **self._common,
               "time": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")}
-    line = self._count_lines() + 1
-    key = _shared_key(record)
+    size = os.path.getsize(self.path) if os.path.exists(self.path) else 0
+    if size < self._size:  # the file was replaced or truncated: its rows are not ours
+      self._whole = set()
+    digest = shared_digest(record)
     written = record
-    if compact and _shared(record) and key in self._first:
-      written = {**{k: v for k, v in record.items() if k not in SHARED_FIELDS},
-                 "same_as_line": self._first[key]}
+    if compact and digest in self._whole:
+      written = _compact(record, digest)
     else:
-      self._first.setdefault(key, line)
+      self._whole.add(digest)
     with open(self.path, "a") as f:
       f.write(json.dumps(written) + "\n")
-    self._lines = line
+    self._size = os.path.getsize(self.path)
     return record
-
-  def _count_lines(self) -> int:
-    """Lines in the file now (others may have appended since this writer's last row); a file
-    shorter than this writer left it was replaced, and its rows are forgotten."""
-    try:
-      with open(self.path, "rb") as f:
-        lines = sum(1 for _ in f)
-    except FileNotFoundError:
-      lines = 0
-    if lines < self._lines:
-      self._first = {}
-    return lines
