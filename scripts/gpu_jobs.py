@@ -9,8 +9,13 @@ like, the records already polled are safe. The last poll (`--final`, or once eve
 ended) also packs the run directories into parts of at most 15 MB, without checkpoints unless
 `--checkpoints` asks for each run's newest (lean ones, to resume in the next sitting).
 
+  python scripts/gpu_jobs.py check jobs.txt        # on the CPU, before the sitting
   python scripts/gpu_jobs.py start jobs.txt --dir /tmp/sitting --deadline 1200
   python scripts/gpu_jobs.py poll --dir /tmp/sitting --wait 540 --out $OUT [--final]
+
+`check` parses each `scripts/run.py` job as run.py would (with $LEFT, $RES and $RUNS filled
+in) and prints the settings it would train with, so that a mistyped flag or a setting other than
+the one meant shows on the CPU, not after minutes of a GPU sitting.
 
 --dir must lie outside the repository (the device refreshes its copy of the tree at each call).
 The jobs file has one job per line, `NAME: COMMAND` (blank lines and `#` comments skipped);
@@ -29,10 +34,12 @@ Its output goes to `logs/NAME.log` under --dir; `status.json` says which jobs ru
 from __future__ import annotations
 
 import argparse
+import contextlib
 import io
 import json
 import os
 import re
+import shlex
 import subprocess
 import sys
 import tarfile
@@ -72,6 +79,56 @@ def parse_jobs(text: str, num_gpus: int) -> list[dict]:
   if not jobs:
     raise JobsError("the jobs file has no job")
   return jobs
+
+
+def _run_script_args(cmd: str) -> list[str] | None:
+  """The arguments of a job that is one `python .../scripts/run.py ...` command, else None."""
+  try:
+    words = shlex.split(cmd)
+  except ValueError:
+    return None
+  if any(w in ("&&", "||", ";", "|") for w in words) or len(words) < 2:
+    return None
+  return words[2:] if words[1].replace("\\", "/").endswith("scripts/run.py") else None
+
+
+def check(jobs_file: Path, deadline_s: float = 1200.0) -> list[str]:
+  """One line per job of a jobs file: for a run.py job, the settings run.py would train with
+  (its arguments parsed by run.py, $LEFT = `deadline_s`, $RES and $RUNS placeholders); other
+  jobs as they are. JobsError naming the job where run.py refuses its arguments."""
+  jobs = parse_jobs(jobs_file.read_text(), num_gpus=1 << 10)
+  sys.path.insert(0, str(Path(__file__).resolve().parent))
+  import run  # noqa: E402  (JAX and the tasks: only for checking)
+  values = {"LEFT": f"{deadline_s:g}", "RES": "/tmp/res", "RUNS": "/tmp/runs"}
+  lines = []
+  for job in jobs:
+    cmd = re.sub(r"\$\{?(LEFT|RES|RUNS)\}?", lambda m: values[m[1]], job["cmd"])
+    argv = _run_script_args(cmd)
+    if argv is None:
+      lines.append(f"{job['name']}: not a run.py command, not checked: {job['cmd']}")
+      continue
+    errors = io.StringIO()
+    try:
+      with contextlib.redirect_stderr(errors):
+        args = run.parse_args(argv)
+      config = run.train_config(args)
+    except SystemExit:
+      said = errors.getvalue().strip().splitlines()[-1].split("error: ", 1)[-1]
+      raise JobsError(f"job {job['name']!r}: run.py refuses its arguments: {said}") from None
+    learner = config.learner
+    seeds = ",".join(map(str, args.seeds)) if args.seeds else str(config.seed)
+    grid = "".join(f"; grid {k}=" + ",".join(map(str, v)) for k, v in (args.grid or {}).items())
+    lines.append(
+        f"{job['name']}: {config.task} {args.method}, seeds {seeds}{grid}; {config.num_envs} "
+        f"envs x {config.updates_per_iteration} updates (replay ratio {config.replay_ratio:g}), "
+        f"width {config.network_width}, T {learner.target_update_period}, sampled Q "
+        f"{'bf16' if learner.sampled_q_bfloat16 else 'float32'}, critic clips actions "
+        f"{learner.clip_critic_actions}, action penalty {learner.mpo.action_penalty}, head "
+        f"{config.policy_head}, noise correlation {config.action_noise_correlation:g}, wrap "
+        f"angles {config.wrap_angles}, physics {config.physics}, init policy "
+        f"{args.init_policy or '-'}, env steps {args.env_steps:,}, max seconds "
+        f"{args.max_seconds}")
+  return lines
 
 
 def machine_gpus() -> list[str]:
@@ -302,6 +359,9 @@ def main(argv=None) -> int:
   parser = argparse.ArgumentParser(description=__doc__,
                                    formatter_class=argparse.RawDescriptionHelpFormatter)
   sub = parser.add_subparsers(dest="action", required=True)
+  p = sub.add_parser("check", help="print the settings each run.py job would train with")
+  p.add_argument("jobs", type=Path)
+  p.add_argument("--deadline", type=float, default=1200.0, help="the value of $LEFT")
   p = sub.add_parser("start", help="start the jobs of a jobs file, detached")
   p.add_argument("jobs", type=Path)
   p.add_argument("--dir", type=Path, required=True, help="the sitting's folder (new)")
@@ -321,7 +381,9 @@ def main(argv=None) -> int:
   p.add_argument("--dir", type=Path, required=True)
   args = parser.parse_args(argv)
   try:
-    if args.action == "start":
+    if args.action == "check":
+      print("\n".join(check(args.jobs, args.deadline)))
+    elif args.action == "start":
       start(args.jobs, args.dir, args.deadline, args.gpus)
     elif args.action == "poll":
       poll(args.dir, args.wait, args.out, args.final, args.lines, args.checkpoints)

@@ -146,3 +146,28 @@ def test_pack_keeps_only_each_runs_newest_checkpoint_and_only_if_it_fits(tmp_pat
   monkeypatch.setattr(gpu_jobs, "PACK_LIMIT", 2000)
   assert packed(checkpoints=True) == {"runs/wr/policy.npz"}
   assert "left out runs/wr/checkpoints/step_10" in capsys.readouterr().out
+
+
+def test_check_parses_run_jobs_as_run_does_and_names_a_bad_one(tmp_path, capsys):
+  """`check` prints the settings a run.py job would train with (the task's recipe, the flags,
+  $LEFT filled in), lists other commands unchecked, and names a job whose flags run.py
+  refuses."""
+  jobs = tmp_path / "jobs.txt"
+  jobs.write_text(
+      "# a comment\n"
+      "rx: python scripts/run.py --task reacher_hard --method expert --seeds 0,1 "
+      "--grid target_update_period=25,100 --num_envs 512 --updates_per_iteration 256 "
+      "--max_seconds $LEFT --results $RES/rx.jsonl --run_dir $RUNS/rx\n"
+      "ls: ls -la $RES\n")
+  assert gpu_jobs.main(["check", str(jobs), "--deadline", "900"]) == 0
+  out = [line for line in capsys.readouterr().out.splitlines()  # (not MuJoCo's import notes)
+         if line.startswith(("rx:", "ls:"))]
+  assert len(out) == 2 and out[0].startswith("rx: reacher_hard expert, seeds 0,1; grid target_update_period=25,100")
+  for part in ("512 envs x 256 updates (replay ratio 32)", "T 25", "action penalty True",
+               "max seconds 900.0"):  # reacher_hard's recipe, the flags, $LEFT
+    assert part in out[0], part
+  assert out[1] == "ls: not a run.py command, not checked: ls -la $RES"
+  jobs.write_text("bad: python scripts/run.py --task reacher_hard --updates_per_iteraton 64\n")
+  assert gpu_jobs.main(["check", str(jobs)]) == 2
+  err = capsys.readouterr().err
+  assert "job 'bad'" in err and "unrecognized arguments: --updates_per_iteraton 64" in err
