@@ -51,9 +51,9 @@ def _read_json_lines(path: str) -> list[dict]:
     out = results.read_records(path)
   except results.ResultFileError as e:
     raise RunFilesError(str(e)) from None
-  for record in out:
+  for number, record in enumerate(out, 1):
     if not isinstance(record.get("settings", {}), dict):
-      raise RunFilesError(f"{path}: a record's settings are not an object")
+      raise RunFilesError(f"{path}: record {number}'s settings are not an object")
   return out
 
 
