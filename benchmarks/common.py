@@ -49,6 +49,32 @@ def load_expert(task: str, path: str):
   return expert, env if physics == env.physics else tasks.make(task, physics=physics)
 
 
+def mean_action_rollout(env, agent, key, episodes: int, probe):
+  """One episode in each of `episodes` environments of `agent`'s (a loaded policy file's) mean
+  action, clipped to [-1, 1]: `probe(next_state)` of every step, stacked [T, K, ...], on the
+  host."""
+  import jax
+  import jax.numpy as jnp
+  from mjx_form.files import experts
+  from mjx_form.rl import normalizer
+  from mjx_form.sim import env as env_lib
+
+  policy = experts.policy_network(agent.metadata, env.action_size)
+
+  @jax.jit
+  def run(key):
+    states = jax.vmap(env.reset)(jax.random.split(key, episodes))
+
+    def step(states, _):
+      pi = policy.apply(agent.params, normalizer.normalize(agent.normalizer, states.obs))
+      nxt = jax.vmap(env.step)(states, jnp.clip(pi.mode(), -1.0, 1.0))
+      return nxt, probe(nxt)
+
+    return jax.lax.scan(step, states, None, length=env_lib.EPISODE_LENGTH)[1]
+
+  return jax.device_get(run(key))
+
+
 def default_results_path(what: str) -> str:
   day = datetime.date.today().isoformat()
   return os.path.join(RESULTS_DIR, f"{day}_{what}.jsonl")

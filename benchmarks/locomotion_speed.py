@@ -27,12 +27,8 @@ from mjx_form.cpu import configure_cpu_xla  # noqa: E402  (before JAX starts)
 configure_cpu_xla()
 
 import jax  # noqa: E402
-import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
-from mjx_form.files import experts  # noqa: E402
-from mjx_form.rl import normalizer  # noqa: E402
-from mjx_form.sim import env as env_lib  # noqa: E402
 from mjx_form.sim.rewards import tolerance  # noqa: E402
 
 TASKS = ("walker_walk", "walker_run", "quadruped_walk", "quadruped_run")
@@ -60,20 +56,8 @@ def factors(env, data):
 
 def rollout(env, agent, key, episodes):
   """Per step [T, K]: the environment's reward, and `factors` of the state it led to."""
-  policy = experts.policy_network(agent.metadata, env.action_size)
-
-  @jax.jit
-  def run(key):
-    states = jax.vmap(env.reset)(jax.random.split(key, episodes))
-
-    def step(states, _):
-      pi = policy.apply(agent.params, normalizer.normalize(agent.normalizer, states.obs))
-      nxt = jax.vmap(env.step)(states, jnp.clip(pi.mode(), -1.0, 1.0))
-      return nxt, (nxt.reward, *jax.vmap(lambda d: factors(env, d))(nxt.data))
-
-    return jax.lax.scan(step, states, None, length=env_lib.EPISODE_LENGTH)[1]
-
-  return [np.asarray(x) for x in jax.device_get(run(key))]
+  probe = lambda nxt: (nxt.reward, *jax.vmap(lambda d: factors(env, d))(nxt.data))
+  return [np.asarray(x) for x in common.mean_action_rollout(env, agent, key, episodes, probe)]
 
 
 def summary(env, reward, speed, posture, move, product) -> dict:

@@ -40,7 +40,6 @@ from form_reward_landscape import rollout  # noqa: E402
 from mjx_form.files import effect_models, experts, results  # noqa: E402
 from mjx_form.imitation import effect_model as em  # noqa: E402
 from mjx_form.imitation import pipeline  # noqa: E402
-from mjx_form.rl import normalizer  # noqa: E402
 from mjx_form.sim import env as env_lib  # noqa: E402
 
 SPEED_BINS = (0.0, 0.5, 2.0, np.inf)  # joint speed |qvel| (rad/s): still, slow, moving
@@ -186,25 +185,15 @@ def failure_shares(failed, radius, angle):
 def targets_and_returns(env, agent, episodes: int, seed: int = 7):
   """The target positions [K, 2], returns [K], and median fingertip distance (m) and joint
   speed (rad/s) over the second half [K] of `episodes` episodes of `agent`'s mean action."""
-  policy = experts.policy_network(agent.metadata, env.action_size)
-
-  @jax.jit
-  def run(key):
-    states = jax.vmap(env.reset)(jax.random.split(key, episodes))
-
-    def step(states, _):
-      pi = policy.apply(agent.params, normalizer.normalize(agent.normalizer, states.obs))
-      nxt = jax.vmap(env.step)(states, jnp.clip(pi.mode(), -1.0, 1.0))
-      return nxt, (nxt.reward, jnp.linalg.norm(nxt.obs_parts["to_target"], axis=-1),
-                   jnp.linalg.norm(nxt.obs_parts["velocity"], axis=-1))
-
-    final, (rewards, distance, speed) = jax.lax.scan(step, states, None,
-                                                     length=env_lib.EPISODE_LENGTH)
-    half = env_lib.EPISODE_LENGTH // 2  # the second half of each episode: where it ended up
-    return (states.task["target"], rewards.sum(0), jnp.median(distance[half:], axis=0),
-            jnp.median(speed[half:], axis=0))
-
-  return tuple(np.asarray(x) for x in jax.device_get(run(jax.random.PRNGKey(seed))))
+  probe = lambda nxt: (nxt.task["target"], nxt.reward,
+                       jnp.linalg.norm(nxt.obs_parts["to_target"], axis=-1),
+                       jnp.linalg.norm(nxt.obs_parts["velocity"], axis=-1))
+  target, rewards, distance, speed = common.mean_action_rollout(
+      env, agent, jax.random.PRNGKey(seed), episodes, probe)
+  half = env_lib.EPISODE_LENGTH // 2  # the second half of each episode: where it ended up
+  return tuple(np.asarray(x) for x in (  # (an episode's target stays where its reset put it)
+      target[0], rewards.sum(0), jnp.median(distance[half:], axis=0),
+      jnp.median(speed[half:], axis=0)))
 
 
 if __name__ == "__main__":
