@@ -190,7 +190,7 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
   afresh on this many episodes and written as `kind: final_return` records (0: not); a run
   stopped by `max_seconds` gets them too, where it stopped (`finished: false` in them: a
   time-budgeted run's result), and again at its end if resumed.
-  `max_seconds`: stop once this process has run that long (checked after each iteration);
+  `max_seconds`: stop once this call has run that long (checked after each iteration);
   the state is checkpointed and the policy exported, so `resume=True` continues the run.
   `results_path`: where `kind: learning_curve` records (one per evaluation) are appended.
   `checkpoint_replay`: False writes lean checkpoints (see the module docstring).
