@@ -589,7 +589,9 @@ def form_runs_table(records: list[dict]) -> str:
            "`--final_eval_envs` episodes after training or where `--max_seconds` stopped it, "
            "`-` where a run has none (`scripts/evaluate_run.py` adds them); learner updates: "
            "MPO/Retrace updates per member at the last evaluation, the paper's Figure 1 shows "
-           "an agent after 5M). Wall clock includes start-up (demonstrations, compiling):", "",
+           "an agent after 5M). Wall clock: from the start of training, compiling included "
+           "(recording demonstrations and training a demonstrator come before it; records "
+           "since 2026-11-27 keep those seconds as `pre_training_s`):", "",
            "| task | device | reward, T, effect models | envs | updates / iteration | seed | "
            "env steps | learner updates | wall clock | last eval | best eval | fresh eval | "
            "log pD at the end | result file |",

@@ -195,10 +195,11 @@ def parse_args(argv=None) -> argparse.Namespace:
   train.add_argument("--eval_every", type=int, default=10, help="iterations between evaluations")
   train.add_argument("--checkpoint_every", type=int, default=50, help="iterations")
   train.add_argument("--max_seconds", type=float, default=None,
-                     help="stop (checkpointed, policy exported) this many seconds after the "
-                          "command started, demonstrations and demonstrator training "
-                          "included (a demonstrator trained here gets at most half of them); "
-                          "--resume continues")
+                     help="stop training (checkpointed, policy exported) once this many "
+                          "seconds have passed since the command started, demonstrations and "
+                          "a demonstrator trained here included (it gets about half of them); "
+                          "the final evaluations (--final_eval_envs) come after; --resume "
+                          "continues")
   train.add_argument("--init_policy", metavar="FILE",
                      help="--method expert: every member starts from this trained policy (its "
                           "parameters and observation statistics; a policy.npz of this task or "
@@ -415,19 +416,6 @@ def form_source(args: argparse.Namespace, run_dir: str, results_path: str, print
                           print_fn=print_fn)
 
 
-def seconds_left(max_seconds: float | None, started: float, print_fn) -> float | None:
-  """What is left of `max_seconds` for training, `started` (perf_counter) being the command's
-  start: the stages before it (demonstrations, a demonstrator) count against the budget, so a
-  job given the seconds left of a sitting ends within them. At least a millisecond: a budget
-  spent before training still runs one iteration and exports its policy."""
-  if max_seconds is None:
-    return None
-  spent = time.perf_counter() - started
-  print_fn(f"--max_seconds {max_seconds:g}: {spent:.0f}s spent before training, "
-           f"{max(max_seconds - spent, 0.0):.0f}s left for it")
-  return max(max_seconds - spent, 1e-3)
-
-
 def random_rollout(args: argparse.Namespace, mesh) -> dict:
   """Random-action rollout with the batch sharded over `mesh`; returns the measured numbers."""
   env = AutoReset(tasks.make(args.task, physics=args.physics))
@@ -476,7 +464,7 @@ def random_rollout(args: argparse.Namespace, mesh) -> dict:
 
 
 def main(argv=None) -> int:
-  started = time.perf_counter()
+  started = time.perf_counter()  # --max_seconds counts from here
   args = parse_args(argv)
   if args.list:
     print("\n".join(tasks.TASKS))
@@ -503,8 +491,8 @@ def main(argv=None) -> int:
       source = form_source(args, run_dir, results_path, say) if args.method == "form" else None
       rows = runner.run(config, run_dir, args.env_steps, resume=args.resume,
                         log_every=args.log_every, eval_every=args.eval_every,
-                        checkpoint_every=args.checkpoint_every,
-                        max_seconds=seconds_left(args.max_seconds, started, say),
+                        checkpoint_every=args.checkpoint_every, max_seconds=args.max_seconds,
+                        seconds_before=time.perf_counter() - started,
                         checkpoint_replay=not args.lean_checkpoints, results_path=results_path,
                         final_eval_envs=args.final_eval_envs, mesh=mesh, reward_source=source,
                         seeds=seeds, overrides=overrides, initial_policy=initial,

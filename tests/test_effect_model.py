@@ -185,6 +185,16 @@ def test_demonstrator_learns_a_linear_system_and_keeps_its_best_step():
   np.testing.assert_allclose(report["heldout_log_likelihood"], after, atol=1e-3)
   assert report["heldout_episodes"] == 2 and report["training_episodes"] == 10
   assert any("held-out log p by offset" in line for line in lines)
+  # Why it stopped is reported: patience (6 evaluations without a better one) or the step limit.
+  assert report["stopped_by"] == ("max_steps" if report["steps"] == 1500 else "patience")
+  if report["stopped_by"] == "patience":
+    assert report["steps"] - report["best_step"] == 6 * 250
+  # A time budget stops it after the evaluation that passes it, and says so.
+  lines = []
+  _, report = demonstrator.train(x, config, dataclasses.replace(training, max_seconds=1e-9),
+                                 print_fn=lines.append)
+  assert (report["steps"], report["stopped_by"]) == (250, "max_seconds")
+  assert any("out of time" in line for line in lines)
 
 
 # --- turn invariance ----------------------------------------------------------------------

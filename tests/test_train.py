@@ -454,8 +454,10 @@ def test_a_run_starts_from_a_trained_policy(trainers, tmp_path, capsys):
 def test_lean_checkpoints_hold_no_replay_and_resume(trainers, tmp_path):
   run_dir, quiet = tmp_path / "lean", (lambda *_: None)
   total = 2 * CONFIG.env_steps_per_iteration
-  row, = runner.run(CONFIG, str(run_dir), total, max_seconds=1e-3, checkpoint_replay=False,
-                    eval_every=2, print_fn=quiet)  # stops after iteration 1
+  # The budget was spent before the runner started (seconds_before: demonstrations, a
+  # demonstrator): it stops after iteration 1.
+  row, = runner.run(CONFIG, str(run_dir), total, max_seconds=5.0, seconds_before=5.0,
+                    checkpoint_replay=False, eval_every=2, print_fn=quiet)
   assert row["iteration"] == 1
   ckpt_dir, config = str(run_dir / "checkpoints"), json.load(open(run_dir / "config.json"))
   full = trainers[1].init(jax.random.PRNGKey(0)[None])

@@ -114,7 +114,7 @@ def train(observations: np.ndarray, config: em.EffectModelConfig,
   state = em.init(model, config, init_key)
   best_state, best, best_step, waited, curve = state, -np.inf, 0, 0, []
   start = time.perf_counter()
-  steps = 0
+  steps, stopped_by = 0, "max_steps"
   print_fn(f"demonstrator: {len(train_idx)} training and {len(heldout_idx)} held-out episodes, "
            f"batches of {b} windows of {w} transitions, up to {training.max_steps:,} steps")
   while steps < training.max_steps:
@@ -144,12 +144,17 @@ def train(observations: np.ndarray, config: em.EffectModelConfig,
     if waited >= training.patience:
       print_fn(f"demonstrator: held-out likelihood has not improved for {waited} evaluations; "
                f"keeping step {best_step:,}")
+      stopped_by = "patience"
       break
     if training.max_seconds is not None and seconds >= training.max_seconds:
       print_fn(f"demonstrator: out of time after {seconds:.0f}s; keeping step {best_step:,}")
+      stopped_by = "max_seconds"
       break
   best_heldout = next(c["heldout_log_likelihood"] for c in curve if c["step"] == best_step)
-  report = {"steps": steps, "best_step": best_step, "batch_size": b, "window": w,
+  # stopped_by: "patience", "max_seconds" or "max_steps" (a run cut by time depends on the
+  # machine's speed: the file and its record say so)
+  report = {"steps": steps, "best_step": best_step, "stopped_by": stopped_by,
+            "batch_size": b, "window": w,
             "seconds": round(time.perf_counter() - start, 2),
             "heldout_log_likelihood": best_heldout, "curve": curve,
             "training_episodes": int(len(train_idx)), "heldout_episodes": int(len(heldout_idx))}

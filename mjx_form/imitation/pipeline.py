@@ -243,8 +243,8 @@ def train_demonstrator(env, config: em.EffectModelConfig, demos_obs: np.ndarray,
         settings={**config.to_dict(), **dataclasses.asdict(training),
                   "demo_episodes": demos_info["episodes"]},
         demonstrations=_demonstrations_ids(demos_info),
-        **{k: report[k] for k in ("steps", "best_step", "seconds", "heldout_log_likelihood",
-                                  "curve")})
+        **{k: report[k] for k in ("steps", "best_step", "stopped_by", "seconds",
+                                  "heldout_log_likelihood", "curve")})
   effect_models.save_effect_model(path, params, mean, var, metadata)
   print_fn(f"demonstrator written to {path}")
   return effect_models.load_effect_model(path)

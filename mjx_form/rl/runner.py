@@ -175,7 +175,8 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
         max_seconds: float | None = None, results_path: str | None = None,
         checkpoint_replay: bool = True, final_eval_envs: int = 0, mesh=None, reward_source=None,
         seeds: tuple[int, ...] | None = None, overrides: tuple[dict, ...] | None = None,
-        initial_policy: experts.Expert | None = None, print_fn=print) -> list[dict]:
+        initial_policy: experts.Expert | None = None, seconds_before: float = 0.0,
+        print_fn=print) -> list[dict]:
   """Trains until `total_env_steps`; returns each member's last logged row (with its final
   evaluation).
 
@@ -190,8 +191,11 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
   afresh on this many episodes and written as `kind: final_return` records (0: not); a run
   stopped by `max_seconds` gets them too, where it stopped (`finished: false` in them: a
   time-budgeted run's result), and again at its end if resumed.
-  `max_seconds`: stop once this call has run that long (checked after each iteration);
-  the state is checkpointed and the policy exported, so `resume=True` continues the run.
+  `max_seconds`: stop once `seconds_before` (what the command spent before this call:
+  recording demonstrations, training a demonstrator) and this call's time reach it (checked
+  after each iteration; the final evaluations come after); the state is checkpointed and the
+  policy exported, so `resume=True` continues the run. Records keep `seconds_before` as
+  `pre_training_s`; their `wall_s` counts from this call.
   `results_path`: where `kind: learning_curve` records (one per evaluation) are appended.
   `checkpoint_replay`: False writes lean checkpoints (see the module docstring).
   `initial_policy`: a trained policy (of this task or another with its observation layout) that
@@ -207,7 +211,11 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
   if max_seconds is not None and max_seconds <= 0:
     raise RunError(f"max_seconds must be positive, got {max_seconds}")
 
-  process_start = time.perf_counter()
+  budget_start = time.perf_counter() - seconds_before  # where max_seconds counts from
+  call_start = time.perf_counter()
+  if max_seconds is not None and seconds_before > 0:
+    print_fn(f"--max_seconds {max_seconds:g}: {seconds_before:.0f}s spent before training, "
+             f"{max(max_seconds - seconds_before, 0.0):.0f}s left for it")
   trainer = Trainer(config, mesh, reward_source, seeds, overrides)
   check_initial_policy(trainer, initial_policy)
   full_config = {**config.to_dict(), "seeds": list(trainer.seeds),
@@ -230,9 +238,9 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
   print_fn(f"compiled in {time.perf_counter() - compile_start:.0f}s"
            + (f" ({cache_hits[0]} programs from the persistent cache)" if cache_hits[0] else ""))
   state = trainer.init(trainer.keys())
-  # This process's time before its first iteration: building, tracing, compiling, init.
-  startup = {"startup_s": time.perf_counter() - process_start,
-             "persistent_cache_hits": cache_hits[0]}
+  # This call's time before its first iteration: building, tracing, compiling, init.
+  startup = {"startup_s": time.perf_counter() - call_start,
+             "persistent_cache_hits": cache_hits[0], "pre_training_s": round(seconds_before, 2)}
   if restored is not None:
     state = restored if checkpoint_replay else state._replace(**restored)
     print_fn(f"resumed from iteration {int(state.iteration)} ({ckpt_dir})")
@@ -284,14 +292,14 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
       timed_seconds += seconds
     finished = iteration == total_iterations
     out_of_time = (max_seconds is not None
-                   and time.perf_counter() - process_start >= max_seconds)
+                   and time.perf_counter() - budget_start >= max_seconds)
     last = finished or out_of_time
     evaluate = iteration % eval_every == 0 or last
     if evaluate:
       t0 = time.perf_counter()
       returns = np.asarray(trainer.evaluate(state.learner.policy, state.normalizer, eval_keys))
       eval_seconds += time.perf_counter() - t0
-    wall = wall_offset + time.perf_counter() - process_start
+    wall = wall_offset + time.perf_counter() - call_start
     peak = results.peak_memory_bytes()
     checkpointed = iteration % checkpoint_every == 0 or last
     updates = np.asarray(state.learner.updates)
@@ -321,7 +329,9 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
     if checkpointed:
       checkpoint.save(ckpt_dir, iteration, _checkpointed(state, checkpoint_replay), full_config)
     if out_of_time and not finished:
-      print_fn(f"stopped after {max_seconds:.0f}s at iteration {iteration}/{total_iterations} "
+      print_fn(f"stopped after {time.perf_counter() - budget_start:.0f}s (--max_seconds "
+               f"{max_seconds:g}, counted from the command's start) at iteration "
+               f"{iteration}/{total_iterations} "
                f"(checkpointed; continue with --resume)")
       stopped = True
       break
@@ -466,8 +476,9 @@ def _write_curve_point(writer: results.ResultWriter, trainer: Trainer, member: i
                        eval_episodes: int, total_env_steps: int, startup: dict) -> None:
   """One `kind: learning_curve` record: evaluation return at this point of the run.
 
-  `startup`: `startup_s`, this process's seconds before its first iteration, and
-  `persistent_cache_hits`, the programs it loaded from JAX's persistent compilation cache.
+  `startup`: `startup_s`, this call's seconds before its first iteration,
+  `persistent_cache_hits`, the programs it loaded from JAX's persistent compilation cache, and
+  `pre_training_s`, the command's seconds before this call (demonstrations, a demonstrator).
   """
   settings = {**_record_settings(trainer, member, total_env_steps),
               "eval_episodes": eval_episodes}
