@@ -26,7 +26,9 @@ the machine lists, or of an inherited CUDA_VISIBLE_DEVICES) and these variables:
   RES   the folder for its records (`--results $RES/NAME.jsonl`), brought back at every poll;
   RUNS  the folder for its run directories (`--run_dir $RUNS/NAME`), packed at the end;
   LEFT  seconds left until the deadline at the job's start (`--max_seconds $LEFT` makes a
-        queued job fit the sitting; the deadline counts from `start`).
+        queued job's training end by the deadline, demonstrations and a demonstrator
+        included; its final evaluations come after, ~1-2.5 min; the deadline counts from
+        `start`).
 Its output goes to `logs/NAME.log` under --dir; `status.json` says which jobs run, wait, ended
 (with their exit code) or were skipped.
 """
