@@ -211,8 +211,8 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
   if max_seconds is not None and max_seconds <= 0:
     raise RunError(f"max_seconds must be positive, got {max_seconds}")
 
-  budget_start = time.perf_counter() - seconds_before  # where max_seconds counts from
   call_start = time.perf_counter()
+  budget_start = call_start - seconds_before  # where max_seconds counts from
   if max_seconds is not None and seconds_before > 0:
     print_fn(f"--max_seconds {max_seconds:g}: {seconds_before:.0f}s spent before training, "
              f"{max(max_seconds - seconds_before, 0.0):.0f}s left for it")
