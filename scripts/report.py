@@ -268,6 +268,10 @@ def _learner_notes(record: dict, with_period: bool = True) -> list[str]:
     notes.append("critic clips actions")
   if learner.get("sampled_q_bfloat16"):
     notes.append("sampled Q in bf16")
+  if learner.get("mpo", {}).get("action_penalty"):
+    notes.append("action penalty")
+  if settings.get("network_width", 256) != 256:
+    notes.append(f"networks {settings['network_width']} wide")
   head = settings.get("policy_head", "paper")
   if head != "paper":
     notes.append(f"{head} policy head")
@@ -797,7 +801,8 @@ def scaling_summary(records: list[dict]) -> str:
 
 def form_table(records: list[dict], expert_returns: dict[str, float] | None = None,
                demonstration_returns: dict[str, float] | None = None,
-               best_per_task: bool = False) -> str:
+               best_per_task: bool = False,
+               shipped_demonstrators: set[str] | None = None) -> str:
   """FORM's results: one row per task and configuration, over its seeds. Each seed's return is
   its newest `kind: final_return` record of the final policy (a fresh evaluation after
   training). The expert's return it is compared with: the mean return of the demonstrations
@@ -805,7 +810,9 @@ def form_table(records: list[dict], expert_returns: dict[str, float] | None = No
   default: the shipped demonstrators'), else `expert_returns` (default: the shipped experts'
   returns at export). A configuration is one result file's runs of one setting (two runs of a
   seed in two files are two runs). With `best_per_task`, one row per task, chosen among its
-  configurations run with 2 seeds or more (else among all), then on a GPU (else all): the
+  configurations run with 2 seeds or more (else among all), then on a GPU (else all), then
+  with the shipped demonstrator (`shipped_demonstrators`, sha256s; default: those in
+  tasks/demonstrators/, so the row is what the shipped expert and demonstrator give): the
   default settings (`_default_form_variant`) with the most seeds, then the highest mean;
   without the default settings, the highest mean return."""
   rows = [r for r in records if r.get("kind") == "final_return" and r.get("method") == "form"]
@@ -816,6 +823,8 @@ def form_table(records: list[dict], expert_returns: dict[str, float] | None = No
     expert_returns = {meta["task"]: meta["eval_return"] for meta, _ in _shipped_experts()}
   if demonstration_returns is None:
     demonstration_returns = _demonstration_returns()
+  if shipped_demonstrators is None:
+    shipped_demonstrators = {meta["sha256"] for meta in _demonstrator_metadata((DEMONSTRATORS,))}
   newest = _newest(rows, lambda r: (r["task"], r["physics"], r["num_envs"], r["env_steps"],
                                     r.get("learner_preset"), r["device"], _form_variant(r),
                                     r.get("_file", ""), r["seed"], r["policy"]))
@@ -828,13 +837,17 @@ def form_table(records: list[dict], expert_returns: dict[str, float] | None = No
     def rank(key):
       final = groups[key]["final"]
       default = key[6] == _default_form_variant(key[0])
-      return (len(final) >= 2, key[5].startswith("gpu"), default, len(final) if default else 0,
+      shipped = all(r.get("settings", {}).get("reward", {}).get("demonstrator_sha256")
+                    in shipped_demonstrators for r in final)
+      return (len(final) >= 2, key[5].startswith("gpu"), shipped, default,
+              len(final) if default else 0,
               _mean_std([r["final_return"] for r in final])[0])
     groups = {key: groups[key] for key in (max((k for k in groups if k[0] == task), key=rank)
                                            for task in configurations)}
   caption = ("FORM (`--method form`), per task one configuration (one result file's runs of "
              "one setting; all of them: `benchmarks/NOTES.md`), among those run with 2 seeds "
-             "or more on a GPU where there are any: the default settings "
+             "or more on a GPU where there are any, with the shipped demonstrator (and so its "
+             "expert) where any were: the default settings "
              "(`mjx_form/imitation/settings.py`, what `--method form` runs) with the most "
              "seeds, else the highest mean return: "
              if best_per_task else "FORM (`--method form`): ")

@@ -119,6 +119,37 @@ def test_form_table_per_task_keeps_the_best_configuration_of_two_seeds_or_more()
   assert rows[1].endswith("| 1 |"), rows
 
 
+def test_form_table_per_task_prefers_the_shipped_demonstrator():
+  shipped = {"reward": {"demonstrator_sha256": "a" * 64}}
+  former = {"reward": {"demonstrator_sha256": "b" * 64}}
+  records = [_final_return(0, 900.0, settings=former), _final_return(1, 880.0, settings=former),
+             _final_return(0, 600.0, num_envs=256, settings=shipped),
+             _final_return(1, 640.0, num_envs=256, settings=shipped)]
+  table = report.form_table(records, expert_returns={"cheetah_run": 875.0},
+                            demonstration_returns={}, best_per_task=True,
+                            shipped_demonstrators={"a" * 64})
+  row, = [line for line in table.splitlines() if line.startswith("| cheetah_run")]
+  assert "| 256 |" in row and "| 620.0 +- 20.0 |" in row, row
+  # without a shipped demonstrator among them, the higher mean wins as before
+  table = report.form_table(records, expert_returns={"cheetah_run": 875.0},
+                            demonstration_returns={}, best_per_task=True,
+                            shipped_demonstrators=set())
+  row, = [line for line in table.splitlines() if line.startswith("| cheetah_run")]
+  assert "| 890.0 +- 10.0 |" in row, row
+
+
+def test_form_table_keeps_the_halves_of_an_action_penalty_grid_apart():
+  # one result file, one seed, the grid's two halves: two configurations, not one
+  penalty = lambda on: {"learner": {"mpo": {"action_penalty": on}}}
+  records = [_final_return(0, 700.0, settings=penalty(False)),
+             _final_return(0, 900.0, settings=penalty(True))]
+  table = report.form_table(records, expert_returns={"cheetah_run": 875.0},
+                            demonstration_returns={})
+  rows = [line for line in table.splitlines() if line.startswith("| cheetah_run")]
+  assert len(rows) == 2 and sum("action penalty" in row for row in rows) == 1, rows
+  assert report._learner_notes({"settings": {"network_width": 512}}) == ["networks 512 wide"]
+
+
 def _default_settings(task):
   """A FORM record's settings with every default of mjx_form/imitation/settings.py."""
   from mjx_form.imitation import settings
