@@ -11,7 +11,10 @@ transition, in both observations: the arm is as still as before, the target else
 centimetres. With `--policy` files (e.g. FORM imitators), also their transitions by distance
 to the target and joint speed, as they visit them, and (over `--target_episodes` episodes)
 where their failed episodes (return under 100) have the target: the failure rate by quartile
-of the target's distance from the arm's base and by its angle. Appends `kind:
+of the target's distance from the arm's base and by its angle; and, on `--episodes` episodes
+from the expert's own starts, how the policy's failed episodes end (still or shaking in place,
+whether they ever came within 5 cm) and what the demonstrator pays for their second half against
+the policy's successful episodes and the expert's on the same starts. Appends `kind:
 reacher_settling` records.
 
   python benchmarks/reacher_settling.py --task reacher_hard --episodes 32 \\
@@ -63,6 +66,7 @@ def main(argv=None) -> int:
   start = {name: sum(size for _, size in layout[:i]) for i, (name, _) in enumerate(layout)}
   to_target = slice(start["to_target"], start["to_target"] + 2)
   velocity = slice(start["velocity"], start["velocity"] + 2)
+  position = slice(start["position"], start["position"] + 2)
   path = tasks.bundled_demonstrator(args.task)
   file = effect_models.load_effect_model(path, task=args.task,
                                          observation_layout=env.observation_layout)
@@ -156,7 +160,66 @@ def main(argv=None) -> int:
                    share_under_100_by_radius_quartile=by_radius,
                    share_under_100_by_angle_quadrant=by_angle, second_half_medians=late,
                    **common_fields)
+  for name, agent in agents[1:]:
+    probe = failed_episodes(env, expert, agent, score, args.episodes,
+                            dict(position=position, to_target=to_target, velocity=velocity))
+    print(f"  {name}: {probe['failed']} of {args.episodes} episodes under 100 (the expert's "
+          "starts)")
+    for group in ("failed", "over_800"):
+      g = probe[group + "_episodes"]
+      if g is None:
+        continue
+      print(f"    {group}: second half median {g['distance_m'] * 100:.1f} cm from the target at "
+            f"{g['speed']:.2f} rad/s, joint angles' sd {g['angle_sd']:.3f} rad; within 5 cm at "
+            f"some step: {g['reached_5cm']:.0%}; log pD of its second half "
+            f"{g['log_pd_second_half']:.2f} (its whole episodes {g['log_pd']:.2f}), the expert's "
+            f"on the same starts {g['expert_log_pd_second_half']:.2f}")
+    if writer:
+      writer.write(kind="reacher_settling", probe="failed_episodes", behaviour=name,
+                   episodes=args.episodes, **probe, **common_fields)
   return 0
+
+
+def failed_episodes(env, expert, agent, score, episodes: int, parts: dict) -> dict:
+  """`agent`'s and the expert's mean-action episodes from the same starts, summarised by
+  `episode_groups`."""
+  key = jax.random.PRNGKey(11)  # one key: the same resets (targets, arm) for both
+  runs = []
+  for policy in (agent, expert):
+    obs, returns, _, _ = rollout(env, policy, 0.0, key, episodes)  # [K, T+1, D], [K]
+    flat = lambda x: jnp.asarray(x.reshape(-1, x.shape[-1]))
+    log_d = np.asarray(score(flat(obs[:, :-1]), flat(obs[:, 1:]))).reshape(episodes, -1)
+    runs.append((obs, returns, log_d))
+  (obs, returns, log_d), (_, _, expert_log_d) = runs
+  return episode_groups(obs, returns, log_d, expert_log_d, parts)
+
+
+def episode_groups(obs, returns, log_d, expert_log_d, parts: dict) -> dict:
+  """For the failed (return under 100) and successful (over 800) episodes of obs [K, T+1, D]
+  and returns [K]: the medians over episodes of the second half's median fingertip distance (m)
+  and joint speed (rad/s) and of the joint angles' standard deviation there (rad: ~0 still,
+  > 0 shaking or moving), the share that came within 5 cm at some step, and the mean log pD
+  (log_d [K, T]) over their second halves and whole episodes, beside the expert's
+  (expert_log_d [K, T], from the same starts) over its second halves. None for an empty group."""
+  half = log_d.shape[1] // 2
+  distance = np.linalg.norm(obs[:, 1:, parts["to_target"]], axis=-1)  # [K, T]
+  speed = np.linalg.norm(obs[:, 1:, parts["velocity"]], axis=-1)
+  angle_sd = np.linalg.norm(obs[:, 1 + half:, parts["position"]].std(axis=1), axis=-1)  # [K]
+
+  def group(m):
+    if not m.any():
+      return None
+    return {"episodes": int(m.sum()),
+            "distance_m": float(np.median(np.median(distance[m, half:], axis=1))),
+            "speed": float(np.median(np.median(speed[m, half:], axis=1))),
+            "angle_sd": float(np.median(angle_sd[m])),
+            "reached_5cm": float((distance[m] < 0.05).any(axis=1).mean()),
+            "log_pd": float(log_d[m].mean()),
+            "log_pd_second_half": float(log_d[m, half:].mean()),
+            "expert_log_pd_second_half": float(expert_log_d[m, half:].mean())}
+
+  return {"failed": int((returns < 100.0).sum()), "task_return": float(returns.mean()),
+          "failed_episodes": group(returns < 100.0), "over_800_episodes": group(returns > 800.0)}
 
 
 def move_target(prev, nxt, to_target: slice, shift):

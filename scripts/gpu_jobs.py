@@ -120,6 +120,15 @@ def check(jobs_file: Path, deadline_s: float = 1200.0) -> list[str]:
     learner = config.learner
     seeds = ",".join(map(str, args.seeds)) if args.seeds else str(config.seed)
     grid = "".join(f"; grid {k}=" + ",".join(map(str, v)) for k, v in (args.grid or {}).items())
+    if args.method == "form":  # the effect models' regularisers: the flags', else the task's
+      from mjx_form.imitation import settings as form_settings  # noqa: E402
+      model = form_settings.effect_model_settings(config.task)
+      model = {**model, **{k: v for k, v in (("beta_ar", args.beta_ar), ("l2", args.effect_l2),
+                                               ("turn_invariant", args.turn_invariant))
+                           if v is not None}}
+      grid += (f"; effect models beta_ar {model['beta_ar']:g}, L2 {model['l2']:g}"
+               f"{', turn-invariant' if model.get('turn_invariant') else ''}, demonstrator "
+               f"{'trained' if args.train_demonstrator else (args.demonstrator or 'shipped')}")
     lines.append(
         f"{job['name']}: {config.task} {args.method}, seeds {seeds}{grid}; {config.num_envs} "
         f"envs x {config.updates_per_iteration} updates (replay ratio {config.replay_ratio:g}), "

@@ -512,6 +512,36 @@ def test_reacher_settling_moves_only_the_target_and_splits_failures_by_its_place
   assert by_angle == [None, None, 0.4, None]
 
 
+def test_reacher_settling_summarises_failed_episodes_apart_from_successful_ones():
+  """benchmarks/reacher_settling.py: episode_groups splits episodes by return and summarises
+  each group's second half (distance, speed, shaking, log pD) beside the expert's."""
+  bench = load_script("reacher_settling", folder="benchmarks")
+  parts = dict(position=slice(0, 2), to_target=slice(2, 4), velocity=slice(4, 6))
+  k, t = 3, 12
+  obs = np.zeros((k, t + 1, 6))
+  obs[0, :, 2] = 0.12  # episode 0 fails: still, 12 cm away throughout
+  obs[1, :, 2] = np.linspace(0.2, 0.0, t + 1)  # episode 1 succeeds: reaches the target
+  obs[1, :, 4] = 1.0  # ... moving at 1 rad/s
+  obs[2, 1 + t // 2:, 0] = np.tile([0.1, -0.1], t // 2 // 2 + 1)[:t // 2]  # shaking in place
+  obs[2, :, 2] = 0.3
+  returns = np.array([5.0, 900.0, 50.0])
+  log_d = np.arange(k * t, dtype=float).reshape(k, t)
+  expert = log_d + 100.0
+  out = bench.episode_groups(obs, returns, log_d, expert, parts)
+  assert out["failed"] == 2 and out["task_return"] == pytest.approx(955.0 / 3)
+  failed, ok = out["failed_episodes"], out["over_800_episodes"]
+  assert failed["episodes"] == 2 and ok["episodes"] == 1
+  assert failed["distance_m"] == pytest.approx(0.21)  # median of 0.12 and 0.3
+  assert failed["speed"] == 0.0 and failed["reached_5cm"] == 0.0
+  assert failed["angle_sd"] == pytest.approx(0.05)  # median of 0 (still) and 0.1 (shaking)
+  assert ok["reached_5cm"] == 1.0 and ok["speed"] == pytest.approx(1.0)
+  assert failed["log_pd_second_half"] == pytest.approx(np.mean(log_d[[0, 2], 6:]))
+  assert failed["log_pd"] == pytest.approx(np.mean(log_d[[0, 2]]))
+  assert failed["expert_log_pd_second_half"] == pytest.approx(failed["log_pd_second_half"] + 100)
+  none = bench.episode_groups(obs, np.full(3, 500.0), log_d, expert, parts)
+  assert none["failed_episodes"] is None and none["over_800_episodes"] is None
+
+
 def test_locomotion_speed_factors_are_the_tasks_reward(tmp_path, capsys):
   """benchmarks/locomotion_speed.py: its posture and speed factors multiply to the reward the
   environment gives at every step (the script refuses to report otherwise), its summary is

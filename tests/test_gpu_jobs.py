@@ -158,15 +158,22 @@ def test_check_parses_run_jobs_as_run_does_and_names_a_bad_one(tmp_path, capsys)
       "rx: python scripts/run.py --task reacher_hard --method expert --seeds 0,1 "
       "--grid target_update_period=25,100 --num_envs 512 --updates_per_iteration 256 "
       "--max_seconds $LEFT --results $RES/rx.jsonl --run_dir $RUNS/rx\n"
+      "fx: python scripts/run.py --task reacher_hard --method form --train_demonstrator "
+      "--effect_l2 1\n"
+      "fc: python scripts/run.py --task cheetah_run --method form\n"
       "ls: ls -la $RES\n")
   assert gpu_jobs.main(["check", str(jobs), "--deadline", "900"]) == 0
   out = [line for line in capsys.readouterr().out.splitlines()  # (not MuJoCo's import notes)
-         if line.startswith(("rx:", "ls:"))]
-  assert len(out) == 2 and out[0].startswith("rx: reacher_hard expert, seeds 0,1; grid target_update_period=25,100")
+         if line.startswith(("rx:", "fx:", "fc:", "ls:"))]
+  assert len(out) == 4 and out[0].startswith("rx: reacher_hard expert, seeds 0,1; grid target_update_period=25,100")
   for part in ("512 envs x 256 updates (replay ratio 32)", "T 25", "action penalty True",
                "max seconds 900.0"):  # reacher_hard's recipe, the flags, $LEFT
     assert part in out[0], part
-  assert out[1] == "ls: not a run.py command, not checked: ls -la $RES"
+  # a FORM job: its effect models' settings (the flag's L2, the task's beta_ar and turns)
+  assert ("effect models beta_ar 1, L2 1, turn-invariant, demonstrator trained" in out[1]
+          and "effect models" not in out[0]), out
+  assert "effect models beta_ar 0.01, L2 1, demonstrator shipped" in out[2], out
+  assert out[3] == "ls: not a run.py command, not checked: ls -la $RES"
   jobs.write_text("bad: python scripts/run.py --task reacher_hard --updates_per_iteraton 64\n")
   assert gpu_jobs.main(["check", str(jobs)]) == 2
   err = capsys.readouterr().err
