@@ -13,8 +13,9 @@ to the target and joint speed, as they visit them, and (over `--target_episodes`
 where their failed episodes (return under 100) have the target: the failure rate by quartile
 of the target's distance from the arm's base and by its angle; and, on `--episodes` episodes
 from the expert's own starts, how the policy's failed episodes end (still or shaking in place,
-whether they ever came within 5 cm) and what the demonstrator pays for their second half against
-the policy's successful episodes and the expert's on the same starts. Appends `kind:
+whether they ever came within 5 cm), what the demonstrator pays for their second half against
+the policy's successful episodes and the expert's on the same starts, and how often they fail by
+where the expert's shoulder ends on the same starts (near +-pi or elsewhere). Appends `kind:
 reacher_settling` records.
 
   python benchmarks/reacher_settling.py --task reacher_hard --episodes 32 \\
@@ -174,6 +175,14 @@ def main(argv=None) -> int:
             f"some step: {g['reached_5cm']:.0%}; log pD of its second half "
             f"{g['log_pd_second_half']:.2f} (its whole episodes {g['log_pd']:.2f}), the expert's "
             f"on the same starts {g['expert_log_pd_second_half']:.2f}")
+    near, elsewhere = (probe[f"failed_share_expert_final_shoulder_{k}"]
+                       for k in ("near_pi", "elsewhere"))
+    print("    under 100 by where the expert's shoulder ends on the same starts (8 bins over "
+          "[-pi, pi)): " + " ".join("-" if x is None else f"{x:.0%}"
+                                    for x in probe["failed_share_by_expert_final_shoulder"])
+          + f"; beyond {probe['near_pi_edge_rad']:g} rad: "
+          + ("-" if near is None else f"{near:.0%}")
+          + ", elsewhere: " + ("-" if elsewhere is None else f"{elsewhere:.0%}"))
     if writer:
       writer.write(kind="reacher_settling", probe="failed_episodes", behaviour=name,
                    episodes=args.episodes, **probe, **common_fields)
@@ -190,8 +199,26 @@ def failed_episodes(env, expert, agent, score, episodes: int, parts: dict) -> di
     flat = lambda x: jnp.asarray(x.reshape(-1, x.shape[-1]))
     log_d = np.asarray(score(flat(obs[:, :-1]), flat(obs[:, 1:]))).reshape(episodes, -1)
     runs.append((obs, returns, log_d))
-  (obs, returns, log_d), (_, _, expert_log_d) = runs
-  return episode_groups(obs, returns, log_d, expert_log_d, parts)
+  (obs, returns, log_d), (expert_obs, _, expert_log_d) = runs
+  shoulder = expert_obs[:, -1, parts["position"].start]  # raw: may have turned past pi
+  return {**episode_groups(obs, returns, log_d, expert_log_d, parts),
+          **failures_by_angle(returns < 100.0, shoulder)}
+
+
+def failures_by_angle(failed, angle, bins: int = 8, edge: float = 2.5) -> dict:
+  """The share of `failed` [K] episodes by `angle` [K] (the expert's final shoulder angle on the
+  same starts: where the arm has to end up), wrapped into [-pi, pi) and cut into `bins` equal
+  bins (None where empty), and the share among episodes whose wrapped angle is beyond `edge`
+  (rad: near +-pi, where the raw angle an actor sees jumps by 2 pi between two ways of turning
+  there) against the others."""
+  wrapped = (np.asarray(angle) + np.pi) % (2 * np.pi) - np.pi
+  index = np.minimum(((wrapped + np.pi) / (2 * np.pi) * bins).astype(int), bins - 1)
+  share = lambda m: float(failed[m].mean()) if m.any() else None
+  near = np.abs(wrapped) > edge
+  return {"failed_share_by_expert_final_shoulder": [share(index == b) for b in range(bins)],
+          "failed_share_expert_final_shoulder_near_pi": share(near),
+          "failed_share_expert_final_shoulder_elsewhere": share(~near),
+          "near_pi_edge_rad": edge}
 
 
 def episode_groups(obs, returns, log_d, expert_log_d, parts: dict) -> dict:

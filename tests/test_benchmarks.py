@@ -542,6 +542,20 @@ def test_reacher_settling_summarises_failed_episodes_apart_from_successful_ones(
   assert none["failed_episodes"] is None and none["over_800_episodes"] is None
 
 
+def test_reacher_settling_shares_failures_by_the_final_shoulder_angle():
+  bench = load_script("reacher_settling", folder="benchmarks")
+  # raw angles: 3.5 wraps to 3.5 - 2 pi = -2.78 (bin 0 of 8, near -pi), -0.1 -> bin 3,
+  # 0.1 -> bin 4, 3.0 -> bin 7 (near pi), 2 pi + 0.1 -> 0.1 (bin 4)
+  angle = np.array([3.5, -0.1, 0.1, 3.0, 2 * np.pi + 0.1])
+  failed = np.array([1, 0, 1, 1, 0], bool)
+  out = bench.failures_by_angle(failed, angle)
+  assert out["failed_share_by_expert_final_shoulder"] == [1.0, None, None, 0.0, 0.5, None,
+                                                          None, 1.0]
+  assert out["failed_share_expert_final_shoulder_near_pi"] == 1.0  # 3.5 and 3.0
+  assert out["failed_share_expert_final_shoulder_elsewhere"] == pytest.approx(1 / 3)
+  assert bench.failures_by_angle(failed, np.zeros(5))["failed_share_expert_final_shoulder_near_pi"] is None
+
+
 def test_locomotion_speed_factors_are_the_tasks_reward(tmp_path, capsys):
   """benchmarks/locomotion_speed.py: its posture and speed factors multiply to the reward the
   environment gives at every step (the script refuses to report otherwise), its summary is
