@@ -15,7 +15,8 @@ of the target's distance from the arm's base and by its angle; and, on `--episod
 from the expert's own starts, how the policy's failed episodes end (still or shaking in place,
 whether they ever came within 5 cm), what the demonstrator pays for their second half against
 the policy's successful episodes and the expert's on the same starts, and how often they fail by
-where the expert's shoulder ends on the same starts (near +-pi or elsewhere). Appends `kind:
+where the expert's shoulder ends on the same starts (near +-pi or elsewhere; starts where the
+expert itself scores 800 or less are left out of that). Appends `kind:
 reacher_settling` records.
 
   python benchmarks/reacher_settling.py --task reacher_hard --episodes 32 \\
@@ -199,10 +200,12 @@ def failed_episodes(env, expert, agent, score, episodes: int, parts: dict) -> di
     flat = lambda x: jnp.asarray(x.reshape(-1, x.shape[-1]))
     log_d = np.asarray(score(flat(obs[:, :-1]), flat(obs[:, 1:]))).reshape(episodes, -1)
     runs.append((obs, returns, log_d))
-  (obs, returns, log_d), (expert_obs, _, expert_log_d) = runs
+  (obs, returns, log_d), (expert_obs, expert_returns, expert_log_d) = runs
   shoulder = expert_obs[:, -1, parts["position"].start]  # raw: may have turned past pi
+  reached = expert_returns > 800.0  # starts where the expert's end is where the arm must be
   return {**episode_groups(obs, returns, log_d, expert_log_d, parts),
-          **failures_by_angle(returns < 100.0, shoulder)}
+          **failures_by_angle((returns < 100.0)[reached], shoulder[reached]),
+          "starts_the_expert_missed": int((~reached).sum())}
 
 
 def failures_by_angle(failed, angle, bins: int = 8, edge: float = 2.5) -> dict:

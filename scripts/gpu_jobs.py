@@ -120,15 +120,11 @@ def check(jobs_file: Path, deadline_s: float = 1200.0) -> list[str]:
     learner = config.learner
     seeds = ",".join(map(str, args.seeds)) if args.seeds else str(config.seed)
     grid = "".join(f"; grid {k}=" + ",".join(map(str, v)) for k, v in (args.grid or {}).items())
-    if args.method == "form":  # the effect models' regularisers: the flags', else the task's
-      from mjx_form.imitation import settings as form_settings  # noqa: E402
-      model = form_settings.effect_model_settings(config.task)
-      model = {**model, **{k: v for k, v in (("beta_ar", args.beta_ar), ("l2", args.effect_l2),
-                                               ("turn_invariant", args.turn_invariant))
-                           if v is not None}}
-      grid += (f"; effect models beta_ar {model['beta_ar']:g}, L2 {model['l2']:g}"
-               f"{', turn-invariant' if model.get('turn_invariant') else ''}, demonstrator "
-               f"{'trained' if args.train_demonstrator else (args.demonstrator or 'shipped')}")
+    if args.method == "form":
+      try:
+        grid += "; " + _form_models(run, args)
+      except (ValueError, OSError) as e:  # (the file errors are ValueErrors)
+        raise JobsError(f"job {job['name']!r}: run.py would refuse it: {e}") from None
     lines.append(
         f"{job['name']}: {config.task} {args.method}, seeds {seeds}{grid}; {config.num_envs} "
         f"envs x {config.updates_per_iteration} updates (replay ratio {config.replay_ratio:g}), "
@@ -140,6 +136,33 @@ def check(jobs_file: Path, deadline_s: float = 1200.0) -> list[str]:
         f"{args.init_policy or '-'}, env steps {args.env_steps:,}, max seconds "
         f"{args.max_seconds}")
   return lines
+
+
+def _form_models(run, args) -> str:
+  """A FORM job's effect-model settings and where its demonstrator comes from, decided as
+  run.py decides them (`run.effect_model_settings`, `pipeline.shipped_demonstrator`)."""
+  import tasks  # noqa: E402
+  from mjx_form.files import effect_models  # noqa: E402
+  from mjx_form.imitation import effect_model as em  # noqa: E402
+  from mjx_form.imitation import pipeline  # noqa: E402
+  env = tasks.make(args.task, physics=args.physics)
+  _, config = run.effect_model_settings(args, env)
+  if args.resume:
+    where = "the one kept in its run directory (--resume)"
+  elif args.demonstrator and not os.path.exists(args.demonstrator):
+    where = f"given, {args.demonstrator} (not here to check)"
+  elif args.demonstrator:
+    file = effect_models.load_effect_model(args.demonstrator, task=args.task,
+                                           observation_layout=env.observation_layout)
+    config, where = em.EffectModelConfig(**file.metadata["config"]), f"given, {args.demonstrator}"
+  elif args.train_demonstrator:
+    where = "trained (--train_demonstrator)"
+  else:
+    path, file, _ = pipeline.shipped_demonstrator(env, config)
+    where = ("shipped" if path else "trained (the shipped one has other settings)" if file
+             else "trained (none shipped)")
+  return (f"effect models beta_ar {config.beta_ar:g}, L2 {config.l2:g}, width {config.width}"
+          f"{', turn-invariant' if config.period else ''}; demonstrator {where}")
 
 
 def machine_gpus() -> list[str]:

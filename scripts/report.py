@@ -256,7 +256,8 @@ def _member(record: dict) -> str:
                     sort_keys=True)
 
 
-def _learner_notes(record: dict, with_period: bool = True) -> list[str]:
+def _learner_notes(record: dict, with_period: bool = True,
+                   with_penalty: bool = True) -> list[str]:
   """A run's learner settings that differ from the paper's: e.g. ['T 25', 'critic clips
   actions', 'acme policy head']; [] for the paper's."""
   settings = record.get("settings", {})
@@ -268,7 +269,7 @@ def _learner_notes(record: dict, with_period: bool = True) -> list[str]:
     notes.append("critic clips actions")
   if learner.get("sampled_q_bfloat16"):
     notes.append("sampled Q in bf16")
-  if learner.get("mpo", {}).get("action_penalty"):
+  if with_penalty and learner.get("mpo", {}).get("action_penalty"):
     notes.append("action penalty")
   if settings.get("network_width", 256) != 256:
     notes.append(f"networks {settings['network_width']} wide")
@@ -404,7 +405,7 @@ def learning_table(records: list[dict], threshold: float = 800.0) -> str:
              else "not reached")
     settings = last["settings"]
     physics = [f"{last['physics']} physics"] if last.get("physics", "fast") != "fast" else []
-    notes = ", ".join(physics + _learner_notes(last))
+    notes = ", ".join(physics + _learner_notes(last, with_penalty=False))  # (its own column)
     lines.append(f"| {task} | `{last['device']}` | {_matmuls(last)} | {last['num_envs']} | "
                  f"{settings['updates_per_iteration']} ({settings['replay_ratio']:g}) | "
                  f"{_episodes(last)} | {_action_penalty(last)} | "

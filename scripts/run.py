@@ -392,14 +392,21 @@ def form_run_settings(args: argparse.Namespace) -> dict:
   return chosen
 
 
-def form_source(args: argparse.Namespace, run_dir: str, results_path: str, print_fn):
-  """Stages 1-2 of --method form: the FORM reward source, its demonstrator in `run_dir`."""
-  env = tasks.make(args.task, physics=args.physics)
+def effect_model_settings(args: argparse.Namespace, env):
+  """The effect-model settings the user set (`explicit`) and those of this run (`config`).
+  ValueError for --turn_invariant on a task without unbounded angles."""
   explicit = {"beta_ar": args.beta_ar, "l2": args.effect_l2,
               "period": settings.turn_period(env, args.turn_invariant)}
   # Effect models share the width of the other networks, and a demonstrator trains on batches
   # shaped like the learner's (batch_size windows of unroll_length transitions).
   config = settings.effect_model_config(args.task, env, width=args.network_width, **explicit)
+  return explicit, config
+
+
+def form_source(args: argparse.Namespace, run_dir: str, results_path: str, print_fn):
+  """Stages 1-2 of --method form: the FORM reward source, its demonstrator in `run_dir`."""
+  env = tasks.make(args.task, physics=args.physics)
+  explicit, config = effect_model_settings(args, env)
   training = demonstrator_lib.DemonstratorTraining(
       max_steps=args.demonstrator_steps, batch_size=args.batch_size, window=args.unroll_length,
       eval_every=args.demonstrator_eval_every, patience=args.demonstrator_patience,

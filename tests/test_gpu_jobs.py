@@ -161,19 +161,37 @@ def test_check_parses_run_jobs_as_run_does_and_names_a_bad_one(tmp_path, capsys)
       "fx: python scripts/run.py --task reacher_hard --method form --train_demonstrator "
       "--effect_l2 1\n"
       "fc: python scripts/run.py --task cheetah_run --method form\n"
+      "fl: python scripts/run.py --task reacher_hard --method form --effect_l2 1\n"
+      "fw: python scripts/run.py --task walker_run --method form\n"
+      "fd: python scripts/run.py --task reacher_hard --method form --no-turn_invariant "
+      "--demonstrator benchmarks/demonstrators/reacher_hard_plain.npz\n"
       "ls: ls -la $RES\n")
   assert gpu_jobs.main(["check", str(jobs), "--deadline", "900"]) == 0
   out = [line for line in capsys.readouterr().out.splitlines()  # (not MuJoCo's import notes)
-         if line.startswith(("rx:", "fx:", "fc:", "ls:"))]
-  assert len(out) == 4 and out[0].startswith("rx: reacher_hard expert, seeds 0,1; grid target_update_period=25,100")
+         if line.startswith(("rx:", "fx:", "fc:", "fl:", "fw:", "fd:", "ls:"))]
+  assert len(out) == 7 and out[0].startswith("rx: reacher_hard expert, seeds 0,1; grid target_update_period=25,100")
   for part in ("512 envs x 256 updates (replay ratio 32)", "T 25", "action penalty True",
                "max seconds 900.0"):  # reacher_hard's recipe, the flags, $LEFT
     assert part in out[0], part
-  # a FORM job: its effect models' settings (the flag's L2, the task's beta_ar and turns)
-  assert ("effect models beta_ar 1, L2 1, turn-invariant, demonstrator trained" in out[1]
-          and "effect models" not in out[0]), out
-  assert "effect models beta_ar 0.01, L2 1, demonstrator shipped" in out[2], out
-  assert out[3] == "ls: not a run.py command, not checked: ls -la $RES"
+  # FORM jobs: their effect models' settings (a flag's, else the task's) and where the
+  # demonstrator comes from, as run.py decides it
+  assert "effect models" not in out[0], out
+  assert ("effect models beta_ar 1, L2 1, width 256, turn-invariant; demonstrator trained "
+          "(--train_demonstrator)") in out[1], out
+  assert "effect models beta_ar 0.01, L2 1, width 256; demonstrator shipped" in out[2], out
+  assert "L2 1, width 256, turn-invariant; demonstrator trained (the shipped one has other " \
+         "settings)" in out[3], out
+  assert "; demonstrator trained (none shipped)" in out[4], out  # no walker_run expert either
+  assert ("L2 0.1, width 256; demonstrator given, benchmarks/demonstrators/reacher_hard_plain"
+          ".npz") in out[5], out  # its own settings: not turn-invariant
+  assert out[6] == "ls: not a run.py command, not checked: ls -la $RES"
+  for bad, said in (("--task walker_walk --method form --turn_invariant", "unbounded"),
+                    ("--task reacher_easy --method form --demonstrator "
+                     "tasks/demonstrators/reacher_hard.npz", "reacher_hard")):
+    jobs.write_text(f"bad: python scripts/run.py {bad}\n")
+    assert gpu_jobs.main(["check", str(jobs)]) == 2
+    err = capsys.readouterr().err
+    assert "job 'bad'" in err and "run.py would refuse it" in err and said in err, err
   jobs.write_text("bad: python scripts/run.py --task reacher_hard --updates_per_iteraton 64\n")
   assert gpu_jobs.main(["check", str(jobs)]) == 2
   err = capsys.readouterr().err

@@ -148,6 +148,8 @@ def test_form_table_keeps_the_halves_of_an_action_penalty_grid_apart():
   rows = [line for line in table.splitlines() if line.startswith("| cheetah_run")]
   assert len(rows) == 2 and sum("action penalty" in row for row in rows) == 1, rows
   assert report._learner_notes({"settings": {"network_width": 512}}) == ["networks 512 wide"]
+  # (the expert runs' table has a column of its own for the penalty)
+  assert report._learner_notes({"settings": penalty(True)}, with_penalty=False) == []
 
 
 def _default_settings(task):

@@ -121,13 +121,10 @@ def prepare(env, config: em.EffectModelConfig, explicit: dict, artefacts: Artefa
 
   path, file = artefacts.demonstrator, None
   shipped = tasks.bundled_demonstrator(env.name)
-  if path is None and shipped is not None and not artefacts.train_demonstrator:
-    file = _load(shipped, env)
-    if file.metadata["config"] == config.to_dict():
-      path = shipped
-    else:
-      print_fn(f"the shipped demonstrator {shipped} was trained with other settings "
-               f"({file.metadata['config']}); training one with this run's")
+  if path is None and not artefacts.train_demonstrator:
+    path, file, why = shipped_demonstrator(env, config)
+    if path is None and file is not None:
+      print_fn(why + "; training one with this run's")
   if path is not None:  # a ready demonstrator: refused, if it does not fit, before recording
     if file is None or path != shipped:  # (the shipped one is read already)
       file = _load(path, env)
@@ -164,6 +161,20 @@ def prepare(env, config: em.EffectModelConfig, explicit: dict, artefacts: Artefa
   os.makedirs(run_dir, exist_ok=True)
   shutil.copyfile(path, kept)
   return FormReward(config, demonstrator, file.metadata["sha256"], **reward)
+
+
+def shipped_demonstrator(env, config: em.EffectModelConfig
+                         ) -> tuple[str | None, effect_models.EffectModelFile | None, str]:
+  """The shipped demonstrator of `env`'s task if it was trained with `config` (path, file,
+  ''), else (None, the file or None, why not): what `prepare` uses unless told otherwise."""
+  shipped = tasks.bundled_demonstrator(env.name)
+  if shipped is None:
+    return None, None, f"no demonstrator is shipped for {env.name}"
+  file = _load(shipped, env)
+  if file.metadata["config"] != config.to_dict():
+    return None, file, (f"the shipped demonstrator {shipped} was trained with other settings "
+                        f"({file.metadata['config']})")
+  return shipped, file, ""
 
 
 def another_expert(demonstrator_metadata: dict, demos_info: dict) -> str | None:
