@@ -162,8 +162,11 @@ def main(argv=None) -> int:
                    share_under_100_by_radius_quartile=by_radius,
                    share_under_100_by_angle_quadrant=by_angle, second_half_medians=late,
                    **common_fields)
+  same_starts = jax.random.PRNGKey(11)  # one key: the same resets (targets, arm) for all
+  expert_run = scored_rollout(env, expert, score, same_starts, args.episodes)
   for name, agent in agents[1:]:
-    probe = failed_episodes(env, expert, agent, score, args.episodes,
+    probe = failed_episodes(scored_rollout(env, agent, score, same_starts, args.episodes),
+                            expert_run,
                             dict(position=position, to_target=to_target, velocity=velocity))
     print(f"  {name}: {probe['failed']} of {args.episodes} episodes under 100 (the expert's "
           "starts)")
@@ -190,17 +193,19 @@ def main(argv=None) -> int:
   return 0
 
 
-def failed_episodes(env, expert, agent, score, episodes: int, parts: dict) -> dict:
-  """`agent`'s and the expert's mean-action episodes from the same starts, summarised by
-  `episode_groups`."""
-  key = jax.random.PRNGKey(11)  # one key: the same resets (targets, arm) for both
-  runs = []
-  for policy in (agent, expert):
-    obs, returns, _, _ = rollout(env, policy, 0.0, key, episodes)  # [K, T+1, D], [K]
-    flat = lambda x: jnp.asarray(x.reshape(-1, x.shape[-1]))
-    log_d = np.asarray(score(flat(obs[:, :-1]), flat(obs[:, 1:]))).reshape(episodes, -1)
-    runs.append((obs, returns, log_d))
-  (obs, returns, log_d), (expert_obs, expert_returns, expert_log_d) = runs
+def scored_rollout(env, policy, score, key, episodes: int):
+  """`policy`'s mean-action episodes from the resets of `key`: observations [K, T+1, D],
+  returns [K] and the demonstrator's log pD of every transition [K, T]."""
+  obs, returns, _, _ = rollout(env, policy, 0.0, key, episodes)
+  flat = lambda x: jnp.asarray(x.reshape(-1, x.shape[-1]))
+  log_d = np.asarray(score(flat(obs[:, :-1]), flat(obs[:, 1:]))).reshape(episodes, -1)
+  return obs, returns, log_d
+
+
+def failed_episodes(run, expert_run, parts: dict) -> dict:
+  """A policy's and the expert's `scored_rollout`s from the same starts, summarised by
+  `episode_groups` and `failures_by_angle`."""
+  (obs, returns, log_d), (expert_obs, expert_returns, expert_log_d) = run, expert_run
   shoulder = expert_obs[:, -1, parts["position"].start]  # raw: may have turned past pi
   reached = expert_returns > 800.0  # starts where the expert's end is where the arm must be
   return {**episode_groups(obs, returns, log_d, expert_log_d, parts),

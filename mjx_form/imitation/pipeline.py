@@ -120,13 +120,12 @@ def prepare(env, config: em.EffectModelConfig, explicit: dict, artefacts: Artefa
                       **reward)
 
   path, file = artefacts.demonstrator, None
-  shipped = tasks.bundled_demonstrator(env.name)
   if path is None and not artefacts.train_demonstrator:
     path, file, why = shipped_demonstrator(env, config)
     if path is None and file is not None:
       print_fn(why + "; training one with this run's")
   if path is not None:  # a ready demonstrator: refused, if it does not fit, before recording
-    if file is None or path != shipped:  # (the shipped one is read already)
+    if file is None:  # (the shipped one is read already)
       file = _load(path, env)
     config, demonstrator = demonstrator_from_file(file, path, explicit)
   episodes = artefacts.demo_episodes or (DEFAULT_CHECK_EPISODES if path
