@@ -252,7 +252,8 @@ def _member(record: dict) -> str:
   reward = settings.get("reward", {})
   return json.dumps([settings.get("learner"), reward.get("standardise_reward"),
                      reward.get("reward_clip", 0.0), settings.get("action_noise_correlation", 0.0),
-                     settings.get("wrap_angles", False), settings.get("init_policy")],
+                     settings.get("wrap_angles", False), settings.get("init_policy"),
+                     *([True] if settings.get("angle_features") else [])],
                     sort_keys=True)
 
 
@@ -281,6 +282,8 @@ def _learner_notes(record: dict, with_period: bool = True,
     notes.append(f"actor noise correlated {correlation:g}")
   if settings.get("wrap_angles"):
     notes.append("angles wrapped")
+  if settings.get("angle_features"):
+    notes.append("angles as cos and sin")
   if settings.get("init_policy"):  # "<task> <sha256>": the trained policy it started from
     task, _, digest = settings["init_policy"].partition(" ")
     notes.append(f"started from {task}'s policy {digest[:8]}")

@@ -187,6 +187,11 @@ def parse_args(argv=None) -> argparse.Namespace:
                           "standardising them; by default it sees them raw, as the paper's "
                           "(FORM: unless the task's entry in mjx_form/imitation/settings.py "
                           "wraps them)")
+  train.add_argument("--angle_features", action=argparse.BooleanOptionalAction, default=None,
+                     help="the agent (actor and critic) sees each of those unbounded angles as "
+                          "its cos and sin instead of its value: one input per pose, no jump at "
+                          "+-pi; not the paper's (default: off, unless the task's entry in "
+                          "mjx_form/imitation/settings.py turns it on)")
   train.add_argument("--eval_envs", type=int, default=defaults.eval_envs)
   train.add_argument("--lockstep_episodes", action="store_true",
                      help="start every environment's first episode together (as runs before "
@@ -331,7 +336,9 @@ def train_config(args: argparse.Namespace) -> TrainConfig:
                      eval_envs=args.eval_envs, seed=seed,
                      stagger_episodes=not args.lockstep_episodes,
                      wrap_angles=chosen.get("wrap_angles", False) if args.wrap_angles is None
-                     else args.wrap_angles, learner=learner)
+                     else args.wrap_angles,
+                     angle_features=chosen.get("angle_features", False)
+                     if args.angle_features is None else args.angle_features, learner=learner)
 
 
 def recipe_applies(args: argparse.Namespace) -> bool:
@@ -349,7 +356,7 @@ def recipe_line(args: argparse.Namespace) -> str:
   else:
     recipe = settings.PER_TASK_RUN[args.task]
     where = "FORM settings (mjx_form/imitation/settings.py)"
-  keys = (*recipes.KEYS, "wrap_angles")
+  keys = (*recipes.KEYS, "wrap_angles", "angle_features")
   flags = [f"--{'no-' if getattr(args, k) is False else ''}{k}" for k in keys
            if getattr(args, k) is not None]
   flags += [f"--grid {k}" for k in keys if k in (args.grid or {})]

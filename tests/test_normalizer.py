@@ -170,3 +170,38 @@ def test_periodic_features_are_wrapped_before_statistics_and_standardisation():
   assert not np.allclose(normalizer.update(plain, turns).mean, a.mean, atol=1e-3)
   with pytest.raises(ValueError, match="period"):
     normalizer.init(3, period=[0.0, -1.0, 0.0])
+
+
+def test_angle_features_replace_each_angle_by_its_cos_and_sin():
+  """`angles`: the agent's features are the raw ones with the angle zeroed, then its cos and sin
+  (checked against numpy); whole turns change nothing and +-pi is no jump (a wrapped angle's
+  standardised value jumps there); a zero row keeps the raw angle and adds zeros; the statistics
+  are the features' (the mean of the cosines is numpy's); shapes and rows are checked."""
+  rng = np.random.default_rng(1)
+  x = rng.uniform(-3, 3, size=(256, 3)).astype(np.float32)
+  rows = normalizer.angle_rows([0.0, 2 * np.pi, 0.0])
+  np.testing.assert_array_equal(rows, [[0, 1, 0]])
+  state = normalizer.init(3, angles=rows)
+  assert state.mean.shape == (5,) and normalizer.input_size(state) == 3
+  expected = np.stack([x[:, 0], 0 * x[:, 1], x[:, 2], np.cos(x[:, 1]), np.sin(x[:, 1])], -1)
+  np.testing.assert_allclose(normalizer.features(state, x), expected, atol=1e-6)
+  turned = x.copy()
+  turned[:, 1] += 2 * np.pi * rng.integers(-3, 4, size=256)
+  np.testing.assert_allclose(normalizer.features(state, turned), expected, atol=1e-5)
+  fitted = normalizer.update(state, x)
+  np.testing.assert_allclose(fitted.mean[3], np.cos(x[:, 1]).mean(), atol=1e-6)
+  np.testing.assert_allclose(fitted.var[4], np.sin(x[:, 1]).var(), atol=1e-6)
+  edge = np.array([[0.5, np.pi - 1e-3, 0.5], [0.5, -np.pi + 1e-3, 0.5]], np.float32)
+  near = normalizer.normalize(fitted, edge)
+  np.testing.assert_allclose(near[0], near[1], atol=1e-2)
+  wrapped = normalizer.update(normalizer.init(3, period=[0, 2 * np.pi, 0]), x)
+  far = normalizer.normalize(wrapped, edge)
+  assert abs(far[0, 1] - far[1, 1]) > 2.0  # the wrap's jump, which the cos and sin do not have
+  off = normalizer.init(3, angles=np.zeros((1, 3)))  # a member that sees the angle raw
+  np.testing.assert_allclose(normalizer.features(off, x),
+                             np.concatenate([x, np.zeros((256, 2))], -1), atol=1e-6)
+  with pytest.raises(ValueError, match=r"expected \(\.\.\., 3\)"):
+    normalizer.normalize(state, jnp.ones((4, 5)))
+  for bad in ([[0, 1]], [[0, 0.5, 0]], [[1, 1, 0]], [[0, 1, 0], [0, 1, 0]], np.zeros((0, 3))):
+    with pytest.raises(ValueError, match="angles"):
+      normalizer.init(3, angles=bad)

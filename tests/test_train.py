@@ -653,3 +653,46 @@ def test_wrap_angles_reaches_the_agents_normaliser_and_its_policy_file(tmp_path,
                           "--out", str(tmp_path / "w.npz")], "no unbounded angle")):
     assert script.main(args) == 2
     assert problem in capsys.readouterr().err
+
+
+def test_angle_features_reach_the_networks_the_loop_and_the_policy_files(tmp_path):
+  """`angle_features` in a population beside a member without it (2 devices): the member's
+  normaliser has reacher's shoulder as one row and its networks take D + 2 inputs (the other
+  member's row is zeros: it sees the raw angle); the compiled loop runs; each member's file
+  loads with its own rows (and evaluates as the state does), and the featured member's policy
+  acts alike on shoulder angles whole turns apart. A starting policy must see its angles as the run does; a task without
+  unbounded angles is refused."""
+  env = tasks.make("reacher_easy")
+  mixed = Trainer(CONFIG, mesh_lib.make_mesh(), seeds=(0, 1),
+                  overrides=({"angle_features": False}, {"angle_features": True}))
+  state, metrics = run_iterations(mixed, mixed.init(mixed.keys()), 2)
+  assert all(np.isfinite(m["critic_loss"]).all() for m in metrics)
+  d = env.observation_size
+  assert state.normalizer.mean.shape == (2, d + 2)
+  np.testing.assert_array_equal(state.normalizer.angles, [[[0] * d], [[1] + [0] * (d - 1)]])
+  for params in (state.learner.policy, state.learner.critic):  # [P, inputs, width]
+    assert params["params"]["Encoder_0"]["Dense_0"]["kernel"].shape[1] == d + 2
+  obs = jax.random.normal(jax.random.PRNGKey(0), (4, d))
+  turned = obs.at[:, 0].add(2 * np.pi * jax.numpy.array([1, -1, 2, 3]))
+  for i, rows in enumerate(([[0] * d], [[1] + [0] * (d - 1)])):
+    path = str(tmp_path / f"member{i}.npz")
+    runner.export_policy(mixed, state, i, path, {"env_steps": 0})
+    expert = experts.load_expert(path, env)
+    np.testing.assert_array_equal(expert.normalizer.angles, rows)
+    net = experts.policy_network(expert.metadata, env.action_size)
+    act = lambda o, e=expert: net.apply(e.params, normalizer.normalize(e.normalizer, o)).mean
+    assert np.allclose(act(turned), act(obs), atol=1e-4) == bool(i), i
+    stand_in = types.SimpleNamespace(
+        config=dataclasses.replace(CONFIG, init_policy=experts.policy_id(expert)), env=env,
+        members=1, overrides=({},), member_config=lambda _, i=i: dataclasses.replace(
+            CONFIG, angle_features=not i))
+    with pytest.raises(runner.RunError, match="angle_features"):
+      runner.check_initial_policy(stand_in, expert)
+  paths = [str(tmp_path / f"member{i}.npz") for i in range(2)]  # the fresh final evaluation
+  rows = [{"env_steps": 0, "wall_s": 0.0} for _ in paths]
+  runner._final_evaluation(mixed, state, paths, rows, CONFIG.eval_envs, None, 0,
+                           ["seed 0", "seed 1"], print_fn=lambda *_: None)
+  for row in rows:  # the files hold the state's own policies: the same returns
+    np.testing.assert_allclose(row["best_policy_return"], row["final_policy_return"], rtol=1e-5)
+  with pytest.raises(ValueError, match="no unbounded angle"):
+    Trainer(dataclasses.replace(CONFIG, task="walker_walk", angle_features=True))

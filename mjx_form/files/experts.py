@@ -51,10 +51,20 @@ def load_expert(path: str, env: env_lib.Task, any_task: bool = False) -> Expert:
   stats = arrays["normalizer"]
   norm = normalizer.NormalizerState(
       jnp.asarray(stats["mean"]), jnp.asarray(stats["var"]), jnp.asarray(1, jnp.int32),
-      None if "period" not in stats else jnp.asarray(stats["period"]))  # wrapped angles
-  if norm.period is not None and norm.period.shape != norm.mean.shape:
+      None if "period" not in stats else jnp.asarray(stats["period"]),  # wrapped angles
+      None if "angles" not in stats else jnp.asarray(stats["angles"]))  # cos and sin of angles
+  d = metadata["observation_size"]
+  if norm.period is not None and norm.period.shape != (d,):
     raise policy_io.PolicyFileError(f"{path}: normalizer/period has shape {norm.period.shape}, "
-                                    f"normalizer/mean {norm.mean.shape}")
+                                    f"the observations {d} features")
+  k = 0 if norm.angles is None else norm.angles.shape[0]
+  if norm.angles is not None and (norm.angles.ndim != 2 or norm.angles.shape[1] != d):
+    raise policy_io.PolicyFileError(f"{path}: normalizer/angles has shape {norm.angles.shape}, "
+                                    f"expected [K, {d}]")
+  if norm.mean.shape != (d + 2 * k,) or norm.var.shape != (d + 2 * k,):
+    raise policy_io.PolicyFileError(
+        f"{path}: normalizer/mean and var have shapes {norm.mean.shape}, {norm.var.shape}; "
+        f"expected ({d + 2 * k},) for {d} observations" + (f" and {k} angles" if k else ""))
   return Expert(jax.tree.map(jnp.asarray, arrays["policy"]), norm, metadata)
 
 

@@ -119,7 +119,7 @@ DEFAULT_RUN = {"standardise_reward": True, "reward_clip": 3.0, "target_update_pe
                "sampled_q_bfloat16": True}
 # A task's measured departures from DEFAULT_RUN. Besides DEFAULT_RUN's keys an entry may set the
 # actor (ACTOR_KEYS; the paper's head, independent noise and raw angles otherwise).
-ACTOR_KEYS = ("policy_head", "action_noise_correlation", "wrap_angles")
+ACTOR_KEYS = ("policy_head", "action_noise_correlation", "wrap_angles", "angle_features")
 PER_TASK_RUN: dict[str, dict] = {
     # hopper_stand: the actor of its expert recipe (mjx_form/rl/recipes.py: without the acme head
     # and noise correlated at 0.9 the expert runs never rose; wrapped angles fixed its falls from

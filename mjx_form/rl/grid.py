@@ -13,7 +13,8 @@ draws exactly what a single run's independent draw gives, while the population k
 state for every member. The action penalty is another: its dual is in every member's state
 if any member penalises, and stays at its initial value in a member that does not. And
 `wrap_angles`: every member's normaliser has a period if any member wraps, zeros in a member
-that does not, which wraps nothing.)
+that does not, which wraps nothing; `angle_features` likewise: every member's normaliser has
+`angles` if any member sees cos and sin, zero rows in a member that does not.)
 
 A member is a seed and its overrides, e.g. (0, {"target_update_period": 25}); a grid
 (`expand`) is every combination of the seeds and the listed values.
@@ -45,7 +46,7 @@ LEARNER = {
 # name -> type: TrainConfig fields: the actors' draw, and whether the agent wraps the task's raw
 # angles (realised as each member's observation-normaliser `period` at init, zeros in a member
 # that does not wrap: normalizer.wrap leaves its features as they are).
-ACTOR = {"action_noise_correlation": float, "wrap_angles": bool}
+ACTOR = {"action_noise_correlation": float, "wrap_angles": bool, "angle_features": bool}
 # name -> type: settings a reward source lists in its `variable_settings` (FORM's
 # standardise_reward and reward_clip); the source's `specialise(values)` gives a member's source.
 SOURCE = {"standardise_reward": bool, "reward_clip": float}

@@ -17,6 +17,13 @@ Periodic features (`period` [D], 0 where a feature is not periodic; e.g. 2 pi fo
 hinge angle that an observation gives raw) are wrapped into [-period/2, period/2) before
 anything else, by `update` and `normalize` alike: states that differ by whole turns then look
 the same to the agent.
+
+Angle features (`angles` [K, D], row j one-hot at the j-th unbounded angle, or all zeros where a
+member does not encode it): each encoded angle reaches the agent as its cos and sin instead of
+its raw value, so that the same pose is one input whatever the turns and there is no jump at
++-pi either. `features` maps raw observations [..., D] to [..., D + 2K]: the raw features with the
+encoded ones zeroed, then the K cosines, then the K sines (zeros where a row is zero); `update`
+and `normalize` take raw observations and keep the statistics of those features ([D + 2K]).
 """
 
 from __future__ import annotations
@@ -29,15 +36,17 @@ import numpy as np
 
 
 class NormalizerState(NamedTuple):
-  mean: jax.Array   # [D]
-  var: jax.Array    # [D], population variance (ddof=0)
+  mean: jax.Array   # [F] (F = D, or D + 2K with angle features)
+  var: jax.Array    # [F], population variance (ddof=0)
   count: jax.Array  # int32 []: number of updates so far
   period: jax.Array | None = None  # [D]: each feature's period, 0 if none; None: no periodic one
+  angles: jax.Array | None = None  # [K, D]: the angles seen as cos and sin (module docstring)
 
 
-def init(size: int, dtype=jnp.float32, period=None) -> NormalizerState:
-  """Statistics of `size` features before any update: mean 0, var 1 (normalize is identity-ish);
-  `period` [size] (0 where a feature is not periodic) or None."""
+def init(size: int, dtype=jnp.float32, period=None, angles=None) -> NormalizerState:
+  """Statistics of observations of `size` features before any update: mean 0, var 1 (normalize
+  is identity-ish); `period` [size] (0 where a feature is not periodic) or None; `angles`
+  [K, size] (rows one-hot or zero: module docstring) or None."""
   if isinstance(size, bool) or not isinstance(size, int) or size < 1:
     raise ValueError(f"size must be a positive integer, got {size!r}")
   if period is not None:
@@ -45,8 +54,18 @@ def init(size: int, dtype=jnp.float32, period=None) -> NormalizerState:
     if period.shape != (size,) or np.any(period < 0):
       raise ValueError(f"period must be [{size}] values >= 0, got {period}")
     period = jnp.asarray(period, dtype)
-  return NormalizerState(jnp.zeros((size,), dtype), jnp.ones((size,), dtype),
-                         jnp.zeros((), jnp.int32), period)
+  width = size
+  if angles is not None:
+    angles = np.asarray(angles, np.float64)
+    if (angles.ndim != 2 or angles.shape[1] != size or not angles.shape[0]
+        or not np.all((angles == 0) | (angles == 1)) or np.any(angles.sum(1) > 1)
+        or np.any(angles.sum(0) > 1)):
+      raise ValueError(f"angles must be [K >= 1, {size}] rows, each one-hot or zero, no feature "
+                       f"in two rows; got {angles.tolist()}")
+    width = size + 2 * angles.shape[0]
+    angles = jnp.asarray(angles, dtype)
+  return NormalizerState(jnp.zeros((width,), dtype), jnp.ones((width,), dtype),
+                         jnp.zeros((), jnp.int32), period, angles)
 
 
 def wrap(state: NormalizerState, x: jax.Array) -> jax.Array:
@@ -60,8 +79,33 @@ def wrap(state: NormalizerState, x: jax.Array) -> jax.Array:
   return jnp.where(periodic, wrapped, x)
 
 
+def angle_rows(period) -> np.ndarray:
+  """`angles` [K, D] encoding every feature with a period (> 0) in `period` [D]: K = their
+  number, one one-hot row each, in order."""
+  period = np.asarray(period)
+  return np.eye(period.shape[-1], dtype=np.float32)[np.flatnonzero(period > 0)]
+
+
+def input_size(state: NormalizerState) -> int:
+  """D, the raw observations' size (the statistics' is D + 2K with angle features)."""
+  return state.mean.shape[-1] - (0 if state.angles is None else 2 * state.angles.shape[-2])
+
+
+def features(state: NormalizerState, x: jax.Array) -> jax.Array:
+  """Raw observations x [..., D] (periodic features wrapped) as the agent's features
+  [..., D + 2K] (module docstring); x itself without `angles`."""
+  x = wrap(state, x)
+  if state.angles is None:
+    return x
+  rows = state.angles                                        # [K, D]
+  theta = jnp.sum(x[..., None, :] * rows, axis=-1)           # [..., K] (one term each: exact)
+  on = jnp.sum(rows, axis=-1)                                # [K]
+  raw = x * (1 - jnp.sum(rows, axis=-2))                     # [..., D]
+  return jnp.concatenate([raw, on * jnp.cos(theta), on * jnp.sin(theta)], axis=-1)
+
+
 def _check(state: NormalizerState, x: jax.Array, what: str) -> None:
-  size = state.mean.shape[-1]
+  size = input_size(state)
   if jnp.ndim(x) < 1 or jnp.shape(x)[-1] != size:
     raise ValueError(f"{what} has shape {jnp.shape(x)}; expected (..., {size})")
 
@@ -76,26 +120,26 @@ def update(state: NormalizerState, batch: jax.Array, decay: float = 0.99,
   _check(state, batch, "batch")
   if isinstance(decay, (int, float)) and not 0.0 <= decay < 1.0:
     raise ValueError(f"decay must be in [0, 1), got {decay}")
-  batch = wrap(state, jnp.asarray(batch, state.mean.dtype))
+  batch = features(state, jnp.asarray(batch, state.mean.dtype))
   axes = tuple(range(batch.ndim - 1))
   if mask is None:
-    batch_mean = jnp.mean(batch, axis=axes)                                # [D]
-    batch_var = jnp.mean(jnp.square(batch - batch_mean), axis=axes)        # [D]
+    batch_mean = jnp.mean(batch, axis=axes)                                # [F]
+    batch_var = jnp.mean(jnp.square(batch - batch_mean), axis=axes)        # [F]
   else:
     if jnp.shape(mask) != batch.shape[:-1]:
       raise ValueError(f"mask has shape {jnp.shape(mask)}; expected {batch.shape[:-1]}")
     weights = jnp.asarray(mask, batch.dtype)[..., None]                    # [..., 1]
     rows = jnp.sum(weights)
     share = weights / jnp.maximum(rows, 1)
-    batch_mean = jnp.sum(share * batch, axis=axes)                         # [D]
-    batch_var = jnp.sum(share * jnp.square(batch - batch_mean), axis=axes)  # [D]
+    batch_mean = jnp.sum(share * batch, axis=axes)                         # [F]
+    batch_var = jnp.sum(share * jnp.square(batch - batch_mean), axis=axes)  # [F]
   count = state.count + 1
   decay = jnp.asarray(decay, state.mean.dtype)
   rate = (1 - decay) / (1 - decay ** count.astype(state.mean.dtype))       # 1 at the first update
   delta = batch_mean - state.mean
   mean = state.mean + rate * delta
   var = (1 - rate) * state.var + rate * batch_var + rate * (1 - rate) * jnp.square(delta)
-  updated = NormalizerState(mean, jnp.maximum(var, 0), count, state.period)
+  updated = NormalizerState(mean, jnp.maximum(var, 0), count, state.period, state.angles)
   if mask is None:
     return updated
   return jax.tree.map(lambda new, old: jnp.where(rows > 0, new, old), updated, state)
@@ -103,8 +147,8 @@ def update(state: NormalizerState, batch: jax.Array, decay: float = 0.99,
 
 def normalize(state: NormalizerState, x: jax.Array, clip: float | None = None,
               eps: float = 1e-6) -> jax.Array:
-  """(x - mean) / sqrt(var + eps) for x [..., D] (periodic features wrapped first), optionally
-  clipped to [-clip, clip]."""
+  """(features(x) - mean) / sqrt(var + eps) for raw observations x [..., D] (periodic features
+  wrapped, angle features made), optionally clipped to [-clip, clip]."""
   _check(state, x, "x")
-  out = (wrap(state, x) - state.mean) / jnp.sqrt(state.var + eps)
+  out = (features(state, x) - state.mean) / jnp.sqrt(state.var + eps)
   return out if clip is None else jnp.clip(out, -clip, clip)

@@ -36,7 +36,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from mjx_form.files import checkpoint, experts, policy_io, results
-from mjx_form.rl import grid
+from mjx_form.rl import grid, normalizer
 from mjx_form.rl.learner import LearnerConfig
 from mjx_form.rl.train import TrainConfig, Trainer, iterations_for
 
@@ -47,7 +47,7 @@ RESUMABLE = ("total_env_steps", "log_every", "eval_every", "checkpoint_every")
 ADDED_SETTINGS = {"learner.mpo.action_penalty": False, "learner.mpo.epsilon_penalty": 1e-3,
                   "learner.clip_critic_actions": False, "learner.sampled_q_bfloat16": False,
                   "policy_head": "paper", "action_noise_correlation": 0.0,
-                  "wrap_angles": False, "init_policy": None}
+                  "wrap_angles": False, "init_policy": None, "angle_features": False}
 
 
 # Columns that not every row has (evaluation rows; devices that report memory).
@@ -127,7 +127,7 @@ def check_run_dir(directory: str, resume: bool, also: tuple[str, ...] = ()) -> N
 
 def check_initial_policy(trainer: Trainer, policy: experts.Expert | None) -> None:
   """Refuses (RunError, naming the problem) a starting policy that the run's config does not
-  name, or whose network or angle wrapping differs from the run's members'."""
+  name, or whose network, angle wrapping or angle features differ from the run's members'."""
   named = trainer.config.init_policy
   if policy is None:
     if named is not None:
@@ -158,6 +158,20 @@ def check_initial_policy(trainer: Trainer, policy: experts.Expert | None) -> Non
       raise RunError(f"the starting policy ({meta['task']}) saw {'its' if wraps else 'no'} "
                      f"angles wrapped, member {i} of this run "
                      f"{'does not wrap them' if wraps else 'wraps them'}: {fix}")
+  # Likewise the angles it saw as cos and sin (its normaliser's `angles`; none: zero rows).
+  rows = normalizer.angle_rows(periods)
+  theirs = (np.zeros_like(rows) if policy.normalizer.angles is None
+            else np.asarray(policy.normalizer.angles))
+  sees = bool(np.any(theirs))
+  for i in range(trainer.members):
+    ours = rows if trainer.member_config(i).angle_features else np.zeros_like(rows)
+    if theirs.shape != ours.shape or not np.array_equal(theirs, ours):
+      fix = ("give all members one setting (not --grid angle_features)"
+             if "angle_features" in trainer.overrides[i] else
+             f"pass --{'' if sees else 'no-'}angle_features")
+      raise RunError(f"the starting policy ({meta['task']}) saw {'its' if sees else 'no'} "
+                     f"angles as cos and sin, member {i} of this run "
+                     f"{'does not' if sees else 'does'}: {fix}")
 
 
 def member_dirs(directory: str, seeds: tuple[int, ...],
@@ -495,7 +509,10 @@ def export_policy(trainer: Trainer, state, member: int, path: str, row: dict) ->
   arrays = {"policy": jax.device_get(trainer.member(state.learner.policy, member)),
             "normalizer": {"mean": np.asarray(norm.mean), "var": np.asarray(norm.var),
                            # (a member that does not wrap, beside ones that do, has zeros)
-                           **({"period": np.asarray(norm.period)} if cfg.wrap_angles else {})}}
+                           **({"period": np.asarray(norm.period)} if cfg.wrap_angles else {}),
+                           # (zero rows in a member that does not, beside ones that do)
+                           **({"angles": np.asarray(norm.angles)}
+                              if norm.angles is not None else {})}}
   metadata = {"task": cfg.task, "observation_size": env.observation_size,
               "action_size": env.action_size,
               "observation_layout": [[k, v] for k, v in env.observation_layout.items()],

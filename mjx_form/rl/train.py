@@ -44,6 +44,7 @@ from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 import tasks
 from mjx_form import cpu
@@ -83,6 +84,9 @@ class TrainConfig:
   # [-pi, pi) before standardising them (the observation normaliser's `period`); off: it sees
   # them raw, as the paper's agent does.
   wrap_angles: bool = False
+  # The agent sees each of those angles as its cos and sin instead (the normaliser's `angles`):
+  # one input per pose, no jump anywhere. Not the paper's.
+  angle_features: bool = False
   eval_envs: int = 16
   seed: int = 0
   stagger_episodes: bool = True  # first episodes start at random phases (see module docstring)
@@ -240,6 +244,8 @@ class Trainer:
     # (a member whose flag is off leaves it at its initial value).
     self._init_learner = grid.learner_config(config.learner, {"action_penalty": any(
         self.member_config(i).learner.mpo.action_penalty for i in range(self.members))})
+    if self._angle_features() and not self.env.periodic_observations:
+      raise ValueError(f"angle_features: {self.env.name} observes no unbounded angle")
     abstract = jax.eval_shape(self._init, self.keys(0))
     self.state_sharding = self._shardings(abstract)
     self.abstract_state = jax.tree.map(  # shapes, dtypes, shardings
@@ -251,6 +257,14 @@ class Trainer:
                              out_shardings=(self.state_sharding, self._replicated))
     self.evaluate = jax.jit(self._evaluate, static_argnames="num_envs",
                             out_shardings=self._replicated)
+
+  def _angle_features(self) -> bool:
+    """Whether some member sees angle features (every member's normaliser has `angles` then)."""
+    return any(self.member_config(i).angle_features for i in range(self.members))
+
+  def _angle_rows(self) -> np.ndarray:
+    """[K, D]: the normaliser's `angles` of a member that sees angle features."""
+    return normalizer.angle_rows(self.env.observation_period())
 
   @property
   def per_device_env_steps(self) -> bool:
@@ -339,10 +353,12 @@ class Trainer:
     if cfg.stagger_episodes:
       phases = max(1, env_lib.EPISODE_LENGTH // cfg.unroll_length)
       start = cfg.unroll_length * jax.random.randint(stagger_key, (cfg.num_envs,), 0, phases)
+    angles = self._angle_rows() if self._angle_features() else None
+    norm = normalizer.init(self.env.observation_size, angles=angles)  # `_init`: each member's
     state = TrainState(
         learner=learner_lib.init(self.networks, self._init_learner, learner_key,
-                                 self.env.observation_size, self.env.action_size),
-        normalizer=normalizer.init(self.env.observation_size),  # `_init` sets its period
+                                 norm.mean.shape[-1], self.env.action_size),
+        normalizer=norm,
         replay=replay.ReplayState(storage, jnp.zeros((), jnp.int32), jnp.zeros((), jnp.int32)),
         env=None, episode_return=None,
         source=self.source.init(source_key, self.env.observation_size, self.env.action_size),
@@ -357,6 +373,11 @@ class Trainer:
       period = jnp.asarray(self.env.observation_period(), jnp.float32)
       members = members._replace(normalizer=members.normalizer._replace(period=jnp.stack(
           [period if w else jnp.zeros_like(period) for w in wraps])))
+    if self._angle_features():  # each member's angles [P, K, D]; zero rows: raw angles
+      rows = jnp.asarray(self._angle_rows())
+      members = members._replace(normalizer=members.normalizer._replace(angles=jnp.stack(
+          [rows if self.member_config(i).angle_features else jnp.zeros_like(rows)
+           for i in range(self.members)])))
     env_state = self.auto_reset.reset_from_keys(env_keys.reshape(-1, 2))  # [P * N]
     start = start.reshape(-1)
     episode_return = jnp.zeros(start.shape, jnp.float32)
