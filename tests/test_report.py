@@ -160,7 +160,8 @@ def _default_settings(task):
                      "reward_clip": run["reward_clip"],
                      "effect_model": settings.effect_model_settings(task)},
           "learner": {"target_update_period": run["target_update_period"],
-                      "sampled_q_bfloat16": run["sampled_q_bfloat16"]}}
+                      "sampled_q_bfloat16": run["sampled_q_bfloat16"]},
+          **{k: run[k] for k in settings.ACTOR_KEYS if k in run}}  # e.g. reacher's angles
 
 
 def test_default_form_variant_is_what_a_default_run_records():
