@@ -132,7 +132,8 @@ def check(jobs_file: Path, deadline_s: float = 1200.0) -> list[str]:
         f"{'bf16' if learner.sampled_q_bfloat16 else 'float32'}, critic clips actions "
         f"{learner.clip_critic_actions}, action penalty {learner.mpo.action_penalty}, head "
         f"{config.policy_head}, noise correlation {config.action_noise_correlation:g}, wrap "
-        f"angles {config.wrap_angles}, angle features {config.angle_features}, physics {config.physics}, init policy "
+        f"angles {config.wrap_angles}, angle features {config.angle_features}, "
+        f"physics {config.physics}, init policy "
         f"{args.init_policy or '-'}, env steps {args.env_steps:,}, max seconds "
         f"{args.max_seconds}")
   return lines

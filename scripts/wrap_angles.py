@@ -47,6 +47,9 @@ def main(argv=None) -> int:
       raise ValueError(f"{env.name} observes no unbounded angle: nothing to wrap")
     if "period" in arrays["normalizer"]:
       raise ValueError(f"{args.policy}: its agent wraps angles already")
+    if np.any(arrays["normalizer"].get("angles", 0)):
+      raise ValueError(f"{args.policy}: its agent sees the angles as cos and sin (nothing to "
+                       "wrap)")
     arrays["normalizer"]["period"] = env.observation_period()
     metadata = {**metadata, "wrap_angles": list(env.periodic_observations),
                 "wrap_angles_added_after_training": True,

@@ -655,16 +655,18 @@ def test_wrap_angles_reaches_the_agents_normaliser_and_its_policy_file(tmp_path,
     assert problem in capsys.readouterr().err
 
 
-def test_angle_features_reach_the_networks_the_loop_and_the_policy_files(tmp_path):
-  """`angle_features` in a population beside a member without it (2 devices): the member's
-  normaliser has reacher's shoulder as one row and its networks take D + 2 inputs (the other
-  member's row is zeros: it sees the raw angle); the compiled loop runs; each member's file
-  loads with its own rows (and evaluates as the state does), and the featured member's policy
-  acts alike on shoulder angles whole turns apart. A starting policy must see its angles as the run does; a task without
-  unbounded angles is refused."""
+def test_angle_features_reach_the_networks_the_loop_and_the_policy_files(tmp_path, capsys):
+  """`angle_features` (and the wrap) in a population beside a member without either (2
+  devices): the member's normaliser has reacher's shoulder as one row and its networks take
+  D + 2 inputs (the other member's row is zeros: it sees the raw angle); the compiled loop
+  runs; each member's file loads with its own rows and evaluates as the state does, and the
+  featured member's policy acts alike on shoulder angles whole turns apart. A starting policy
+  must see its angles as the run does and take as many inputs; a task without unbounded angles
+  is refused."""
   env = tasks.make("reacher_easy")
   mixed = Trainer(CONFIG, mesh_lib.make_mesh(), seeds=(0, 1),
-                  overrides=({"angle_features": False}, {"angle_features": True}))
+                  overrides=({"angle_features": False, "wrap_angles": False},
+                             {"angle_features": True, "wrap_angles": True}))
   state, metrics = run_iterations(mixed, mixed.init(mixed.keys()), 2)
   assert all(np.isfinite(m["critic_loss"]).all() for m in metrics)
   d = env.observation_size
@@ -685,9 +687,22 @@ def test_angle_features_reach_the_networks_the_loop_and_the_policy_files(tmp_pat
     stand_in = types.SimpleNamespace(
         config=dataclasses.replace(CONFIG, init_policy=experts.policy_id(expert)), env=env,
         members=1, overrides=({},), member_config=lambda _, i=i: dataclasses.replace(
-            CONFIG, angle_features=not i))
+            CONFIG, angle_features=not i, wrap_angles=bool(i)))
     with pytest.raises(runner.RunError, match="angle_features"):
       runner.check_initial_policy(stand_in, expert)
+  arrays, meta = policy_io.load_policy(str(tmp_path / "member1.npz"))  # cos and sin, no wrap
+  del arrays["normalizer"]["period"]
+  meta = {k: v for k, v in meta.items() if k not in ("sha256", "format", "version")}
+  policy_io.save_policy(str(tmp_path / "unwrapped.npz"), arrays, meta)
+  assert load_script("wrap_angles").main(["--policy", str(tmp_path / "unwrapped.npz"), "--out",
+                                          str(tmp_path / "w.npz")]) == 2
+  assert "cos and sin" in capsys.readouterr().err and not (tmp_path / "w.npz").exists()
+  plain = Trainer(CONFIG)  # member 0's file: the raw angle, but D + 2 inputs
+  expert = experts.load_expert(str(tmp_path / "member0.npz"), env)
+  plain.config = dataclasses.replace(CONFIG, init_policy=experts.policy_id(expert))
+  with pytest.raises(runner.RunError, match="takes 8 observation features, this run's "
+                                            "networks 6"):
+    runner.check_initial_policy(plain, expert)
   paths = [str(tmp_path / f"member{i}.npz") for i in range(2)]  # the fresh final evaluation
   rows = [{"env_steps": 0, "wall_s": 0.0} for _ in paths]
   runner._final_evaluation(mixed, state, paths, rows, CONFIG.eval_envs, None, 0,

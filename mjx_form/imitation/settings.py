@@ -134,7 +134,8 @@ PER_TASK_RUN: dict[str, dict] = {
     # imitators failed about twice as often where the arm must end with the shoulder near +-pi
     # (benchmarks/reacher_settling.py, session 40). Measured on H100s, each task one population
     # of seeds 0-2 x angle_features 0/1 with the shipped pair (benchmarks/NOTES.md, session 41),
-    # fresh finals over 256 episodes, raw -> cos and sin, seed for seed:
+    # fresh finals over 256 episodes, raw -> cos and sin, seed for seed (the raw members' networks
+    # had the two extra inputs, always 0: mjx_form/rl/grid.py):
     #   reacher_hard (58.9M steps): 482.5 / 288.4 / 573.7 (mean 448.2) -> 714.7 / 656.5 / 787.9
     #     (719.7); best policies 748.9 -> 782.9; with an L2-1 demonstrator (49.9M): 228.0 ->
     #     595.4, every seed higher;

@@ -98,7 +98,7 @@ def features(state: NormalizerState, x: jax.Array) -> jax.Array:
   if state.angles is None:
     return x
   rows = state.angles                                        # [K, D]
-  theta = jnp.sum(x[..., None, :] * rows, axis=-1)           # [..., K] (one term each: exact)
+  theta = jnp.sum(jnp.where(rows > 0, x[..., None, :], 0), axis=-1)  # [..., K] (exact)
   on = jnp.sum(rows, axis=-1)                                # [K]
   raw = x * (1 - jnp.sum(rows, axis=-2))                     # [..., D]
   return jnp.concatenate([raw, on * jnp.cos(theta), on * jnp.sin(theta)], axis=-1)

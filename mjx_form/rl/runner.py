@@ -158,8 +158,16 @@ def check_initial_policy(trainer: Trainer, policy: experts.Expert | None) -> Non
       raise RunError(f"the starting policy ({meta['task']}) saw {'its' if wraps else 'no'} "
                      f"angles wrapped, member {i} of this run "
                      f"{'does not wrap them' if wraps else 'wraps them'}: {fix}")
-  # Likewise the angles it saw as cos and sin (its normaliser's `angles`; none: zero rows).
+  # Likewise the angles it saw as cos and sin (its normaliser's `angles`; none: zero rows), and
+  # its inputs' number (a member that saw the raw angle beside members that did not had D + 2K).
   rows = normalizer.angle_rows(periods)
+  featured = any(trainer.member_config(i).angle_features for i in range(trainer.members))
+  width = size + (2 * len(rows) if featured else 0)
+  if policy.normalizer.mean.shape[-1] != width:
+    raise RunError(f"the starting policy ({meta['task']}) takes "
+                   f"{policy.normalizer.mean.shape[-1]} observation features, this run's "
+                   f"networks {width} (a policy of a population member beside members with "
+                   "angle features needs a run with the same --grid angle_features)")
   theirs = (np.zeros_like(rows) if policy.normalizer.angles is None
             else np.asarray(policy.normalizer.angles))
   sees = bool(np.any(theirs))
@@ -368,8 +376,8 @@ def _final_evaluation(trainer: Trainer, state, best_paths: list[str], rows: list
   best_policy = jax.tree.map(lambda *x: jnp.stack(x), *[b.params for b in bests])
   norms = [b.normalizer for b in bests]
   if state.normalizer.period is not None:  # members that wrap beside ones that do not (zeros)
-    norms = [n if n.period is not None else n._replace(period=jnp.zeros_like(n.mean))
-             for n in norms]
+    norms = [n if n.period is not None else n._replace(
+        period=jnp.zeros((normalizer.input_size(n),), n.mean.dtype)) for n in norms]
   best_norm = jax.tree.map(lambda *x: jnp.stack(x), *norms)
   # Placed as the state's own policy and normaliser are, so that the best policy's evaluation
   # is the final one's program (read from the files they would lie on one device: another
