@@ -163,7 +163,8 @@ def _form_models(run, args) -> str:
     where = ("shipped" if path else "trained (the shipped one has other settings)" if file
              else "trained (none shipped)")
   return (f"effect models beta_ar {config.beta_ar:g}, L2 {config.l2:g}, width {config.width}"
-          f"{', turn-invariant' if config.period else ''}; demonstrator {where}")
+          f"{', turn-invariant' if config.period else ''}"
+          f"{', angle increments' if config.angle_increments else ''}; demonstrator {where}")
 
 
 def machine_gpus() -> list[str]:

@@ -561,6 +561,8 @@ def _form_variant(record: dict) -> str:
   # without building the task, which would need JAX)
   if any(model.get("period") or ()) or model.get("turn_invariant"):
     regularisers.append("turn-invariant")
+  if model.get("angle_increments"):
+    regularisers.append("angle increments")
   return ", ".join([reward, f"T {period}", *regularisers,
                     *_learner_notes(record, with_period=False)])
 
@@ -968,6 +970,8 @@ def effect_model_table(records: list[dict], best_per_task: bool = True,
     s = r.get("settings", {})
     heldout = " / ".join(f"{v:.2f}" for v in r["heldout_log_likelihood"])
     turns = "invariant" if any(s.get("period") or ()) else "-"  # (EffectModelConfig.period)
+    if s.get("angle_increments"):
+      turns += ", increments"
     batch = (f"{s['batch_size']} x {s['window']}" if "batch_size" in s and "window" in s
              else "-")  # windows x transitions per training step
     demos = r.get("demonstrations") or {}

@@ -49,8 +49,8 @@ from mjx_form.sim.wrappers import AutoReset  # noqa: E402
 METHODS = ("form", "expert", "random")
 # Options that only --method form reads (a user who gives one to another method is told so).
 FORM_ONLY = ("expert", "demos", "demo_episodes", "save_demos", "demonstrator",
-             "train_demonstrator", "beta_ar", "effect_l2", "turn_invariant", "reward_scale",
-             "reward_clip")
+             "train_demonstrator", "beta_ar", "effect_l2", "turn_invariant", "angle_increments",
+             "reward_scale", "reward_clip")
 
 DEFAULT_COMPILATION_CACHE = os.path.join(
     os.environ.get("XDG_CACHE_HOME", os.path.expanduser("~/.cache")), "mjx_form", "jax")
@@ -245,6 +245,10 @@ def parse_args(argv=None) -> argparse.Namespace:
                          "mjx_form/imitation/settings.py: on for reacher_hard, else off, the "
                          "paper's). reacher_hard's plain demonstrator: --no-turn_invariant "
                          "--demonstrator benchmarks/demonstrators/reacher_hard_plain.npz")
+  form.add_argument("--angle_increments", action=argparse.BooleanOptionalAction, default=None,
+                    help="turn-invariant effect models predict each periodic angle's change "
+                         "rather than its value, which jumps by a turn at +-pi (not the "
+                         "paper's; default: the task's setting, off)")
   train.add_argument("--preset", default=None, choices=settings.PRESETS,
                      help="default: measured settings; paper: the paper's. For form: the "
                           "reward scale, reward clip, target period and sampled-Q precision "
@@ -403,7 +407,8 @@ def effect_model_settings(args: argparse.Namespace, env):
   """The effect-model settings the user set (`explicit`) and those of this run (`config`).
   ValueError for --turn_invariant on a task without unbounded angles."""
   explicit = {"beta_ar": args.beta_ar, "l2": args.effect_l2,
-              "period": settings.turn_period(env, args.turn_invariant)}
+              "period": settings.turn_period(env, args.turn_invariant),
+              "angle_increments": args.angle_increments}
   # Effect models share the width of the other networks, and a demonstrator trains on batches
   # shaped like the learner's (batch_size windows of unroll_length transitions).
   config = settings.effect_model_config(args.task, env, width=args.network_width, **explicit)

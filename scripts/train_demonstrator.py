@@ -56,6 +56,10 @@ def main(argv=None) -> int:
                       help="a model blind to full turns of the task's raw unbounded angles "
                            "(mjx_form/imitation/effect_model.py), or not (default: the task's "
                            "setting, mjx_form/imitation/settings.py)")
+  parser.add_argument("--angle_increments", action=argparse.BooleanOptionalAction, default=None,
+                      help="a turn-invariant model predicts each periodic angle's change, not "
+                           "its value (mjx_form/imitation/effect_model.py; default: the task's "
+                           "setting, off)")
   defaults = demonstrator.DemonstratorTraining()
   for name in ("max_steps", "batch_size", "window", "eval_every", "patience"):
     parser.add_argument(f"--{name}", type=int, default=getattr(defaults, name))
@@ -71,12 +75,15 @@ def main(argv=None) -> int:
   try:
     period = settings.turn_period(env, args.turn_invariant)
     configs = [settings.effect_model_config(args.task, env, width=args.width, beta_ar=b, l2=l,
-                                            period=period) for b, l in grid]
+                                            period=period,
+                                            angle_increments=args.angle_increments)
+               for b, l in grid]
   except ValueError as e:
     parser.error(str(e))
   outs = [args.out] if len(grid) == 1 else [
       os.path.join(args.out, f"{args.task}_ar{c.beta_ar:g}_l2{c.l2:g}"
-                             f"{'_turn' if c.period else ''}.npz")
+                             f"{'_turn' if c.period else ''}"
+                             f"{'_increments' if c.angle_increments else ''}.npz")
       for c in configs]
   existing = [o for o in outs if os.path.exists(o)]
   if existing:

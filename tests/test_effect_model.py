@@ -390,3 +390,99 @@ def test_train_demonstrator_script_trains_a_grid_and_refuses_bad_input(tmp_path,
   config = effect_models.load_effect_model(tmp_path / "plain.npz",
                                            task="reacher_hard").metadata["config"]
   assert "period" not in config
+
+
+# --- angle increments ---------------------------------------------------------------------
+
+INCREMENTS = dataclasses.replace(TURNING, angle_increments=True)
+
+
+def _standardised_turns(norm):
+  """The turn-invariant shift's numbers in standardised units: (period, low) of feature 0."""
+  std = np.sqrt(np.asarray(norm.var, np.float64) + em.NORMALIZER_EPS)
+  return 2 * np.pi / std[0], (-np.pi - float(norm.mean[0])) / std[0]
+
+
+def test_angle_increments_predict_the_change_of_the_angle_from_x_t():
+  """With `angle_increments`, log p(x' | x) is the model (same parameters) at x moved into
+  [-pi, pi) predicting, for the angle, x' - x (standardised) and, for the other features, x'
+  itself (computed here with numpy); full turns of both change nothing. A pair that crosses +pi
+  and the next pair, whose x_t is on the other side (-pi), have the same angle target, where a
+  model of values has targets a turn apart."""
+  rng = np.random.default_rng(9)
+  model, params = _model_and_params()
+  inc = em.make_model(INCREMENTS, D)
+  norm = _norm(rng)
+  x = rng.normal(size=(6, D)) * 3
+  x[:, 0] = rng.uniform(-12, 12, size=6)
+  x_next = x + rng.normal(size=(6, D)) * 0.3
+  f32 = lambda a: jnp.asarray(a, jnp.float32)
+  got = np.asarray(em.transition_log_prob(inc, params, norm, f32(x), f32(x_next)))
+  std = np.sqrt(np.asarray(norm.var, np.float64) + em.NORMALIZER_EPS)
+  z, z_next = ((np.asarray(a, np.float64) - np.asarray(norm.mean)) / std for a in (x, x_next))
+  period, low = _standardised_turns(norm)
+  moved = z.copy()
+  moved[:, 0] -= period * np.floor((z[:, 0] - low) / period)
+  target = z_next.copy()
+  target[:, 0] = z_next[:, 0] - z[:, 0]
+  expected = (np.asarray(model.apply(params, f32(moved), 1).log_prob(f32(target)))
+              + float(em.log_jacobian(norm)))
+  np.testing.assert_allclose(got, expected, rtol=1e-4, atol=1e-3)
+  turns = rng.integers(-3, 4, size=6)
+  np.testing.assert_allclose(
+      em.transition_log_prob(inc, params, norm, f32(_turned(x, turns)),
+                             f32(_turned(x_next, turns))), got, rtol=1e-4, atol=1e-3)
+  values = np.asarray(em.transition_log_prob(em.make_model(TURNING, D), params, norm, f32(x),
+                                             f32(x_next)))
+  assert np.abs(values - got).max() > 0.1  # not the model of values
+  # Across the edge: x_t = pi - 0.01 -> pi + 0.01 -> pi + 0.03 (the second x_t wraps to -pi).
+  path = np.zeros((3, D), np.float32)
+  path[:, 0] = np.pi + np.array([-0.01, 0.01, 0.03])
+  anchors = em.standardise(norm, f32(path[:2]))
+  nexts = np.asarray(em.standardise(norm, f32(path[1:])))
+  t = em.turns(inc, norm)
+  for m, same in ((inc, True), (em.make_model(TURNING, D), False)):
+    _, targets = em.shifts(m, t, anchors)
+    angle_targets = nexts[:, 0] - np.asarray(targets)[:, 0]
+    assert np.isclose(angle_targets[0], angle_targets[1], atol=1e-4) == same, angle_targets
+
+
+def test_angle_increments_autoregressive_sample_returns_to_the_observations():
+  """The autoregressive term with `angle_increments`: x~_{t+1} = x_t + the model's sampled
+  angle change (x_t moved into [-pi, pi) for the input), then log p(x_{t+2} | x~_{t+1}), with
+  numpy's shifts."""
+  rng = np.random.default_rng(10)
+  inc = em.make_model(INCREMENTS, D)
+  params = inc.init(jax.random.PRNGKey(0), jnp.zeros((1, D)))
+  norm = _norm(rng)
+  x = rng.normal(size=(2, 9, D)) * 3  # standardised sequences whose angle crosses turns
+  t = em.turns(inc, norm)
+  period, low = float(t.period[0]), float(t.low[0])
+  x = jnp.asarray(x, jnp.float32)
+  key = jax.random.PRNGKey(7)
+  _, metrics = em.loss(inc, INCREMENTS, params, x, jnp.ones((2, 8)), key, t)
+
+  def moved(a):  # a [..., D] standardised: its angle brought into the standardised [-pi, pi)
+    a = np.asarray(a, np.float64).copy()
+    a[..., 0] -= period * np.floor((a[..., 0] - low) / period)
+    return jnp.asarray(a, jnp.float32)
+
+  draw = np.asarray(inc.apply(params, moved(x[:, :-2]), 1).sample(key), np.float64)
+  sampled = draw.copy()
+  sampled[..., 0] += np.asarray(x[:, :-2, 0])  # the angle's change added back to x_t
+  target = np.asarray(x[:, 2:], np.float64).copy()
+  target[..., 0] -= sampled[..., 0]
+  expected = jnp.mean(inc.apply(params, moved(sampled), 1).log_prob(jnp.asarray(target,
+                                                                                jnp.float32)))
+  np.testing.assert_allclose(metrics["log_prob_autoregressive"], expected, rtol=1e-4, atol=1e-4)
+
+
+def test_angle_increment_settings_are_checked_and_kept_in_files():
+  with pytest.raises(ValueError, match="angle_increments needs a turn-invariant model"):
+    dataclasses.replace(CONFIG, angle_increments=True).check()
+  with pytest.raises(ValueError, match="angle_increments must be true or false"):
+    dataclasses.replace(TURNING, angle_increments=1).check()
+  assert "angle_increments" not in TURNING.to_dict()  # as files before the setting existed
+  assert INCREMENTS.to_dict()["angle_increments"] is True
+  assert em.EffectModelConfig(**json.loads(json.dumps(INCREMENTS.to_dict()))) == INCREMENTS
+  assert em.EffectModelConfig(**TURNING.to_dict()) == TURNING

@@ -309,6 +309,21 @@ def test_form_run_settings_take_the_task_entry_then_the_preset_then_the_flags(mo
                 "--sampled_q_bfloat16")["sampled_q_bfloat16"] is True
 
 
+def test_angle_increments_flag_reaches_the_effect_models():
+  """--angle_increments: a turn-invariant task's (reacher_hard's) models predict angle changes;
+  off by default; refused, naming --turn_invariant, for models that are not turn-invariant."""
+  import tasks
+  cli = load_script("run")
+  config = lambda task, *argv: cli.effect_model_settings(
+      cli.parse_args(["--task", task, "--method", "form", *argv]), tasks.make(task))[1]
+  assert not config("reacher_hard").angle_increments
+  on = config("reacher_hard", "--angle_increments")
+  assert on.angle_increments and on.period == config("reacher_hard").period
+  assert config("reacher_easy", "--turn_invariant", "--angle_increments").angle_increments
+  with pytest.raises(ValueError, match="--turn_invariant"):
+    config("reacher_easy", "--angle_increments")
+
+
 def test_sampled_q_precision_reaches_the_learner_per_method():
   """FORM's learner computes the sampled actions' Q in bfloat16 unless --preset paper or
   --no-sampled_q_bfloat16; an expert run of a task without a recipe (the default task,

@@ -23,6 +23,13 @@ reacher's shoulder; () for none): every pair (x_t, x_{t+delta}) is moved by the 
 period that brings x_t's periodic features into [-period/2, period/2), x_{t+delta} by the same
 multiple. A full turn then changes nothing the model sees, and the move is a translation, so
 log p is unchanged (Jacobian 1). The standardisation is taken over the observations so wrapped.
+
+Angle increments (`EffectModelConfig.angle_increments`, turn-invariant models only; not in the
+paper): the model predicts each periodic feature's change x_{t+delta} - x_t instead of its
+moved value. The moved value jumps by a turn where x_t crosses +-pi (a pair just past the edge
+is predicted from the other side's frame), so a model of values has to learn two branches there
+from the few crossings in the data; the change is the same on both sides. The target is moved
+by x_t (a translation given x_t: log p unchanged, Jacobian 1).
 """
 
 from __future__ import annotations
@@ -58,18 +65,24 @@ class EffectModelConfig:
   # [D] period of each observation feature (0: not periodic) for a turn-invariant model; ()
   # for none (the paper's). See the module docstring.
   period: tuple[float, ...] = ()
+  # A turn-invariant model predicts its periodic features' changes, not their values (module
+  # docstring); off: the values (as before this setting existed).
+  angle_increments: bool = False
 
   def __post_init__(self):  # from a file's JSON list, too
     object.__setattr__(self, "period", tuple(float(p) for p in self.period))
 
   def to_dict(self) -> dict:
     """The settings as files and records keep them (JSON's shapes: `period` a list, and none
-    where there is no period, as before turn invariance existed)."""
+    where there is no period, as before turn invariance existed; `angle_increments` only where
+    on, as before it existed)."""
     out = dataclasses.asdict(self)
     if self.period:
       out["period"] = list(self.period)
     else:
       del out["period"]
+    if not self.angle_increments:
+      del out["angle_increments"]
     return out
 
   def check(self) -> None:
@@ -89,6 +102,12 @@ class EffectModelConfig:
         self.period and not any(self.period)):
       raise ValueError(f"effect model period must be finite values >= 0, one at least > 0 "
                        f"(or none), got {self.period}")
+    if not isinstance(self.angle_increments, bool):
+      raise ValueError(f"effect model angle_increments must be true or false, got "
+                       f"{self.angle_increments!r}")
+    if self.angle_increments and not self.period:
+      raise ValueError("effect model angle_increments needs a turn-invariant model (a period: "
+                       "--turn_invariant)")
 
 
 class EffectModel(nn.Module):
@@ -100,6 +119,7 @@ class EffectModel(nn.Module):
   max_offset: int = 5
   min_scale: float = 1e-4
   period: tuple[float, ...] = ()  # EffectModelConfig.period
+  angle_increments: bool = False  # EffectModelConfig.angle_increments
 
   def setup(self):
     self.encoder = Encoder(self.width)
@@ -127,7 +147,7 @@ def make_model(config: EffectModelConfig, observation_size: int) -> EffectModel:
     raise ValueError(f"effect model period has {len(config.period)} entries, the observations "
                      f"have {observation_size}")
   return EffectModel(observation_size, config.width, config.num_components, config.max_offset,
-                     config.min_scale, config.period)
+                     config.min_scale, config.period, config.angle_increments)
 
 
 class EffectModelState(NamedTuple):
@@ -205,6 +225,17 @@ def turn_shift(t: Turns | None, anchor: jax.Array) -> jax.Array:
   return jnp.where(periodic, safe * jnp.floor((anchor - t.low) / safe), 0.0)
 
 
+def shifts(model: EffectModel, t: Turns | None, anchor: jax.Array
+           ) -> tuple[jax.Array, jax.Array]:
+  """(what to subtract from x_t, what to subtract from x_{t+delta}) for pairs anchored at the
+  standardised x_t `anchor` [..., D]: both x_t's `turn_shift`, or with `angle_increments` the
+  target's periodic features x_t itself (the model predicts their change)."""
+  move = turn_shift(t, anchor)
+  if t is None or not model.angle_increments:
+    return move, move
+  return move, jnp.where(t.period > 0, anchor, move)
+
+
 def wrap_raw(model: EffectModel, x: jax.Array) -> jax.Array:
   """Raw observations [..., D] with the periodic features wrapped into [-period/2, period/2)
   (what a turn-invariant model's standardisation is taken over); x itself without periods."""
@@ -219,14 +250,14 @@ def offset_log_probs(model: EffectModel, params, x: jax.Array,
                      t: Turns | None = None) -> jax.Array:
   """Standardised-space log p(x_{t+delta} | x_t) for every offset: x [B, T+1, D] (standardised)
   -> [max_offset, B, T] (pairs past x_T give values to be masked out); each pair moved by
-  x_t's `turn_shift` under turns `t` (`turns`; None: not moved)."""
-  shift = turn_shift(t, x[:, :-1])  # [B, T, D]
-  h = model.apply(params, x[:, :-1] - shift, method=model.encode)  # [B, T, W]
+  x_t's `shifts` under turns `t` (`turns`; None: not moved)."""
+  inputs, targets = shifts(model, t, x[:, :-1])  # [B, T, D] each
+  h = model.apply(params, x[:, :-1] - inputs, method=model.encode)  # [B, T, W]
   out = []
   for delta in range(1, model.max_offset + 1):
     mixture = model.apply(params, h, delta, method=model.predict)  # [B, T, K, D]
     target = jnp.pad(x[:, delta:], ((0, 0), (0, delta - 1), (0, 0)))  # [B, T, D]
-    out.append(mixture.log_prob(target - shift))
+    out.append(mixture.log_prob(target - targets))
   return jnp.stack(out)
 
 
@@ -234,9 +265,9 @@ def transition_log_prob(model: EffectModel, params, norm: normalizer.NormalizerS
                         x: jax.Array, x_next: jax.Array) -> jax.Array:
   """Raw-space log p(x_next | x) at offset 1 (FORM's reward term): x, x_next [..., D] -> [...]."""
   x, x_next = standardise(norm, x), standardise(norm, x_next)
-  shift = turn_shift(turns(model, norm), x)
-  mixture = model.apply(params, x - shift, 1)
-  return mixture.log_prob(x_next - shift) + log_jacobian(norm)
+  inputs, targets = shifts(model, turns(model, norm), x)
+  mixture = model.apply(params, x - inputs, 1)
+  return mixture.log_prob(x_next - targets) + log_jacobian(norm)
 
 
 def _masked_mean(values: jax.Array, mask: jax.Array) -> jax.Array:
@@ -259,14 +290,14 @@ def loss(model: EffectModel, config: EffectModelConfig, params, x: jax.Array,
   log_probs = offset_log_probs(model, params, x, t)  # [max_offset, B, T]
   per_offset = jax.vmap(_masked_mean)(log_probs, masks)  # [max_offset]
   # Autoregressive term: x~_{t+1} ~ p(. | x_t) for t = 0..T-2, then log p(x_{t+2} | x~_{t+1}).
-  # (With turns, x~_{t+1} is drawn in x_t's moved frame and x_{t+2} moved with it, then both
-  # by x~_{t+1}'s own shift.)
-  first = turn_shift(t, x[:, :-2])
+  # (With turns, x~_{t+1} is drawn in x_t's moved frame, then put back, then x~_{t+1} and
+  # x_{t+2} are moved by x~_{t+1}'s own shifts.)
+  inputs, targets = shifts(model, t, x[:, :-2])
   sampled = jax.lax.stop_gradient(
-      model.apply(params, x[:, :-2] - first, 1).sample(key))  # [B, T-1, D]
-  target = x[:, 2:] - first
-  second = turn_shift(t, sampled)
-  ar_log_prob = model.apply(params, sampled - second, 1).log_prob(target - second)  # [B, T-1]
+      model.apply(params, x[:, :-2] - inputs, 1).sample(key)) + targets  # [B, T-1, D]
+  inputs, targets = shifts(model, t, sampled)
+  ar_log_prob = model.apply(params, sampled - inputs, 1).log_prob(
+      x[:, 2:] - targets)  # [B, T-1]
   ar_mask = masks[1, :, :-1]  # x_t, x_{t+1}, x_{t+2} in one episode
   ar = _masked_mean(ar_log_prob, ar_mask)
   l2 = kernel_l2(params)
