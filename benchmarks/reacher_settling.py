@@ -16,8 +16,10 @@ from the expert's own starts, how the policy's failed episodes end (still or sha
 whether they ever came within 5 cm), what the demonstrator pays for their second half against
 the policy's successful episodes and the expert's on the same starts, and how often they fail by
 where the expert's shoulder ends on the same starts (near +-pi or elsewhere; starts where the
-expert itself scores 800 or less are left out of that). Appends `kind:
-reacher_settling` records.
+expert itself scores 800 or less are left out of that); and, for the expert and each policy on
+those starts, the demonstrator's log pD by where the shoulder is at x_t (wrapped: near +-pi or
+elsewhere) and of the transitions that cross +-pi (`--demonstrator`: another demonstrator file
+of the task to score with). Appends `kind: reacher_settling` records.
 
   python benchmarks/reacher_settling.py --task reacher_hard --episodes 32 \\
       --policy runs/rh/seed0/policy.npz --results benchmarks/results/<date>_reacher_settling.jsonl
@@ -61,6 +63,8 @@ def main(argv=None) -> int:
   parser.add_argument("--policy", action="append", default=[])
   parser.add_argument("--target_episodes", type=int, default=512,
                       help="episodes per policy for the failures by target position")
+  parser.add_argument("--demonstrator", default=None,
+                      help="the demonstrator to score with (default: the shipped one)")
   parser.add_argument("--results", default=None)
   args = parser.parse_args(argv)
   env = tasks.make(args.task)
@@ -69,7 +73,7 @@ def main(argv=None) -> int:
   to_target = slice(start["to_target"], start["to_target"] + 2)
   velocity = slice(start["velocity"], start["velocity"] + 2)
   position = slice(start["position"], start["position"] + 2)
-  path = tasks.bundled_demonstrator(args.task)
+  path = args.demonstrator or tasks.bundled_demonstrator(args.task)
   file = effect_models.load_effect_model(path, task=args.task,
                                          observation_layout=env.observation_layout)
   config, demonstrator = pipeline.demonstrator_from_file(file, path)
@@ -164,9 +168,26 @@ def main(argv=None) -> int:
                    **common_fields)
   same_starts = jax.random.PRNGKey(11)  # one key: the same resets (targets, arm) for all
   expert_run = scored_rollout(env, expert, score, same_starts, args.episodes)
-  for name, agent in agents[1:]:
-    probe = failed_episodes(scored_rollout(env, agent, score, same_starts, args.episodes),
-                            expert_run,
+  runs = {name: expert_run if name == "expert" else scored_rollout(env, agent, score,
+                                                                   same_starts, args.episodes)
+          for name, agent in agents}
+  for name, run in runs.items():
+    by_shoulder = log_pd_by_shoulder(run[0][..., position.start], run[2])
+    crossing = by_shoulder["crossing_pi"]
+    print(f"  {name}: log pD by the shoulder at x_t (8 bins over [-pi, pi)): "
+          + " ".join("-" if x is None else f"{x:.1f}" for x in by_shoulder["log_pd_by_bin"])
+          + f"; beyond {by_shoulder['edge_rad']:g} rad {by_shoulder['near_pi']['log_pd']:.2f}, "
+          f"elsewhere {by_shoulder['elsewhere']['log_pd']:.2f}; crossing +-pi "
+          + ("-" if crossing["log_pd"] is None else f"{crossing['log_pd']:.2f}")
+          + f" ({crossing['transitions']} transitions), not crossing within 0.14 rad of it "
+          + ("-" if by_shoulder["at_pi"]["log_pd"] is None
+             else f"{by_shoulder['at_pi']['log_pd']:.2f}"))
+    if writer:
+      writer.write(kind="reacher_settling", probe="log_pd_by_shoulder", behaviour=name,
+                   episodes=args.episodes, task_return=float(run[1].mean()), **by_shoulder,
+                   **common_fields)
+  for name, _ in agents[1:]:
+    probe = failed_episodes(runs[name], expert_run,
                             dict(position=position, to_target=to_target, velocity=velocity))
     print(f"  {name}: {probe['failed']} of {args.episodes} episodes under 100 (the expert's "
           "starts)")
@@ -227,6 +248,25 @@ def failures_by_angle(failed, angle, bins: int = 8, edge: float = 2.5) -> dict:
           "failed_share_expert_final_shoulder_near_pi": share(near),
           "failed_share_expert_final_shoulder_elsewhere": share(~near),
           "near_pi_edge_rad": edge}
+
+
+def log_pd_by_shoulder(shoulder, log_d, bins: int = 8, edge: float = 2.5,
+                       close: float = 3.0) -> dict:
+  """The mean log pD of transitions by the shoulder's raw angle at x_t: shoulder [K, T+1] (raw,
+  may pass +-pi), log_d [K, T]. Wrapped into [-pi, pi): by `bins` equal bins, beyond `edge` rad
+  (near +-pi) against elsewhere, and the transitions that cross +-pi (x_t and x_{t+1} both
+  beyond `close` rad, on opposite sides) against the others beyond `close` (None: none)."""
+  wrapped = (np.asarray(shoulder) + np.pi) % (2 * np.pi) - np.pi
+  a, b = wrapped[:, :-1], wrapped[:, 1:]
+  log_d = np.asarray(log_d)
+  index = np.minimum(((a + np.pi) / (2 * np.pi) * bins).astype(int), bins - 1)
+  mean = lambda m: float(log_d[m].mean()) if m.any() else None
+  group = lambda m: {"log_pd": mean(m), "transitions": int(m.sum())}
+  crossing = (np.abs(a) > close) & (np.abs(b) > close) & (np.sign(a) != np.sign(b))
+  return {"log_pd_by_bin": [mean(index == i) for i in range(bins)],
+          "near_pi": group(np.abs(a) > edge), "elsewhere": group(np.abs(a) <= edge),
+          "crossing_pi": group(crossing), "at_pi": group((np.abs(a) > close) & ~crossing),
+          "edge_rad": edge, "close_rad": close}
 
 
 def episode_groups(obs, returns, log_d, expert_log_d, parts: dict) -> dict:

@@ -556,6 +556,25 @@ def test_reacher_settling_shares_failures_by_the_final_shoulder_angle():
   assert bench.failures_by_angle(failed, np.zeros(5))["failed_share_expert_final_shoulder_near_pi"] is None
 
 
+def test_reacher_settling_scores_the_shoulder_by_place_and_the_crossings_of_pi():
+  """log_pd_by_shoulder: bins, near +-pi / elsewhere and the transitions crossing +-pi are
+  taken at x_t's wrapped shoulder (whole turns change nothing), checked by hand."""
+  bench = load_script("reacher_settling", folder="benchmarks")
+  # one episode: 3.1 (bin 7, near) crosses to 3.2 (= -3.08); -3.08 stays (bin 0, near, not
+  # crossing), then goes to 0.1 (x_t in bin 4), then -0.1 (bin 3); one more turned by 2 pi.
+  shoulder = np.array([[3.1, 3.2, 3.2, 0.1, -0.1, -0.1]])
+  shoulder = np.concatenate([shoulder, shoulder + 2 * np.pi])
+  log_d = np.array([[-40.0, 30.0, 10.0, 12.0, 14.0]] * 2)
+  out = bench.log_pd_by_shoulder(shoulder, log_d)
+  assert out["log_pd_by_bin"] == [20.0, None, None, 14.0, 12.0, None, None, -40.0]
+  assert out["crossing_pi"] == {"log_pd": -40.0, "transitions": 2}
+  assert out["at_pi"] == {"log_pd": 20.0, "transitions": 4}
+  assert out["near_pi"] == {"log_pd": 0.0, "transitions": 6}
+  assert out["elsewhere"] == {"log_pd": 13.0, "transitions": 4}
+  assert bench.log_pd_by_shoulder(np.zeros((1, 3)), np.ones((1, 2)))["crossing_pi"] == {
+      "log_pd": None, "transitions": 0}
+
+
 def test_locomotion_speed_factors_are_the_tasks_reward(tmp_path, capsys):
   """benchmarks/locomotion_speed.py: its posture and speed factors multiply to the reward the
   environment gives at every step (the script refuses to report otherwise), its summary is
