@@ -172,8 +172,10 @@ def main(argv=None) -> int:
                                                                    same_starts, args.episodes)
           for name, agent in agents}
   for name, run in runs.items():
-    by_shoulder = log_pd_by_shoulder(run[0][..., position.start], run[2])
+    by_shoulder = log_pd_by_shoulder(run[0][..., position.start], run[2],
+                                     np.linalg.norm(run[0][:, 1:, velocity], axis=-1))
     crossing = by_shoulder["crossing_pi"]
+    fmt = lambda g: "-" if g["log_pd"] is None else f"{g['log_pd']:.2f} ({g['transitions']})"
     print(f"  {name}: log pD by the shoulder at x_t (8 bins over [-pi, pi)): "
           + " ".join("-" if x is None else f"{x:.1f}" for x in by_shoulder["log_pd_by_bin"])
           + f"; beyond {by_shoulder['edge_rad']:g} rad {by_shoulder['near_pi']['log_pd']:.2f}, "
@@ -181,7 +183,11 @@ def main(argv=None) -> int:
           + ("-" if crossing["log_pd"] is None else f"{crossing['log_pd']:.2f}")
           + f" ({crossing['transitions']} transitions), not crossing within 0.14 rad of it "
           + ("-" if by_shoulder["at_pi"]["log_pd"] is None
-             else f"{by_shoulder['at_pi']['log_pd']:.2f}"))
+             else f"{by_shoulder['at_pi']['log_pd']:.2f}")
+          + f"; moving (over {SPEED_BINS[2]:g} rad/s): crossing "
+          + fmt(by_shoulder["crossing_pi_moving"]) + ", not crossing within 0.14 rad "
+          + fmt(by_shoulder["at_pi_moving"]) + ", within 2.5 rad of 0 "
+          + fmt(by_shoulder["moving_elsewhere"]))
     if writer:
       writer.write(kind="reacher_settling", probe="log_pd_by_shoulder", behaviour=name,
                    episodes=args.episodes, task_return=float(run[1].mean()), **by_shoulder,
@@ -250,12 +256,14 @@ def failures_by_angle(failed, angle, bins: int = 8, edge: float = 2.5) -> dict:
           "near_pi_edge_rad": edge}
 
 
-def log_pd_by_shoulder(shoulder, log_d, bins: int = 8, edge: float = 2.5,
+def log_pd_by_shoulder(shoulder, log_d, speed, bins: int = 8, edge: float = 2.5,
                        close: float = 3.0) -> dict:
   """The mean log pD of transitions by the shoulder's raw angle at x_t: shoulder [K, T+1] (raw,
-  may pass +-pi), log_d [K, T]. Wrapped into [-pi, pi): by `bins` equal bins, beyond `edge` rad
-  (near +-pi) against elsewhere, and the transitions that cross +-pi (x_t and x_{t+1} both
-  beyond `close` rad, on opposite sides) against the others beyond `close` (None: none)."""
+  may pass +-pi), log_d [K, T], speed [K, T] (joint speed at x_{t+1}, rad/s). Wrapped into
+  [-pi, pi): by `bins` equal bins, beyond `edge` rad (near +-pi) against elsewhere, and the
+  transitions that cross +-pi (x_t and x_{t+1} both beyond `close` rad, on opposite sides)
+  against the others beyond `close`, all of them and the moving ones (speed over
+  SPEED_BINS[2]: a crossing moves) (None: none)."""
   wrapped = (np.asarray(shoulder) + np.pi) % (2 * np.pi) - np.pi
   a, b = wrapped[:, :-1], wrapped[:, 1:]
   log_d = np.asarray(log_d)
@@ -263,10 +271,14 @@ def log_pd_by_shoulder(shoulder, log_d, bins: int = 8, edge: float = 2.5,
   mean = lambda m: float(log_d[m].mean()) if m.any() else None
   group = lambda m: {"log_pd": mean(m), "transitions": int(m.sum())}
   crossing = (np.abs(a) > close) & (np.abs(b) > close) & (np.sign(a) != np.sign(b))
+  moving = np.asarray(speed) > SPEED_BINS[2]
+  at_pi = (np.abs(a) > close) & ~crossing
   return {"log_pd_by_bin": [mean(index == i) for i in range(bins)],
           "near_pi": group(np.abs(a) > edge), "elsewhere": group(np.abs(a) <= edge),
-          "crossing_pi": group(crossing), "at_pi": group((np.abs(a) > close) & ~crossing),
-          "edge_rad": edge, "close_rad": close}
+          "crossing_pi": group(crossing), "at_pi": group(at_pi),
+          "crossing_pi_moving": group(crossing & moving), "at_pi_moving": group(at_pi & moving),
+          "moving_elsewhere": group((np.abs(a) <= edge) & moving),
+          "edge_rad": edge, "close_rad": close, "moving_speed": SPEED_BINS[2]}
 
 
 def episode_groups(obs, returns, log_d, expert_log_d, parts: dict) -> dict:

@@ -565,13 +565,18 @@ def test_reacher_settling_scores_the_shoulder_by_place_and_the_crossings_of_pi()
   shoulder = np.array([[3.1, 3.2, 3.2, 0.1, -0.1, -0.1]])
   shoulder = np.concatenate([shoulder, shoulder + 2 * np.pi])
   log_d = np.array([[-40.0, 30.0, 10.0, 12.0, 14.0]] * 2)
-  out = bench.log_pd_by_shoulder(shoulder, log_d)
+  speed = np.array([[3.0, 0.0, 5.0, 4.0, 0.1]] * 2)  # moving: the crossing, 3.2 -> 0.1, 0.1 -> -0.1
+  out = bench.log_pd_by_shoulder(shoulder, log_d, speed)
   assert out["log_pd_by_bin"] == [20.0, None, None, 14.0, 12.0, None, None, -40.0]
   assert out["crossing_pi"] == {"log_pd": -40.0, "transitions": 2}
   assert out["at_pi"] == {"log_pd": 20.0, "transitions": 4}
   assert out["near_pi"] == {"log_pd": 0.0, "transitions": 6}
   assert out["elsewhere"] == {"log_pd": 13.0, "transitions": 4}
-  assert bench.log_pd_by_shoulder(np.zeros((1, 3)), np.ones((1, 2)))["crossing_pi"] == {
+  assert out["crossing_pi_moving"] == {"log_pd": -40.0, "transitions": 2}
+  assert out["at_pi_moving"] == {"log_pd": 10.0, "transitions": 2}
+  assert out["moving_elsewhere"] == {"log_pd": 12.0, "transitions": 2}
+  assert bench.log_pd_by_shoulder(np.zeros((1, 3)), np.ones((1, 2)), np.ones((1, 2)))[
+      "crossing_pi"] == {
       "log_pd": None, "transitions": 0}
 
 
