@@ -176,17 +176,15 @@ def main(argv=None) -> int:
                                      np.linalg.norm(run[0][:, 1:, velocity], axis=-1))
     crossing = by_shoulder["crossing_pi"]
     fmt = lambda g: "-" if g["log_pd"] is None else f"{g['log_pd']:.2f} ({g['transitions']})"
+    at = f"{np.pi - by_shoulder['close_rad']:.2f} rad"
+    edge = f"{by_shoulder['edge_rad']:g} rad"
     print(f"  {name}: log pD by the shoulder at x_t (8 bins over [-pi, pi)): "
           + " ".join("-" if x is None else f"{x:.1f}" for x in by_shoulder["log_pd_by_bin"])
-          + f"; beyond {by_shoulder['edge_rad']:g} rad {by_shoulder['near_pi']['log_pd']:.2f}, "
-          f"elsewhere {by_shoulder['elsewhere']['log_pd']:.2f}; crossing +-pi "
-          + ("-" if crossing["log_pd"] is None else f"{crossing['log_pd']:.2f}")
-          + f" ({crossing['transitions']} transitions), not crossing within 0.14 rad of it "
-          + ("-" if by_shoulder["at_pi"]["log_pd"] is None
-             else f"{by_shoulder['at_pi']['log_pd']:.2f}")
-          + f"; moving (over {SPEED_BINS[2]:g} rad/s): crossing "
-          + fmt(by_shoulder["crossing_pi_moving"]) + ", not crossing within 0.14 rad "
-          + fmt(by_shoulder["at_pi_moving"]) + ", within 2.5 rad of 0 "
+          + f"; beyond {edge} {fmt(by_shoulder['near_pi'])}, elsewhere "
+          + fmt(by_shoulder["elsewhere"]) + f"; crossing +-pi {fmt(crossing)}, not crossing "
+          f"within {at} of it {fmt(by_shoulder['at_pi'])}; moving (over {SPEED_BINS[2]:g} "
+          f"rad/s): crossing {fmt(by_shoulder['crossing_pi_moving'])}, not crossing within "
+          f"{at} {fmt(by_shoulder['at_pi_moving'])}, within {edge} of 0 "
           + fmt(by_shoulder["moving_elsewhere"]))
     if writer:
       writer.write(kind="reacher_settling", probe="log_pd_by_shoulder", behaviour=name,
@@ -261,16 +259,18 @@ def log_pd_by_shoulder(shoulder, log_d, speed, bins: int = 8, edge: float = 2.5,
   """The mean log pD of transitions by the shoulder's raw angle at x_t: shoulder [K, T+1] (raw,
   may pass +-pi), log_d [K, T], speed [K, T] (joint speed at x_{t+1}, rad/s). Wrapped into
   [-pi, pi): by `bins` equal bins, beyond `edge` rad (near +-pi) against elsewhere, and the
-  transitions that cross +-pi (x_t and x_{t+1} both beyond `close` rad, on opposite sides)
-  against the others beyond `close`, all of them and the moving ones (speed over
-  SPEED_BINS[2]: a crossing moves) (None: none)."""
-  wrapped = (np.asarray(shoulder) + np.pi) % (2 * np.pi) - np.pi
-  a, b = wrapped[:, :-1], wrapped[:, 1:]
+  transitions that cross +-pi (the raw angle passes an odd multiple of pi, however fast)
+  against the others whose x_t is beyond `close` rad, all of them and the moving ones (speed
+  over SPEED_BINS[2]) (None: none)."""
+  raw = np.asarray(shoulder)
+  wrapped = (raw + np.pi) % (2 * np.pi) - np.pi
+  a = wrapped[:, :-1]
+  turn = np.floor((raw + np.pi) / (2 * np.pi))  # which turn each angle lies in
   log_d = np.asarray(log_d)
   index = np.minimum(((a + np.pi) / (2 * np.pi) * bins).astype(int), bins - 1)
   mean = lambda m: float(log_d[m].mean()) if m.any() else None
   group = lambda m: {"log_pd": mean(m), "transitions": int(m.sum())}
-  crossing = (np.abs(a) > close) & (np.abs(b) > close) & (np.sign(a) != np.sign(b))
+  crossing = turn[:, 1:] != turn[:, :-1]
   moving = np.asarray(speed) > SPEED_BINS[2]
   at_pi = (np.abs(a) > close) & ~crossing
   return {"log_pd_by_bin": [mean(index == i) for i in range(bins)],

@@ -147,7 +147,7 @@ def _form_models(run, args) -> str:
   from mjx_form.imitation import effect_model as em  # noqa: E402
   from mjx_form.imitation import pipeline  # noqa: E402
   env = tasks.make(args.task, physics=args.physics)
-  _, config = run.effect_model_settings(args, env)
+  explicit, config = run.effect_model_settings(args, env)
   if args.resume:
     where = "the one kept in its run directory (--resume)"
   elif args.demonstrator and not os.path.exists(args.demonstrator):
@@ -155,7 +155,9 @@ def _form_models(run, args) -> str:
   elif args.demonstrator:
     file = effect_models.load_effect_model(args.demonstrator, task=args.task,
                                            observation_layout=env.observation_layout)
-    config, where = em.EffectModelConfig(**file.metadata["config"]), f"given, {args.demonstrator}"
+    # (refused, as run.py refuses it, where the job's flags ask for other settings)
+    config, _ = pipeline.demonstrator_from_file(file, args.demonstrator, explicit)
+    where = f"given, {args.demonstrator}"
   elif args.train_demonstrator:
     where = "trained (--train_demonstrator)"
   else:

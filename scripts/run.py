@@ -247,7 +247,7 @@ def parse_args(argv=None) -> argparse.Namespace:
                          "--demonstrator benchmarks/demonstrators/reacher_hard_plain.npz")
   form.add_argument("--angle_increments", action=argparse.BooleanOptionalAction, default=None,
                     help="turn-invariant effect models predict each periodic angle's change "
-                         "rather than its value, which jumps by a turn at +-pi (not the "
+                         "rather than its value (a residual parameterisation; not the "
                          "paper's; default: the task's setting, off)")
   train.add_argument("--preset", default=None, choices=settings.PRESETS,
                      help="default: measured settings; paper: the paper's. For form: the "

@@ -561,23 +561,29 @@ def test_reacher_settling_scores_the_shoulder_by_place_and_the_crossings_of_pi()
   taken at x_t's wrapped shoulder (whole turns change nothing), checked by hand."""
   bench = load_script("reacher_settling", folder="benchmarks")
   # one episode: 3.1 (bin 7, near) crosses to 3.2 (= -3.08); -3.08 stays (bin 0, near, not
-  # crossing), then goes to 0.1 (x_t in bin 4), then -0.1 (bin 3); one more turned by 2 pi.
+  # crossing), then swings back through pi to 0.1 (a crossing too), then -0.1 (x_t in bin 4),
+  # then stays (bin 3); one more turned by 2 pi.
   shoulder = np.array([[3.1, 3.2, 3.2, 0.1, -0.1, -0.1]])
   shoulder = np.concatenate([shoulder, shoulder + 2 * np.pi])
   log_d = np.array([[-40.0, 30.0, 10.0, 12.0, 14.0]] * 2)
   speed = np.array([[3.0, 0.0, 5.0, 4.0, 0.1]] * 2)  # moving: the crossing, 3.2 -> 0.1, 0.1 -> -0.1
   out = bench.log_pd_by_shoulder(shoulder, log_d, speed)
   assert out["log_pd_by_bin"] == [20.0, None, None, 14.0, 12.0, None, None, -40.0]
-  assert out["crossing_pi"] == {"log_pd": -40.0, "transitions": 2}
-  assert out["at_pi"] == {"log_pd": 20.0, "transitions": 4}
+  assert out["crossing_pi"] == {"log_pd": -15.0, "transitions": 4}
+  assert out["at_pi"] == {"log_pd": 30.0, "transitions": 2}
   assert out["near_pi"] == {"log_pd": 0.0, "transitions": 6}
   assert out["elsewhere"] == {"log_pd": 13.0, "transitions": 4}
-  assert out["crossing_pi_moving"] == {"log_pd": -40.0, "transitions": 2}
-  assert out["at_pi_moving"] == {"log_pd": 10.0, "transitions": 2}
+  assert out["crossing_pi_moving"] == {"log_pd": -15.0, "transitions": 4}
+  assert out["at_pi_moving"] == {"log_pd": None, "transitions": 0}
   assert out["moving_elsewhere"] == {"log_pd": 12.0, "transitions": 2}
   assert bench.log_pd_by_shoulder(np.zeros((1, 3)), np.ones((1, 2)), np.ones((1, 2)))[
-      "crossing_pi"] == {
-      "log_pd": None, "transitions": 0}
+      "crossing_pi"] == {"log_pd": None, "transitions": 0}
+  # Fast crossings count (3.05 -> 3.45 wraps to -2.83; -3.1 -> -3.5 the other way); a move up
+  # to pi that does not pass it does not (2.9 -> 3.1).
+  fast = bench.log_pd_by_shoulder(np.array([[3.05, 3.45], [-3.1, -3.5], [2.9, 3.1]]),
+                                  np.array([[1.0], [3.0], [7.0]]), np.full((3, 1), 20.0))
+  assert fast["crossing_pi"] == {"log_pd": 2.0, "transitions": 2}
+  assert fast["at_pi"] == {"log_pd": None, "transitions": 0}  # 2.9 is not within 0.14 rad
 
 
 def test_locomotion_speed_factors_are_the_tasks_reward(tmp_path, capsys):

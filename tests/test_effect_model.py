@@ -265,18 +265,21 @@ def test_turn_invariant_held_out_likelihood_moves_every_pair_by_its_first_observ
     np.testing.assert_allclose(got[d - 1], np.mean(pairs), rtol=1e-4)
 
 
-def test_a_turn_invariant_update_does_not_see_full_turns():
+@pytest.mark.parametrize("increments", [False, True])
+def test_a_turn_invariant_update_does_not_see_full_turns(increments):
   """The same sequences, each moved by its own number of full turns: the same standardisation
-  (taken over wrapped angles), objective (the autoregressive term included) and step."""
+  (taken over wrapped angles), objective (the autoregressive term included) and step; for a
+  model of the angle's values and of its changes alike."""
   rng = np.random.default_rng(8)
-  model = em.make_model(TURNING, D)
-  state = em.init(model, TURNING, jax.random.PRNGKey(0))
+  turning = dataclasses.replace(TURNING, angle_increments=increments)
+  model = em.make_model(turning, D)
+  state = em.init(model, turning, jax.random.PRNGKey(0))
   obs = rng.normal(size=(4, 9, D)) * [1.0, 3.0, 0.5]
   obs[..., 0] = rng.uniform(-np.pi, np.pi, size=(4, 1)) + np.cumsum(
       rng.normal(size=(4, 9)) * 0.8, axis=1)
   turns = rng.integers(-3, 4, size=(4, 1)) * np.ones((4, 9), int)
   discount = jnp.ones((4, 8))
-  steps = [em.update(model, TURNING, state, jnp.asarray(o, jnp.float32), discount,
+  steps = [em.update(model, turning, state, jnp.asarray(o, jnp.float32), discount,
                      jax.random.PRNGKey(1)) for o in (obs, _turned(obs, turns))]
   (a, ma), (b, mb) = steps
   for name in ("log_prob", "log_prob_offset1", "log_prob_offset4", "log_prob_autoregressive"):
@@ -486,3 +489,28 @@ def test_angle_increment_settings_are_checked_and_kept_in_files():
   assert INCREMENTS.to_dict()["angle_increments"] is True
   assert em.EffectModelConfig(**json.loads(json.dumps(INCREMENTS.to_dict()))) == INCREMENTS
   assert em.EffectModelConfig(**TURNING.to_dict()) == TURNING
+
+
+def test_angle_increments_held_out_likelihood_at_every_offset():
+  """heldout_log_likelihood of an increments model: per offset d the mean over pairs of the
+  model at x_t (moved into [-pi, pi)) predicting x_{t+d} with the angle as x_{t+d} - x_t
+  (standardised), computed here with numpy, plus the change of variables."""
+  rng = np.random.default_rng(11)
+  inc = em.make_model(INCREMENTS, D)
+  params = inc.init(jax.random.PRNGKey(0), jnp.zeros((1, D)))
+  norm = _norm(rng)
+  episodes = rng.normal(size=(3, 7, D)) * 0.5
+  episodes[..., 0] = np.cumsum(rng.normal(size=(3, 7)) * 2.0, axis=1)  # wanders past pi
+  got = np.asarray(demonstrator.heldout_log_likelihood(
+      inc, params, norm, jnp.asarray(episodes, jnp.float32), chunk=2))
+  std = np.sqrt(np.asarray(norm.var, np.float64) + em.NORMALIZER_EPS)
+  z = (episodes - np.asarray(norm.mean, np.float64)) / std
+  period, low = _standardised_turns(norm)
+  for d in range(1, INCREMENTS.max_offset + 1):
+    moved, target = z[:, :-d].copy(), z[:, d:].copy()
+    moved[..., 0] -= period * np.floor((moved[..., 0] - low) / period)
+    target[..., 0] = z[:, d:, 0] - z[:, :-d, 0]
+    pairs = inc.apply(params, jnp.asarray(moved, jnp.float32), d).log_prob(
+        jnp.asarray(target, jnp.float32))
+    np.testing.assert_allclose(got[d - 1], float(jnp.mean(pairs) + em.log_jacobian(norm)),
+                               rtol=1e-4, atol=1e-4)

@@ -187,7 +187,9 @@ def test_check_parses_run_jobs_as_run_does_and_names_a_bad_one(tmp_path, capsys)
   assert out[6] == "ls: not a run.py command, not checked: ls -la $RES"
   for bad, said in (("--task walker_walk --method form --turn_invariant", "unbounded"),
                     ("--task reacher_easy --method form --demonstrator "
-                     "tasks/demonstrators/reacher_hard.npz", "reacher_hard")):
+                     "tasks/demonstrators/reacher_hard.npz", "reacher_hard"),
+                    ("--task reacher_hard --method form --angle_increments --demonstrator "
+                     "tasks/demonstrators/reacher_hard.npz", "angle_increments")):
     jobs.write_text(f"bad: python scripts/run.py {bad}\n")
     assert gpu_jobs.main(["check", str(jobs)]) == 2
     err = capsys.readouterr().err

@@ -16,7 +16,8 @@ Metadata keys (besides format, version, sha256):
   observation_layout  [[name, size], ...] summing to D
   distractors         null, or the distractor setting of the observations it was trained on
   config              the EffectModelConfig it was trained with (width, num_components,
-                      max_offset, beta_ar, l2, learning_rate, normalizer_decay, min_scale)
+                      max_offset, beta_ar, l2, learning_rate, normalizer_decay, min_scale;
+                      period and angle_increments where set)
   training            steps, best_step, batch_size, window, seconds, heldout_log_likelihood
                       (raw observation space, nats per transition, one value per offset
                       1..max_offset), the held-out curve, episodes used for training/held out

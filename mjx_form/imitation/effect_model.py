@@ -26,10 +26,9 @@ log p is unchanged (Jacobian 1). The standardisation is taken over the observati
 
 Angle increments (`EffectModelConfig.angle_increments`, turn-invariant models only; not in the
 paper): the model predicts each periodic feature's change x_{t+delta} - x_t instead of its
-moved value. The moved value jumps by a turn where x_t crosses +-pi (a pair just past the edge
-is predicted from the other side's frame), so a model of values has to learn two branches there
-from the few crossings in the data; the change is the same on both sides. The target is moved
-by x_t (a translation given x_t: log p unchanged, Jacobian 1).
+moved value, a residual parameterisation of those features (the mixture's mean no longer has
+to reproduce x_t itself; the moved value is continuous in the moved input either way). The
+target is moved by x_t (a translation given x_t: log p unchanged, Jacobian 1).
 """
 
 from __future__ import annotations
@@ -111,7 +110,8 @@ class EffectModelConfig:
 
 
 class EffectModel(nn.Module):
-  """(standardised x_t [..., D], offset) -> GaussianMixture over standardised x_{t+offset}."""
+  """(standardised x_t [..., D], offset) -> GaussianMixture over standardised x_{t+offset}
+  (moved by `shifts`: with `angle_increments`, over the periodic features' changes)."""
 
   observation_size: int
   width: int = 256
@@ -285,7 +285,7 @@ def loss(model: EffectModel, config: EffectModelConfig, params, x: jax.Array,
          discount: jax.Array, key: jax.Array,
          t: Turns | None = None) -> tuple[jax.Array, dict]:
   """The negated objective (module docstring) on standardised sequences x [B, T+1, D]; pairs
-  moved by their x_t's `turn_shift` under turns `t` (None: not moved)."""
+  moved by their x_t's `shifts` under turns `t` (None: not moved)."""
   masks = offset_masks(discount, config.max_offset)  # [max_offset, B, T]
   log_probs = offset_log_probs(model, params, x, t)  # [max_offset, B, T]
   per_offset = jax.vmap(_masked_mean)(log_probs, masks)  # [max_offset]

@@ -170,7 +170,11 @@ def shipped_demonstrator(env, config: em.EffectModelConfig
   if shipped is None:
     return None, None, f"no demonstrator is shipped for {env.name}"
   file = _load(shipped, env)
-  if file.metadata["config"] != config.to_dict():
+  try:  # (read back through the settings: a key written at its default still matches)
+    same = em.EffectModelConfig(**file.metadata["config"]).to_dict() == config.to_dict()
+  except TypeError:
+    same = False
+  if not same:
     return None, file, (f"the shipped demonstrator {shipped} was trained with other settings "
                         f"({file.metadata['config']})")
   return shipped, file, ""
