@@ -174,15 +174,14 @@ def main(argv=None) -> int:
   for name, run in runs.items():
     by_shoulder = log_pd_by_shoulder(run[0][..., position.start], run[2],
                                      np.linalg.norm(run[0][:, 1:, velocity], axis=-1))
-    crossing = by_shoulder["crossing_pi"]
     fmt = lambda g: "-" if g["log_pd"] is None else f"{g['log_pd']:.2f} ({g['transitions']})"
     at = f"{np.pi - by_shoulder['close_rad']:.2f} rad"
     edge = f"{by_shoulder['edge_rad']:g} rad"
     print(f"  {name}: log pD by the shoulder at x_t (8 bins over [-pi, pi)): "
           + " ".join("-" if x is None else f"{x:.1f}" for x in by_shoulder["log_pd_by_bin"])
           + f"; beyond {edge} {fmt(by_shoulder['near_pi'])}, elsewhere "
-          + fmt(by_shoulder["elsewhere"]) + f"; crossing +-pi {fmt(crossing)}, not crossing "
-          f"within {at} of it {fmt(by_shoulder['at_pi'])}; moving (over {SPEED_BINS[2]:g} "
+          + fmt(by_shoulder["elsewhere"]) + f"; crossing +-pi {fmt(by_shoulder['crossing_pi'])}, "
+          f"not crossing within {at} of it {fmt(by_shoulder['at_pi'])}; moving (over {SPEED_BINS[2]:g} "
           f"rad/s): crossing {fmt(by_shoulder['crossing_pi_moving'])}, not crossing within "
           f"{at} {fmt(by_shoulder['at_pi_moving'])}, within {edge} of 0 "
           + fmt(by_shoulder["moving_elsewhere"]))
@@ -238,14 +237,19 @@ def failed_episodes(run, expert_run, parts: dict) -> dict:
           "starts_the_expert_missed": int((~reached).sum())}
 
 
+def wrapped_bins(angle, bins: int):
+  """Raw angles wrapped into [-pi, pi), and the index of each among `bins` equal bins there."""
+  wrapped = (np.asarray(angle) + np.pi) % (2 * np.pi) - np.pi
+  return wrapped, np.minimum(((wrapped + np.pi) / (2 * np.pi) * bins).astype(int), bins - 1)
+
+
 def failures_by_angle(failed, angle, bins: int = 8, edge: float = 2.5) -> dict:
   """The share of `failed` [K] episodes by `angle` [K] (the expert's final shoulder angle on the
   same starts: where the arm has to end up), wrapped into [-pi, pi) and cut into `bins` equal
   bins (None where empty), and the share among episodes whose wrapped angle is beyond `edge`
   (rad: near +-pi, where the raw angle an actor sees jumps by 2 pi between two ways of turning
   there) against the others."""
-  wrapped = (np.asarray(angle) + np.pi) % (2 * np.pi) - np.pi
-  index = np.minimum(((wrapped + np.pi) / (2 * np.pi) * bins).astype(int), bins - 1)
+  wrapped, index = wrapped_bins(angle, bins)
   share = lambda m: float(failed[m].mean()) if m.any() else None
   near = np.abs(wrapped) > edge
   return {"failed_share_by_expert_final_shoulder": [share(index == b) for b in range(bins)],
@@ -263,11 +267,9 @@ def log_pd_by_shoulder(shoulder, log_d, speed, bins: int = 8, edge: float = 2.5,
   against the others whose x_t is beyond `close` rad, all of them and the moving ones (speed
   over SPEED_BINS[2]) (None: none)."""
   raw = np.asarray(shoulder)
-  wrapped = (raw + np.pi) % (2 * np.pi) - np.pi
-  a = wrapped[:, :-1]
+  a, index = wrapped_bins(raw[:, :-1], bins)
   turn = np.floor((raw + np.pi) / (2 * np.pi))  # which turn each angle lies in
   log_d = np.asarray(log_d)
-  index = np.minimum(((a + np.pi) / (2 * np.pi) * bins).astype(int), bins - 1)
   mean = lambda m: float(log_d[m].mean()) if m.any() else None
   group = lambda m: {"log_pd": mean(m), "transitions": int(m.sum())}
   crossing = turn[:, 1:] != turn[:, :-1]

@@ -57,12 +57,11 @@ def load_expert(path: str, env: env_lib.Task, any_task: bool = False) -> Expert:
   if norm.period is not None and norm.period.shape != (d,):
     raise policy_io.PolicyFileError(f"{path}: normalizer/period has shape {norm.period.shape}, "
                                     f"the observations {d} features")
-  if norm.angles is not None and (
-      norm.angles.ndim != 2 or norm.angles.shape[1] != d or not np.all(
-          (np.asarray(norm.angles) == 0) | (np.asarray(norm.angles) == 1))
-      or np.any(np.asarray(norm.angles).sum(-1) > 1)):
-    raise policy_io.PolicyFileError(f"{path}: normalizer/angles is not [K, {d}] rows each "
-                                    f"one-hot or zero (shape {norm.angles.shape})")
+  if norm.angles is not None:
+    try:
+      normalizer.check_angles(norm.angles, d)
+    except ValueError as e:
+      raise policy_io.PolicyFileError(f"{path}: normalizer/{e}") from None
   k = 0 if norm.angles is None else norm.angles.shape[0]
   if norm.mean.shape != (d + 2 * k,) or norm.var.shape != (d + 2 * k,):
     raise policy_io.PolicyFileError(

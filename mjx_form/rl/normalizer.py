@@ -56,16 +56,22 @@ def init(size: int, dtype=jnp.float32, period=None, angles=None) -> NormalizerSt
     period = jnp.asarray(period, dtype)
   width = size
   if angles is not None:
-    angles = np.asarray(angles, np.float64)
-    if (angles.ndim != 2 or angles.shape[1] != size or not angles.shape[0]
-        or not np.all((angles == 0) | (angles == 1)) or np.any(angles.sum(1) > 1)
-        or np.any(angles.sum(0) > 1)):
-      raise ValueError(f"angles must be [K >= 1, {size}] rows, each one-hot or zero, no feature "
-                       f"in two rows; got {angles.tolist()}")
-    width = size + 2 * angles.shape[0]
+    check_angles(angles, size)
+    width = size + 2 * np.shape(angles)[0]
     angles = jnp.asarray(angles, dtype)
   return NormalizerState(jnp.zeros((width,), dtype), jnp.ones((width,), dtype),
                          jnp.zeros((), jnp.int32), period, angles)
+
+
+def check_angles(angles, size: int) -> None:
+  """ValueError unless `angles` is [K >= 1, size] rows, each one-hot or zero, no feature in two
+  rows (the normaliser's `angles`)."""
+  angles = np.asarray(angles, np.float64)
+  if (angles.ndim != 2 or angles.shape[1] != size or not angles.shape[0]
+      or not np.all((angles == 0) | (angles == 1)) or np.any(angles.sum(1) > 1)
+      or np.any(angles.sum(0) > 1)):
+    raise ValueError(f"angles must be [K >= 1, {size}] rows, each one-hot or zero, no feature "
+                     f"in two rows; got {angles.tolist()}")
 
 
 def wrap(state: NormalizerState, x: jax.Array) -> jax.Array:

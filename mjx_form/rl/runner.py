@@ -145,19 +145,9 @@ def check_initial_policy(trainer: Trainer, policy: experts.Expert | None) -> Non
   # The angles the policy saw wrapped (its normaliser's period; none: zeros) must be the ones
   # each member wraps (a task without unbounded angles wraps none either way).
   size = trainer.env.observation_size
-  theirs = (np.zeros(size) if policy.normalizer.period is None
-            else np.asarray(policy.normalizer.period))
   periods = trainer.env.observation_period()
-  wraps = bool(np.any(theirs > 0))
-  for i in range(trainer.members):
-    ours = periods if trainer.member_config(i).wrap_angles else np.zeros(size)
-    if not np.array_equal(theirs, ours):
-      fix = ("give all members one setting (not --grid wrap_angles)"
-             if "wrap_angles" in trainer.overrides[i] else
-             f"pass --{'' if wraps else 'no-'}wrap_angles")
-      raise RunError(f"the starting policy ({meta['task']}) saw {'its' if wraps else 'no'} "
-                     f"angles wrapped, member {i} of this run "
-                     f"{'does not wrap them' if wraps else 'wraps them'}: {fix}")
+  _check_angle_view(trainer, meta["task"], "wrap_angles", periods, policy.normalizer.period,
+                    "angles wrapped", ("does not wrap them", "wraps them"))
   # Likewise the angles it saw as cos and sin (its normaliser's `angles`; none: zero rows), and
   # its inputs' number (a member that saw the raw angle beside members that did not had D + 2K).
   rows = normalizer.angle_rows(periods)
@@ -168,18 +158,25 @@ def check_initial_policy(trainer: Trainer, policy: experts.Expert | None) -> Non
                    f"{policy.normalizer.mean.shape[-1]} observation features, this run's "
                    f"networks {width} (a policy of a population member beside members with "
                    "angle features needs a run with the same --grid angle_features)")
-  theirs = (np.zeros_like(rows) if policy.normalizer.angles is None
-            else np.asarray(policy.normalizer.angles))
+  _check_angle_view(trainer, meta["task"], "angle_features", rows, policy.normalizer.angles,
+                    "angles as cos and sin", ("does not", "does"))
+
+
+def _check_angle_view(trainer: Trainer, task: str, name: str, on, theirs, seen: str,
+                      member_does: tuple[str, str]) -> None:
+  """RunError unless every member's setting `name` gives what the starting policy's normaliser
+  holds (`theirs`: its period or angles, None for none): `on` where the member's flag is set,
+  zeros where not. `seen` and `member_does` (its negative, its positive) word the message."""
+  theirs = np.zeros_like(on) if theirs is None else np.asarray(theirs)
   sees = bool(np.any(theirs))
   for i in range(trainer.members):
-    ours = rows if trainer.member_config(i).angle_features else np.zeros_like(rows)
+    ours = on if getattr(trainer.member_config(i), name) else np.zeros_like(on)
     if theirs.shape != ours.shape or not np.array_equal(theirs, ours):
-      fix = ("give all members one setting (not --grid angle_features)"
-             if "angle_features" in trainer.overrides[i] else
-             f"pass --{'' if sees else 'no-'}angle_features")
-      raise RunError(f"the starting policy ({meta['task']}) saw {'its' if sees else 'no'} "
-                     f"angles as cos and sin, member {i} of this run "
-                     f"{'does not' if sees else 'does'}: {fix}")
+      fix = (f"give all members one setting (not --grid {name})" if name in trainer.overrides[i]
+             else f"pass --{'' if sees else 'no-'}{name}")
+      raise RunError(f"the starting policy ({task}) saw {'its' if sees else 'no'} {seen}, "
+                     f"member {i} of this run {member_does[0] if sees else member_does[1]}: "
+                     f"{fix}")
 
 
 def member_dirs(directory: str, seeds: tuple[int, ...],
