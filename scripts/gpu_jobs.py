@@ -164,6 +164,8 @@ def _form_models(run, args) -> str:
     path, file, _ = pipeline.shipped_demonstrator(env, config)
     where = ("shipped" if path else "trained (the shipped one has other settings)" if file
              else "trained (none shipped)")
+  if where.startswith("trained"):
+    where += f", seed {args.seed if args.demonstrator_seed is None else args.demonstrator_seed}"
   return (f"effect models beta_ar {config.beta_ar:g}, L2 {config.l2:g}, width {config.width}"
           f"{', turn-invariant' if config.period else ''}"
           f"{', angle increments' if config.angle_increments else ''}; demonstrator {where}")

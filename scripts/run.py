@@ -49,7 +49,8 @@ from mjx_form.sim.wrappers import AutoReset  # noqa: E402
 METHODS = ("form", "expert", "random")
 # Options that only --method form reads (a user who gives one to another method is told so).
 FORM_ONLY = ("expert", "demos", "demo_episodes", "save_demos", "demonstrator",
-             "train_demonstrator", "beta_ar", "effect_l2", "turn_invariant", "angle_increments",
+             "train_demonstrator", "demonstrator_seed", "beta_ar", "effect_l2", "turn_invariant",
+             "angle_increments",
              "reward_scale", "reward_clip")
 
 DEFAULT_COMPILATION_CACHE = os.path.join(
@@ -115,7 +116,9 @@ def parse_args(argv=None) -> argparse.Namespace:
   parser.add_argument("--seeds", type=_seeds, default=None,
                       help="comma-separated seeds: a population of runs, one per seed, in one "
                            "compiled program (--method form and expert; each writes to "
-                           "<run_dir>/seed<s>/); overrides --seed")
+                           "<run_dir>/seed<s>/); overrides --seed for the learners (--method "
+                           "form records demonstrations and trains a demonstrator with "
+                           "--demonstrator_seed, default --seed)")
   parser.add_argument("--grid", action="append", default=[], metavar="NAME=V1,V2,...",
                       help="members with their own values of a setting (repeatable): the "
                            "population is every combination of the seeds and the values, each "
@@ -233,6 +236,10 @@ def parse_args(argv=None) -> argparse.Namespace:
                     "run's, else one is trained)")
   form.add_argument("--train_demonstrator", action="store_true",
                     help="train a demonstrator even where one is shipped")
+  form.add_argument("--demonstrator_seed", type=int, default=None,
+                    help="seed of the demonstrations recorded and of the demonstrator trained "
+                         "(default: --seed; one for the whole population, whatever --seeds): "
+                         "another draw of the same recipe")
   form.add_argument("--beta_ar", type=float, default=None,
                     help="effect models' autoregressive weight (default: per task, "
                          "mjx_form/imitation/settings.py)")
@@ -419,17 +426,19 @@ def form_source(args: argparse.Namespace, run_dir: str, results_path: str, print
   """Stages 1-2 of --method form: the FORM reward source, its demonstrator in `run_dir`."""
   env = tasks.make(args.task, physics=args.physics)
   explicit, config = effect_model_settings(args, env)
+  demonstrator_seed = args.seed if args.demonstrator_seed is None else args.demonstrator_seed
   training = demonstrator_lib.DemonstratorTraining(
       max_steps=args.demonstrator_steps, batch_size=args.batch_size, window=args.unroll_length,
       eval_every=args.demonstrator_eval_every, patience=args.demonstrator_patience,
-      seed=args.seed, max_seconds=None if args.max_seconds is None else args.max_seconds / 2)
+      seed=demonstrator_seed,
+      max_seconds=None if args.max_seconds is None else args.max_seconds / 2)
   artefacts = pipeline.Artefacts(
       expert=args.expert, demos=args.demos, demonstrator=args.demonstrator,
       demo_episodes=args.demo_episodes, train_demonstrator=args.train_demonstrator,
       save_demos=args.save_demos, training=training)
   return pipeline.prepare(env, config, explicit,
                           artefacts, run_dir, resume=args.resume, physics=args.physics,
-                          seed=args.seed, results_path=results_path,
+                          seed=demonstrator_seed, results_path=results_path,
                           reward={k: v for k, v in form_run_settings(args).items()
                                   if k in ("standardise_reward", "reward_clip")},
                           print_fn=print_fn)

@@ -348,7 +348,9 @@ def test_form_flags_are_refused_for_other_methods(capsys):
   for argv, named in ((["--method", "expert", "--no-turn_invariant"], "--turn_invariant"),
                       (["--method", "random", "--turn_invariant"], "--turn_invariant"),
                       (["--method", "expert", "--beta_ar", "0.1"], "--beta_ar"),
-                      (["--method", "expert", "--train_demonstrator"], "--train_demonstrator")):
+                      (["--method", "expert", "--train_demonstrator"], "--train_demonstrator"),
+                      (["--method", "random", "--demonstrator_seed", "0"],
+                       "--demonstrator_seed")):
     with pytest.raises(SystemExit):
       cli.parse_args(argv)
     assert f"{named} apply to --method form only" in capsys.readouterr().err
@@ -432,6 +434,7 @@ def test_form_command_line_runs_every_stage(tmp_path, capsys):
   run_dir = tmp_path / "trained"
   assert cli.main(_readme_args(run_dir, "--demos", str(saved), "--train_demonstrator",
                                "--demonstrator_steps", "20", "--demonstrator_eval_every", "10",
+                               "--demonstrator_seed", "3",
                                "--max_seconds", "1000", "--results", str(curve))) == 0
   out = capsys.readouterr().out
   for expected in (f"demonstrations: {k} episodes from", "demonstrator step 20",
@@ -454,6 +457,9 @@ def test_form_command_line_runs_every_stage(tmp_path, capsys):
   assert len(records[0]["heldout_log_likelihood"]) == 5 and records[0]["steps"] == 20
   assert records[0]["settings"]["max_seconds"] == 500.0  # about half of --max_seconds
   assert records[0]["stopped_by"] == "max_steps"
+  # --demonstrator_seed seeds the demonstrator's training (the learner keeps --seed)
+  assert records[0]["settings"]["seed"] == records[0]["seed"] == 3
+  assert records[1]["seed"] == 0
   # --max_seconds counts from the command's start: the demonstrations and the demonstrator's
   # training came before the runner and count against it (a sitting's job given the seconds
   # left of the sitting ended 274 s past them when they did not).

@@ -159,7 +159,7 @@ def test_check_parses_run_jobs_as_run_does_and_names_a_bad_one(tmp_path, capsys)
       "--grid target_update_period=25,100 --num_envs 512 --updates_per_iteration 256 "
       "--max_seconds $LEFT --results $RES/rx.jsonl --run_dir $RUNS/rx\n"
       "fx: python scripts/run.py --task reacher_hard --method form --train_demonstrator "
-      "--effect_l2 1\n"
+      "--effect_l2 1 --demonstrator_seed 3\n"
       "fc: python scripts/run.py --task cheetah_run --method form\n"
       "fl: python scripts/run.py --task reacher_hard --method form --effect_l2 1\n"
       "fw: python scripts/run.py --task walker_run --method form\n"
@@ -177,11 +177,11 @@ def test_check_parses_run_jobs_as_run_does_and_names_a_bad_one(tmp_path, capsys)
   # demonstrator comes from, as run.py decides it
   assert "effect models" not in out[0], out
   assert ("effect models beta_ar 1, L2 1, width 256, turn-invariant; demonstrator trained "
-          "(--train_demonstrator)") in out[1], out
+          "(--train_demonstrator), seed 3") in out[1], out
   assert "effect models beta_ar 0.01, L2 1, width 256; demonstrator shipped" in out[2], out
   assert "L2 1, width 256, turn-invariant; demonstrator trained (the shipped one has other " \
-         "settings)" in out[3], out
-  assert "; demonstrator trained (none shipped)" in out[4], out  # no walker_run expert either
+         "settings), seed 0" in out[3], out
+  assert "; demonstrator trained (none shipped), seed 0" in out[4], out  # no walker_run expert either
   assert ("L2 0.1, width 256; demonstrator given, benchmarks/demonstrators/reacher_hard_plain"
           ".npz") in out[5], out  # its own settings: not turn-invariant
   assert out[6] == "ls: not a run.py command, not checked: ls -la $RES"
