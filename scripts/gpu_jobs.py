@@ -150,14 +150,16 @@ def _form_models(run, args) -> str:
   explicit, config = run.effect_model_settings(args, env)
   if args.resume:
     where = "the one kept in its run directory (--resume)"
-  elif args.demonstrator and not os.path.exists(args.demonstrator):
-    where = f"given, {args.demonstrator} (not here to check)"
+  elif args.demonstrator and not all(map(os.path.exists, args.demonstrator)):
+    where = f"given, {' + '.join(args.demonstrator)} (not all here to check)"
   elif args.demonstrator:
-    file = effect_models.load_effect_model(args.demonstrator, task=args.task,
-                                           observation_layout=env.observation_layout)
-    # (refused, as run.py refuses it, where the job's flags ask for other settings)
-    config, _ = pipeline.demonstrator_from_file(file, args.demonstrator, explicit)
-    where = f"given, {args.demonstrator}"
+    ready = [(path, effect_models.load_effect_model(path, task=args.task,
+                                                    observation_layout=env.observation_layout))
+             for path in args.demonstrator]
+    # (refused, as run.py refuses them, where the job's flags ask for other settings or the
+    # files of an ensemble differ in theirs)
+    config, _, _ = pipeline.ensemble(ready, explicit)
+    where = f"given, {' + '.join(args.demonstrator)}"
   elif args.train_demonstrator:
     where = "trained (--train_demonstrator)"
   else:

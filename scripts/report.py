@@ -947,10 +947,12 @@ def effect_model_table(records: list[dict], best_per_task: bool = True,
   if best_per_task:
     chosen = [max((r for r in rows if group(r) == g),
                   key=lambda r: (_is_shipped(r, shipped), _heldout_mean(r))) for g in count]
+    with_shipped = {r["task"] for r in chosen if _is_shipped(r, shipped)}
+    chosen = [r for r in chosen if _is_shipped(r, shipped) or r["task"] not in with_shipped]
     caption = ("Demonstrator effect models (`kind: effect_model` records of "
                "`scripts/train_demonstrator.py` and of `--method form` runs that trained one), "
-               "per task and expert the shipped one (`tasks/demonstrators/<task>.npz`; shipped: "
-               "yes) where it is among them, else the training with the highest mean held-out "
+               "per task the shipped one (`tasks/demonstrators/<task>.npz`; shipped: yes) where "
+               "it is among them, else per expert the training with the highest mean held-out "
                "log-likelihood (all of them in `benchmarks/NOTES.md`). Expert: the policy whose "
                "demonstrations it learned (sha256, mean return; '-' in records before they "
                "named it). Held-out log-likelihood: of the held-out demonstration "

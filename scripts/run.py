@@ -231,9 +231,11 @@ def parse_args(argv=None) -> argparse.Namespace:
                          f"as the paper; {pipeline.DEFAULT_CHECK_EPISODES} to check a ready "
                          "one and measure the expert's return)")
   form.add_argument("--save_demos", help="also write the recorded demonstrations here")
-  form.add_argument("--demonstrator", help="a demonstrator effect model (.npz) to use "
-                    "(default: tasks/demonstrators/<task>.npz where its settings are this "
-                    "run's, else one is trained)")
+  form.add_argument("--demonstrator", action="append", default=None,
+                    help="a demonstrator effect model (.npz) to use (default: "
+                    "tasks/demonstrators/<task>.npz where its settings are this run's, else "
+                    "one is trained); given several times, an ensemble: log pD is their "
+                    "mixture's (files of one task and one setting)")
   form.add_argument("--train_demonstrator", action="store_true",
                     help="train a demonstrator even where one is shipped")
   form.add_argument("--demonstrator_seed", type=int, default=None,
@@ -306,6 +308,9 @@ def parse_args(argv=None) -> argparse.Namespace:
              if getattr(args, name) != parser.get_default(name)]
     if given:
       parser.error(f"{', '.join(given)} apply to --method form only")
+  if args.demonstrator and args.train_demonstrator:
+    parser.error("--demonstrator and --train_demonstrator exclude each other (a run trains "
+                 "its demonstrator or uses the ones given)")
   if args.task not in tasks.TASKS:
     parser.error(f"unknown task {args.task!r}; valid tasks: {', '.join(tasks.TASKS)}")
   for name in ("num_envs", "steps", "log_every", "env_steps", "eval_every", "checkpoint_every",
@@ -433,7 +438,7 @@ def form_source(args: argparse.Namespace, run_dir: str, results_path: str, print
       seed=demonstrator_seed,
       max_seconds=None if args.max_seconds is None else args.max_seconds / 2)
   artefacts = pipeline.Artefacts(
-      expert=args.expert, demos=args.demos, demonstrator=args.demonstrator,
+      expert=args.expert, demos=args.demos, demonstrator=tuple(args.demonstrator or ()),
       demo_episodes=args.demo_episodes, train_demonstrator=args.train_demonstrator,
       save_demos=args.save_demos, training=training)
   return pipeline.prepare(env, config, explicit,

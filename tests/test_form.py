@@ -90,6 +90,59 @@ def test_relabel_is_the_difference_of_the_two_log_densities():
                                                       "discount": discount})[0], 0.0)
 
 
+def test_an_ensemble_of_demonstrators_scores_with_their_mixture():
+  """Several demonstrators: log pD is the log of the mean of their densities (numpy, float64,
+  from each model's own log pD); the same model twice is that model; one is no ensemble; models
+  of other shapes and an empty list are refused; the reward is log pD - log pI as before."""
+  model = em.make_model(EFFECT, D)
+  members = [_demonstrator(0), _demonstrator(3), _demonstrator(5)]
+  source = FormReward(EFFECT, members, "a+b+c")
+  assert source.ensemble == 3 and source.settings()["demonstrators"] == 3
+  state = source.init(jax.random.PRNGKey(1), D, 2)
+  assert state.demonstrator.normalizer.mean.shape == (3, D)
+  obs = jnp.asarray(np.random.default_rng(2).normal(size=(3, 5, D)), jnp.float32)
+  discount = jnp.ones((3, 4))
+  log_d, log_i = source.log_probs(state, obs)
+  each = np.stack([np.asarray(em.transition_log_prob(model, d.params, d.normalizer,
+                                                     obs[:, :-1], obs[:, 1:]), np.float64)
+                   for d in members])
+  mixture = np.logaddexp.reduce(each, axis=0) - np.log(3)
+  np.testing.assert_allclose(log_d, mixture, rtol=1e-5, atol=1e-4)
+  assert np.all(np.asarray(log_d) >= each.max(axis=0) - np.log(3) - 1e-4)
+  assert np.ptp(each, axis=0).max() > 1.0  # (the members differ: the test could fail)
+  rewards, _ = source.relabel(state, {"observation": obs, "discount": discount})
+  np.testing.assert_allclose(rewards, np.asarray(log_d) - np.asarray(log_i), rtol=1e-5,
+                             atol=1e-4)
+  twice = FormReward(EFFECT, [members[1], members[1]])
+  single = FormReward(EFFECT, members[1])
+  np.testing.assert_allclose(twice.log_probs(twice.init(jax.random.PRNGKey(1), D, 2), obs)[0],
+                             single.log_probs(single.init(jax.random.PRNGKey(1), D, 2), obs)[0],
+                             rtol=1e-5, atol=1e-4)
+  one = FormReward(EFFECT, [members[0]])
+  assert one.ensemble == 0 and "demonstrators" not in one.settings()
+  assert one.demonstrator.normalizer.mean.shape == (D,)
+  wider = em.make_model(em.EffectModelConfig(width=16), D).init(jax.random.PRNGKey(0),
+                                                               jnp.zeros((1, D)))
+  with pytest.raises(ValueError):
+    FormReward(EFFECT, [members[0], members[0]._replace(params=wider)])
+  with pytest.raises(ValueError, match="no demonstrator"):
+    FormReward(EFFECT, [])
+
+
+def test_an_ensemble_runs_in_the_compiled_loop_on_two_devices():
+  """An ensemble's stacked demonstrators go through the compiled loop with the batch sharded
+  over two devices: the logged log pD is the mixture's on the batch (finite), and the
+  demonstrators stay as given."""
+  members = [_demonstrator(0), _demonstrator(3)]
+  assert jax.device_count() == 2  # (tests/conftest.py)
+  trainer = Trainer(CONFIG, mesh_lib.make_mesh(), FormReward(EFFECT, members))
+  state, metrics = _iterate(trainer, 1)
+  assert np.isfinite(metrics[-1]["demonstrator_log_prob"]).all()
+  kept = jax.device_get(state.source.demonstrator)  # [P, K, ...]
+  np.testing.assert_array_equal(kept.normalizer.mean[0],
+                                np.stack([m.normalizer.mean for m in members]))
+
+
 def test_standardised_reward_uses_the_running_statistics_of_the_raw_reward():
   """With standardise_reward the learner gets (r - m) / s, m and s the bias-corrected EMA
   (decay 0.99 per batch) of the raw reward over the valid transitions of the batches so far,
@@ -350,7 +403,8 @@ def test_form_flags_are_refused_for_other_methods(capsys):
                       (["--method", "expert", "--beta_ar", "0.1"], "--beta_ar"),
                       (["--method", "expert", "--train_demonstrator"], "--train_demonstrator"),
                       (["--method", "random", "--demonstrator_seed", "0"],
-                       "--demonstrator_seed")):
+                       "--demonstrator_seed"),
+                      (["--method", "expert", "--demonstrator", "a.npz"], "--demonstrator")):
     with pytest.raises(SystemExit):
       cli.parse_args(argv)
     assert f"{named} apply to --method form only" in capsys.readouterr().err
@@ -589,12 +643,59 @@ def test_a_demonstrator_that_does_not_fit_is_refused_before_anything_is_recorded
                         (str(truncated), "truncated")):
     run_dir = tmp_path / f"run_{len(message)}"
     with pytest.raises(ValueError, match=message):
-      pipeline.prepare(env, config, {}, pipeline.Artefacts(demonstrator=path), str(run_dir),
+      pipeline.prepare(env, config, {}, pipeline.Artefacts(demonstrator=(path,)), str(run_dir),
                        resume=False, physics="fast", seed=0, results_path=None,
                        print_fn=lambda line: None)
     assert not run_dir.exists()
   # A file that fits goes on to the check on demonstrations (here: the stand-in's error).
   with pytest.raises(AssertionError, match="were recorded"):
     pipeline.prepare(env, config, {}, pipeline.Artefacts(
-        demonstrator=tasks.bundled_demonstrator("reacher_easy")), str(tmp_path / "fits"),
+        demonstrator=(tasks.bundled_demonstrator("reacher_easy"),)), str(tmp_path / "fits"),
         resume=False, physics="fast", seed=0, results_path=None, print_fn=lambda line: None)
+
+
+def test_an_ensemble_of_demonstrator_files_is_checked_kept_and_resumed(tmp_path, monkeypatch):
+  """Several --demonstrator files: each is checked on the demonstrations and kept in the run
+  directory (demonstrator.npz, demonstrator_1.npz), the reward source scores with their mixture
+  and is named by their sorted checksums; --resume reads them back. Refused before anything
+  is recorded or written: a file given twice, and two trained with other settings."""
+  from mjx_form.imitation import pipeline
+  env = tasks.make("reacher_easy")
+  config = settings.effect_model_config("reacher_easy", env)
+  shipped = tasks.bundled_demonstrator("reacher_easy")
+  former = os.path.join("benchmarks", "demonstrators", "reacher_easy_expert_d93ef5.npz")
+  file = effect_models.load_effect_model(former)
+  other = str(tmp_path / "other.npz")  # the former one's model, written as if trained at L2 1
+  meta = {k: v for k, v in file.metadata.items() if k not in ("format", "version", "sha256")}
+  effect_models.save_effect_model(other, file.params, file.mean, file.var, dict(
+      meta, config=dict(meta["config"], l2=1.0)))
+  demo_obs = np.random.default_rng(0).normal(size=(2, 201, D)).astype(np.float32)
+  recorded = []
+  def record(*args, **kwargs):
+    recorded.append(1)
+    return demo_obs, {"episodes": 2, "expert": {}}
+  monkeypatch.setattr(pipeline, "demonstrations", record)
+  prepare = lambda run_dir, paths, **kw: pipeline.prepare(
+      env, config, {}, pipeline.Artefacts(demonstrator=paths), str(run_dir), physics="fast",
+      seed=0, results_path=None, print_fn=lines.append, **kw)
+  for paths, message in (((shipped, shipped), "the same demonstrator as"),
+                         ((former, other), "other effect-model settings than")):
+    lines = []
+    with pytest.raises(pipeline.PipelineError, match=message):
+      prepare(tmp_path / "refused", paths, resume=False)
+    assert not recorded and not (tmp_path / "refused").exists()
+  lines = []
+  source = prepare(tmp_path / "run", (shipped, former), resume=False)
+  shas = sorted(effect_models.load_effect_model(p).metadata["sha256"] for p in (shipped, former))
+  assert source.ensemble == 2 and source.demonstrator_sha256 == "+".join(shas)
+  assert sum("its log-likelihood on this run's 2 demonstrations" in line for line in lines) == 2
+  assert "an ensemble of 2 demonstrators: log pD is their mixture's" in lines
+  for name, path in (("demonstrator.npz", shipped), ("demonstrator_1.npz", former)):
+    assert open(tmp_path / "run" / name, "rb").read() == open(path, "rb").read()
+  (tmp_path / "run" / "config.json").write_text("{}")  # (what the runner writes)
+  resumed = prepare(tmp_path / "run", (), resume=True)
+  assert resumed.ensemble == 2 and resumed.demonstrator_sha256 == source.demonstrator_sha256
+  np.testing.assert_array_equal(resumed.demonstrator.normalizer.mean,
+                                source.demonstrator.normalizer.mean)
+  with pytest.raises(Exception, match="already holds a run"):  # nothing overwritten
+    prepare(tmp_path / "run", (shipped, former), resume=False)

@@ -165,11 +165,14 @@ def test_check_parses_run_jobs_as_run_does_and_names_a_bad_one(tmp_path, capsys)
       "fw: python scripts/run.py --task walker_run --method form\n"
       "fd: python scripts/run.py --task reacher_hard --method form --no-turn_invariant "
       "--demonstrator benchmarks/demonstrators/reacher_hard_plain.npz\n"
+      "fe: python scripts/run.py --task reacher_hard --method form --demonstrator "
+      "tasks/demonstrators/reacher_hard.npz --demonstrator "
+      "benchmarks/demonstrators/reacher_hard_expert_64be96_200k_ee291e.npz\n"
       "ls: ls -la $RES\n")
   assert gpu_jobs.main(["check", str(jobs), "--deadline", "900"]) == 0
   out = [line for line in capsys.readouterr().out.splitlines()  # (not MuJoCo's import notes)
-         if line.startswith(("rx:", "fx:", "fc:", "fl:", "fw:", "fd:", "ls:"))]
-  assert len(out) == 7 and out[0].startswith("rx: reacher_hard expert, seeds 0,1; grid target_update_period=25,100")
+         if line.startswith(("rx:", "fx:", "fc:", "fl:", "fw:", "fd:", "fe:", "ls:"))]
+  assert len(out) == 8 and out[0].startswith("rx: reacher_hard expert, seeds 0,1; grid target_update_period=25,100")
   for part in ("512 envs x 256 updates (replay ratio 32)", "T 25", "action penalty True",
                "max seconds 900.0"):  # reacher_hard's recipe, the flags, $LEFT
     assert part in out[0], part
@@ -184,16 +187,26 @@ def test_check_parses_run_jobs_as_run_does_and_names_a_bad_one(tmp_path, capsys)
   assert "; demonstrator trained (none shipped), seed 0" in out[4], out  # no walker_run expert either
   assert ("L2 0.1, width 256; demonstrator given, benchmarks/demonstrators/reacher_hard_plain"
           ".npz") in out[5], out  # its own settings: not turn-invariant
-  assert out[6] == "ls: not a run.py command, not checked: ls -la $RES"
+  assert ("turn-invariant; demonstrator given, tasks/demonstrators/reacher_hard.npz + "
+          "benchmarks/demonstrators/reacher_hard_expert_64be96_200k_ee291e.npz") in out[6], out
+  assert out[7] == "ls: not a run.py command, not checked: ls -la $RES"
   for bad, said in (("--task walker_walk --method form --turn_invariant", "unbounded"),
                     ("--task reacher_easy --method form --demonstrator "
                      "tasks/demonstrators/reacher_hard.npz", "reacher_hard"),
                     ("--task reacher_hard --method form --angle_increments --demonstrator "
-                     "tasks/demonstrators/reacher_hard.npz", "angle_increments")):
+                     "tasks/demonstrators/reacher_hard.npz", "angle_increments"),
+                    ("--task reacher_hard --method form --no-turn_invariant --demonstrator "
+                     "benchmarks/demonstrators/reacher_hard_plain.npz --demonstrator "
+                     "tasks/demonstrators/reacher_hard.npz", "turn-invariance period")):
     jobs.write_text(f"bad: python scripts/run.py {bad}\n")
     assert gpu_jobs.main(["check", str(jobs)]) == 2
     err = capsys.readouterr().err
     assert "job 'bad'" in err and "run.py would refuse it" in err and said in err, err
+  jobs.write_text("bad: python scripts/run.py --task reacher_hard --method form "
+                  "--train_demonstrator --demonstrator tasks/demonstrators/reacher_hard.npz\n")
+  assert gpu_jobs.main(["check", str(jobs)]) == 2
+  err = capsys.readouterr().err
+  assert "job 'bad'" in err and "--train_demonstrator exclude each other" in err, err
   jobs.write_text("bad: python scripts/run.py --task reacher_hard --updates_per_iteraton 64\n")
   assert gpu_jobs.main(["check", str(jobs)]) == 2
   err = capsys.readouterr().err

@@ -486,6 +486,15 @@ def test_demonstrator_tables_show_the_held_out_likelihood():
   assert marked.count("| walker_walk |") == 1
   every = report.effect_model_table([base, better], best_per_task=False, shipped=shipped)
   assert "| walker_walk | - | yes |" in every and "| walker_walk | - | - |" in every
+  # Where a task's shipped demonstrator is among them, other experts' trainings are left to
+  # the full table (benchmarks/NOTES.md).
+  elsewhere = dict(other, heldout_log_likelihood=[9.0, 8.0, 7.0, 6.0, 5.0])
+  alone = report.effect_model_table([base, better, elsewhere], shipped=shipped)
+  assert alone.count("| walker_walk |") == 1 and "| walker_walk | - | yes |" in alone
+  assert report.effect_model_table([base, better, elsewhere], best_per_task=False,
+                                   shipped=shipped).count("| walker_walk |") == 3
+  assert report.effect_model_table([base, better, elsewhere],  # (none shipped: both groups)
+                                   shipped={}).count("| walker_walk |") == 2
   # Another task's or another length's training is not the shipped one.
   assert "| yes |" not in report.effect_model_table(
       [base], shipped={"walker_walk": (91000, (5.0, 4.0, 3.0, 2.0, 1.0))})

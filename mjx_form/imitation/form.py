@@ -33,13 +33,21 @@ Folding clipped rewards in biases the sd low, more so for small c: on Gaussian r
 running sd settles at 1.00 / 0.95 / 0.79 of the true one for c = 3 / 2 / 1.5 and falls towards
 0 for c <= 1, which is therefore refused.
 
+An ensemble of demonstrators (several files of one task and one setting: draws of one recipe)
+gives pD as their mixture, log pD = logsumexp_k log pD_k - log K: a density (so the reward keeps
+its meaning), at least the best model's density / K wherever one model has a spurious hole. Two
+demonstrators of one recipe gave reacher_hard's FORM 0.74 and 0.85 (benchmarks/NOTES.md,
+session 42). A single demonstrator's parameters are kept as they are; an ensemble's are stacked
+along a leading axis of size K.
+
 The source never sees the task reward (`needs_task_reward = False`: it is not even stored).
 """
 
 from __future__ import annotations
 
 import copy
-from typing import Any, NamedTuple
+import math
+from typing import Any, NamedTuple, Sequence
 
 import jax
 import jax.numpy as jnp
@@ -53,6 +61,14 @@ class Demonstrator(NamedTuple):
 
   params: Any
   normalizer: normalizer.NormalizerState
+
+
+def stack(demonstrators: Sequence[Demonstrator]) -> Demonstrator:
+  """K >= 2 demonstrators of one architecture as one, each leaf stacked on a leading axis [K]."""
+  if len(demonstrators) < 2:
+    raise ValueError(f"an ensemble needs 2 demonstrators or more, got {len(demonstrators)}")
+  return jax.tree.map(lambda *leaves: jnp.stack([jnp.asarray(x) for x in leaves]),
+                      *demonstrators)
 
 
 class FormState(NamedTuple):
@@ -69,18 +85,30 @@ class FormReward:
   # may differ between a population's members
   variable_settings = ("standardise_reward", "reward_clip")
 
-  def __init__(self, config: em.EffectModelConfig, demonstrator: Demonstrator,
+  def __init__(self, config: em.EffectModelConfig,
+               demonstrator: Demonstrator | Sequence[Demonstrator],
                demonstrator_sha256: str = "", standardise_reward: bool = False,
                reward_clip: float = 0.0):
-    """`demonstrator_sha256` identifies the demonstrator file (kept with checkpoints, so a run
-    resumes only with the same one); `standardise_reward`, `reward_clip` (in running standard
-    deviations, 0: off): see the module docstring."""
+    """`demonstrator`: one, or a sequence of them (an ensemble where there are 2 or more: their
+    mixture); `demonstrator_sha256` identifies the demonstrator file (an ensemble's: its files'
+    sorted and joined by '+'; kept with checkpoints, so a run resumes only with the same ones);
+    `standardise_reward`, `reward_clip` (in running standard deviations, 0: off): see the
+    module docstring."""
     config.check()
     grid.check_value("reward_clip", reward_clip)
+    if not isinstance(demonstrator, Demonstrator):
+      demonstrator = list(demonstrator)
+      if not demonstrator:
+        raise ValueError("no demonstrator given")
+    self.ensemble = 0 if isinstance(demonstrator, Demonstrator) else len(demonstrator)
+    if self.ensemble == 1:
+      demonstrator, self.ensemble = demonstrator[0], 0
+    elif self.ensemble:
+      demonstrator = stack(demonstrator)  # (refuses models of other shapes)
     self.config = config
     self.standardise_reward = bool(standardise_reward)
     self.reward_clip = float(reward_clip)
-    self.demonstrator = demonstrator
+    self.demonstrator = demonstrator  # an ensemble's leaves [K, ...]
     self.demonstrator_sha256 = demonstrator_sha256
     self.observation_size = int(demonstrator.normalizer.mean.shape[-1])
     self.model = em.make_model(config, self.observation_size)
@@ -120,6 +148,7 @@ class FormReward:
   def settings(self) -> dict:
     return {"effect_model": self.config.to_dict(),
             "demonstrator_sha256": self.demonstrator_sha256,
+            **({"demonstrators": self.ensemble} if self.ensemble else {}),
             "standardise_reward": self.standardise_reward, "reward_clip": self.reward_clip}
 
   def clip_tail(self, stats: normalizer.NormalizerState, raw: jax.Array) -> jax.Array:
@@ -139,7 +168,12 @@ class FormReward:
     """Raw-space log pD and log pI of each transition of observation [B, T+1, D]: [B, T] each."""
     x, x_next = observation[:, :-1], observation[:, 1:]
     demo, imitator = state.demonstrator, state.imitator
-    log_d = em.transition_log_prob(self.model, demo.params, demo.normalizer, x, x_next)
+    log_d_of = lambda d: em.transition_log_prob(self.model, d.params, d.normalizer, x, x_next)
+    if self.ensemble:  # the mixture's density: the mean of the models' densities
+      log_d = (jax.nn.logsumexp(jax.vmap(log_d_of)(demo), axis=0)
+               - math.log(self.ensemble))
+    else:
+      log_d = log_d_of(demo)
     log_i = em.transition_log_prob(self.model, imitator.params, imitator.normalizer, x, x_next)
     return log_d, log_i
 

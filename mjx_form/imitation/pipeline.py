@@ -2,7 +2,8 @@
 demonstrator effect model -> imitation -> evaluation.
 
 Stages, each of which can also start from a saved artefact:
-  1. demonstrator: `--demonstrator FILE`, else the one shipped in tasks/demonstrators/ (when it
+  1. demonstrator: `--demonstrator FILE` (given several times: an ensemble, their mixture,
+     mjx_form.imitation.form), else the one shipped in tasks/demonstrators/ (when it
      was trained with this run's effect-model settings), else trained here on demonstrations;
   2. demonstrations: `--demos FILE`, else recorded from the expert (`--expert FILE`, else the
      shipped one) on the device. They train the demonstrator where one is trained (1000
@@ -11,14 +12,15 @@ Stages, each of which can also start from a saved artefact:
      return, the imitation's target;
   3. imitation: MPO + Retrace on the FORM reward (mjx_form.imitation.form), never the task
      reward, in the compiled loop of mjx_form.rl.train, run by mjx_form.rl.runner.
-The demonstrator a run imitates is kept in its run directory (demonstrator.npz), so `--resume`
-needs nothing else. A missing or mismatched artefact raises PipelineError naming the file and
+The demonstrator a run imitates is kept in its run directory (demonstrator.npz; an ensemble's
+others as demonstrator_1.npz, ...), so `--resume` needs nothing else. A missing or mismatched artefact raises PipelineError naming the file and
 the problem, before anything is written.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import os
 import shutil
 from typing import Callable
@@ -50,7 +52,7 @@ class Artefacts:
 
   expert: str | None = None  # policy file
   demos: str | None = None  # demonstration file
-  demonstrator: str | None = None  # effect-model file
+  demonstrator: tuple[str, ...] = ()  # effect-model files (2 or more: an ensemble)
   demo_episodes: int | None = None  # None: 1000 to train a demonstrator, 16 to check one
   train_demonstrator: bool = False  # train even where one is shipped
   save_demos: str | None = None  # also write the recorded demonstrations here
@@ -109,57 +111,95 @@ def prepare(env, config: em.EffectModelConfig, explicit: dict, artefacts: Artefa
   ready demonstrator must agree with them); `reward`: the FormReward's reward settings
   (`standardise_reward`, `reward_clip`: see mjx_form.imitation.form).
   """
-  runner.check_run_dir(run_dir, resume, also=(DEMONSTRATOR_FILE,))
+  given = tuple(artefacts.demonstrator or ())
+  runner.check_run_dir(run_dir, resume, also=tuple(map(kept_name, range(max(len(given), 2)))))
   reward = reward or {}
   kept = os.path.join(run_dir, DEMONSTRATOR_FILE)
   if resume:
     if not os.path.exists(kept):
       raise PipelineError(f"--resume: {run_dir} holds no {DEMONSTRATOR_FILE}")
-    file = _load(kept, env)
-    return FormReward(*demonstrator_from_file(file, kept, explicit), file.metadata["sha256"],
-                      **reward)
+    paths = [os.path.join(run_dir, kept_name(i)) for i in itertools.takewhile(
+        lambda i: os.path.exists(os.path.join(run_dir, kept_name(i))), itertools.count())]
+    config, demonstrators, sha256 = ensemble([(p, _load(p, env)) for p in paths], explicit)
+    return FormReward(config, demonstrators, sha256, **reward)
 
-  path, file = artefacts.demonstrator, None
-  if path is None and not artefacts.train_demonstrator:
+  ready: list[tuple[str, effect_models.EffectModelFile]] = []  # (path, file)
+  if given:
+    ready = [(path, _load(path, env)) for path in given]
+  elif not artefacts.train_demonstrator:
     path, file, why = shipped_demonstrator(env, config)
-    if path is None and file is not None:
+    if path is not None:
+      ready = [(path, file)]
+    elif file is not None:
       print_fn(why + "; training one with this run's")
-  if path is not None:  # a ready demonstrator: refused, if it does not fit, before recording
-    if file is None:  # (the shipped one is read already)
-      file = _load(path, env)
-    config, demonstrator = demonstrator_from_file(file, path, explicit)
-  episodes = artefacts.demo_episodes or (DEFAULT_CHECK_EPISODES if path
+  if ready:  # ready demonstrators: refused, if they do not fit, before recording
+    config, demonstrators, sha256 = ensemble(ready, explicit)
+  episodes = artefacts.demo_episodes or (DEFAULT_CHECK_EPISODES if ready
                                          else DEFAULT_TRAINING_EPISODES)
   can_record = artefacts.demos is not None or artefacts.expert is not None or (
       env.name in tasks.bundled_experts())
   demos_obs = None
-  if path is None or can_record:
+  if not ready or can_record:
     demos_obs, demos_info = demonstrations(env, artefacts, episodes, physics, seed, print_fn)
   else:
     print_fn(f"no expert for {env.name}: the demonstrator is not checked on demonstrations")
 
-  if path is None:  # train one; it is written to the run directory
+  if not ready:  # train one; it is written to the run directory
     os.makedirs(run_dir, exist_ok=True)
     file = train_demonstrator(env, config, demos_obs, demos_info, artefacts.training, physics,
                               seed, results_path, print_fn, kept)
     return FormReward(*demonstrator_from_file(file, kept, explicit), file.metadata["sha256"],
                       **reward)
 
-  print_fn(f"demonstrator {path}: best of {file.metadata['training'].get('steps')} training "
-           f"steps at step {file.metadata['training'].get('best_step')}, held-out "
-           f"log-likelihood by offset {file.metadata['training'].get('heldout_log_likelihood')}")
-  if demos_obs is not None:
-    other = another_expert(file.metadata, demos_info)
-    if other:
-      print_fn(other)
-    fit = demonstrator_lib.heldout_log_likelihood(em.make_model(config, env.observation_size),
-                                                  demonstrator.params, demonstrator.normalizer,
-                                                  jnp.asarray(demos_obs))
-    print_fn(f"its log-likelihood on this run's {len(demos_obs)} demonstrations by offset: "
-             + " ".join(f"{v:.2f}" for v in np.asarray(fit)))
   os.makedirs(run_dir, exist_ok=True)
-  shutil.copyfile(path, kept)
-  return FormReward(config, demonstrator, file.metadata["sha256"], **reward)
+  for i, ((path, file), demonstrator) in enumerate(zip(ready, demonstrators)):
+    print_fn(f"demonstrator {path}: best of {file.metadata['training'].get('steps')} training "
+             f"steps at step {file.metadata['training'].get('best_step')}, held-out "
+             f"log-likelihood by offset {file.metadata['training'].get('heldout_log_likelihood')}")
+    if demos_obs is not None:
+      other = another_expert(file.metadata, demos_info)
+      if other:
+        print_fn(other)
+      fit = demonstrator_lib.heldout_log_likelihood(em.make_model(config, env.observation_size),
+                                                    demonstrator.params, demonstrator.normalizer,
+                                                    jnp.asarray(demos_obs))
+      print_fn(f"its log-likelihood on this run's {len(demos_obs)} demonstrations by offset: "
+               + " ".join(f"{v:.2f}" for v in np.asarray(fit)))
+    shutil.copyfile(path, os.path.join(run_dir, kept_name(i)))
+  if len(ready) > 1:
+    print_fn(f"an ensemble of {len(ready)} demonstrators: log pD is their mixture's")
+  return FormReward(config, demonstrators, sha256, **reward)
+
+
+def kept_name(i: int) -> str:
+  """The name in a run directory of the run's i-th demonstrator (an ensemble's i > 0)."""
+  return DEMONSTRATOR_FILE if i == 0 else f"demonstrator_{i}.npz"
+
+
+def ensemble_sha256(checksums: list[str]) -> str:
+  """What identifies a run's demonstrators: one's sha256, an ensemble's sorted and joined by
+  '+' (the mixture does not depend on their order)."""
+  return "+".join(sorted(checksums))
+
+
+def ensemble(ready: list[tuple[str, effect_models.EffectModelFile]], explicit: dict | None
+              ) -> tuple[em.EffectModelConfig, list[Demonstrator], str]:
+  """The shared settings, the models and the identity of one demonstrator or an ensemble of
+  them; refused where one does not fit, where two were trained with other settings (the
+  imitator model shares them) and where one file is given twice."""
+  models = [demonstrator_from_file(file, path, explicit) for path, file in ready]
+  (first, _), config = ready[0], models[0][0]
+  for (path, _), (other, _) in zip(ready[1:], models[1:]):
+    if other.to_dict() != config.to_dict():
+      raise PipelineError(f"{path}: trained with other effect-model settings than {first} "
+                          f"({other.to_dict()} against {config.to_dict()}): an ensemble's "
+                          "demonstrators share one setting")
+  checksums = [file.metadata["sha256"] for _, file in ready]
+  for i, sha in enumerate(checksums):
+    if sha in checksums[:i]:
+      raise PipelineError(f"{ready[i][0]}: the same demonstrator as "
+                          f"{ready[checksums.index(sha)][0]} (an ensemble's must differ)")
+  return config, [d for _, d in models], ensemble_sha256(checksums)
 
 
 def shipped_demonstrator(env, config: em.EffectModelConfig
