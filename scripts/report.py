@@ -546,6 +546,14 @@ def _demonstration_returns(folders: tuple[str, ...] = (DEMONSTRATORS, FORMER_DEM
   return out
 
 
+def _demonstration_return(sha256: str | None, returns: dict[str, float]) -> float | None:
+  """The mean return of the demonstrations a run's demonstrator learned (`returns` by the
+  demonstrator's sha256); an ensemble's ('+'-joined sha256s): the mean over its models, None
+  where one is unknown."""
+  parts = [returns.get(sha) for sha in (sha256 or "").split("+")]
+  return None if None in parts else sum(parts) / len(parts)
+
+
 def _form_variant(record: dict) -> str:
   """How a FORM run used its reward, its learner's target period and its effect models'
   regularisers: e.g. `raw, T 200, ar 1, L2 0.1`."""
@@ -563,6 +571,8 @@ def _form_variant(record: dict) -> str:
     regularisers.append("turn-invariant")
   if model.get("angle_increments"):
     regularisers.append("angle increments")
+  if settings.get("reward", {}).get("demonstrators"):
+    regularisers.append(f"ensemble of {settings['reward']['demonstrators']} demonstrators")
   return ", ".join([reward, f"T {period}", *regularisers,
                     *_learner_notes(record, with_period=False)])
 
@@ -885,7 +895,7 @@ def form_table(records: list[dict], expert_returns: dict[str, float] | None = No
     wall = _mean_std([r["wall_s"] for r in final])[0]
     episodes = sorted({r["episodes"] for r in final})
     shas = {r.get("settings", {}).get("reward", {}).get("demonstrator_sha256") for r in final}
-    targets = {demonstration_returns.get(sha) for sha in shas}
+    targets = {_demonstration_return(sha, demonstration_returns) for sha in shas}
     expert = targets.pop() if len(targets) == 1 and None not in targets else (
         expert_returns.get(task))
     spread = f" +- {std:.1f}" if len(final) > 1 else ""

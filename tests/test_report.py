@@ -103,6 +103,17 @@ def test_form_table_averages_the_final_policy_over_seeds():
   table = report.form_table(behind, expert_returns={"cheetah_run": 875.0},
                             demonstration_returns={"d1": 1000.0})
   assert "| 875.0 +- 25.0 | - | 1000.0 | 0.88 | 0.89 |" in table, table
+  # An ensemble's: the mean over its demonstrators' (the expert's return at export where one
+  # is unknown); the variant names the ensemble.
+  ensemble = {"reward": {"demonstrator_sha256": "d1+d2", "demonstrators": 2}}
+  mixed = [_final_return(s, v, settings=ensemble) for s, v in ((0, 900.0), (1, 850.0))]
+  table = report.form_table(mixed, expert_returns={"cheetah_run": 875.0},
+                            demonstration_returns={"d1": 1000.0, "d2": 950.0})
+  assert "ensemble of 2 demonstrators" in table
+  assert "| 875.0 +- 25.0 | - | 975.0 | 0.90 | 0.89 |" in table, table
+  table = report.form_table(mixed, expert_returns={"cheetah_run": 875.0},
+                            demonstration_returns={"d1": 1000.0})
+  assert "| 875.0 +- 25.0 | - | 875.0 | 1.00 | 0.89 |" in table, table
 
 
 def test_form_table_per_task_keeps_the_best_configuration_of_two_seeds_or_more():
