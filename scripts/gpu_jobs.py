@@ -153,8 +153,8 @@ def _form_models(run, args) -> str:
   elif args.demonstrator and not all(map(os.path.exists, args.demonstrator)):
     where = f"given, {' + '.join(args.demonstrator)} (not all here to check)"
   elif args.demonstrator:
-    ready = [(path, effect_models.load_effect_model(path, task=args.task,
-                                                    observation_layout=env.observation_layout))
+    ready = [(path, effect_models.load_effect_model(
+        path, task=args.task, observation_layout=env.observation_layout, distractors=None))
              for path in args.demonstrator]
     # (refused, as run.py refuses them, where the job's flags ask for other settings or the
     # files of an ensemble differ in theirs)
@@ -167,7 +167,7 @@ def _form_models(run, args) -> str:
     where = ("shipped" if path else "trained (the shipped one has other settings)" if file
              else "trained (none shipped)")
   if where.startswith("trained"):
-    where += f", seed {args.seed if args.demonstrator_seed is None else args.demonstrator_seed}"
+    where += f", seed {run.demonstrator_seed_of(args)}"
   return (f"effect models beta_ar {config.beta_ar:g}, L2 {config.l2:g}, width {config.width}"
           f"{', turn-invariant' if config.period else ''}"
           f"{', angle increments' if config.angle_increments else ''}; demonstrator {where}")

@@ -308,6 +308,10 @@ def parse_args(argv=None) -> argparse.Namespace:
              if getattr(args, name) != parser.get_default(name)]
     if given:
       parser.error(f"{', '.join(given)} apply to --method form only")
+  if args.resume and (args.demonstrator or args.train_demonstrator
+                      or args.demonstrator_seed is not None):
+    parser.error("--resume uses the demonstrators kept in the run directory: leave out "
+                 "--demonstrator, --train_demonstrator and --demonstrator_seed")
   if args.demonstrator and args.train_demonstrator:
     parser.error("--demonstrator and --train_demonstrator exclude each other (a run trains "
                  "its demonstrator or uses the ones given)")
@@ -427,11 +431,16 @@ def effect_model_settings(args: argparse.Namespace, env):
   return explicit, config
 
 
+def demonstrator_seed_of(args: argparse.Namespace) -> int:
+  """The seed of a FORM run's recorded demonstrations and trained demonstrator."""
+  return args.seed if args.demonstrator_seed is None else args.demonstrator_seed
+
+
 def form_source(args: argparse.Namespace, run_dir: str, results_path: str, print_fn):
   """Stages 1-2 of --method form: the FORM reward source, its demonstrator in `run_dir`."""
   env = tasks.make(args.task, physics=args.physics)
   explicit, config = effect_model_settings(args, env)
-  demonstrator_seed = args.seed if args.demonstrator_seed is None else args.demonstrator_seed
+  demonstrator_seed = demonstrator_seed_of(args)
   training = demonstrator_lib.DemonstratorTraining(
       max_steps=args.demonstrator_steps, batch_size=args.batch_size, window=args.unroll_length,
       eval_every=args.demonstrator_eval_every, patience=args.demonstrator_patience,

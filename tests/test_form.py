@@ -125,22 +125,25 @@ def test_an_ensemble_of_demonstrators_scores_with_their_mixture():
                                                                jnp.zeros((1, D)))
   with pytest.raises(ValueError):
     FormReward(EFFECT, [members[0], members[0]._replace(params=wider)])
-  with pytest.raises(ValueError, match="no demonstrator"):
-    FormReward(EFFECT, [])
+  for bad in ([], tuple(members[0]), [members[0], tuple(members[1])]):  # (a plain tuple is
+    with pytest.raises(TypeError, match="a Demonstrator or a list"):      # no Demonstrator)
+      FormReward(EFFECT, bad)
 
 
-def test_an_ensemble_runs_in_the_compiled_loop_on_two_devices():
+def test_an_ensemble_runs_in_the_compiled_loop_on_two_devices(form_trainer):
   """An ensemble's stacked demonstrators go through the compiled loop with the batch sharded
-  over two devices: the logged log pD is the mixture's on the batch (finite), and the
-  demonstrators stay as given."""
-  members = [_demonstrator(0), _demonstrator(3)]
+  over two devices: an ensemble of one model twice trains as that model alone (the same log pD
+  and rewards, iteration for iteration), and the stacked models stay as given."""
   assert jax.device_count() == 2  # (tests/conftest.py)
-  trainer = Trainer(CONFIG, mesh_lib.make_mesh(), FormReward(EFFECT, members))
-  state, metrics = _iterate(trainer, 1)
-  assert np.isfinite(metrics[-1]["demonstrator_log_prob"]).all()
+  twice = Trainer(CONFIG, mesh_lib.make_mesh(), FormReward(EFFECT, [_demonstrator()] * 2))
+  state, metrics = _iterate(twice, 2)
+  _, alone = _iterate(form_trainer, 2)  # (the same model, `_demonstrator()`, alone)
+  for name in ("demonstrator_log_prob", "form_reward", "imitator_batch_log_prob", "q_online"):
+    np.testing.assert_allclose([m[name] for m in metrics], [m[name] for m in alone],
+                               rtol=1e-4, atol=1e-3, err_msg=name)
   kept = jax.device_get(state.source.demonstrator)  # [P, K, ...]
-  np.testing.assert_array_equal(kept.normalizer.mean[0],
-                                np.stack([m.normalizer.mean for m in members]))
+  np.testing.assert_array_equal(kept.normalizer.mean[0], np.stack(
+      [np.asarray(_demonstrator().normalizer.mean)] * 2))
 
 
 def test_standardised_reward_uses_the_running_statistics_of_the_raw_reward():
@@ -408,6 +411,13 @@ def test_form_flags_are_refused_for_other_methods(capsys):
     with pytest.raises(SystemExit):
       cli.parse_args(argv)
     assert f"{named} apply to --method form only" in capsys.readouterr().err
+  # --resume reads the kept demonstrators; a demonstrator flag beside it would be ignored
+  for flags in (["--demonstrator", "a.npz"], ["--train_demonstrator"],
+                ["--demonstrator_seed", "1"]):
+    with pytest.raises(SystemExit):
+      cli.parse_args(["--resume", *flags])
+    assert "--resume uses the demonstrators kept in the run directory" in (
+        capsys.readouterr().err)
   assert cli.parse_args(["--method", "expert"]).turn_invariant is None
 
 
@@ -678,8 +688,13 @@ def test_an_ensemble_of_demonstrator_files_is_checked_kept_and_resumed(tmp_path,
   prepare = lambda run_dir, paths, **kw: pipeline.prepare(
       env, config, {}, pipeline.Artefacts(demonstrator=paths), str(run_dir), physics="fast",
       seed=0, results_path=None, print_fn=lines.append, **kw)
-  for paths, message in (((shipped, shipped), "the same demonstrator as"),
-                         ((former, other), "other effect-model settings than")):
+  copy = str(tmp_path / "copy.npz")
+  with open(copy, "wb") as f:
+    f.write(open(shipped, "rb").read())
+  for paths, message in (((shipped, shipped), "given twice"),
+                         ((shipped, copy), "the same demonstrator as"),
+                         ((former, other), r"other effect-model settings than .*\(l2 1.0 "
+                                           r"against 0.1\)")):
     lines = []
     with pytest.raises(pipeline.PipelineError, match=message):
       prepare(tmp_path / "refused", paths, resume=False)
@@ -699,3 +714,9 @@ def test_an_ensemble_of_demonstrator_files_is_checked_kept_and_resumed(tmp_path,
                                 source.demonstrator.normalizer.mean)
   with pytest.raises(Exception, match="already holds a run"):  # nothing overwritten
     prepare(tmp_path / "run", (shipped, former), resume=False)
+  # A directory holding only an ensemble's second file is a used one too (a later --resume
+  # would read it).
+  (tmp_path / "leftover").mkdir()
+  (tmp_path / "leftover" / "demonstrator_1.npz").write_bytes(b"")
+  with pytest.raises(Exception, match="already holds a run .*demonstrator_1.npz"):
+    prepare(tmp_path / "leftover", (shipped,), resume=False)

@@ -168,11 +168,14 @@ def test_check_parses_run_jobs_as_run_does_and_names_a_bad_one(tmp_path, capsys)
       "fe: python scripts/run.py --task reacher_hard --method form --demonstrator "
       "tasks/demonstrators/reacher_hard.npz --demonstrator "
       "benchmarks/demonstrators/reacher_hard_expert_64be96_200k_ee291e.npz\n"
+      "fm: python scripts/run.py --task reacher_hard --method form --demonstrator "
+      "tasks/demonstrators/reacher_hard.npz --demonstrator elsewhere/d.npz\n"
       "ls: ls -la $RES\n")
   assert gpu_jobs.main(["check", str(jobs), "--deadline", "900"]) == 0
   out = [line for line in capsys.readouterr().out.splitlines()  # (not MuJoCo's import notes)
-         if line.startswith(("rx:", "fx:", "fc:", "fl:", "fw:", "fd:", "fe:", "ls:"))]
-  assert len(out) == 8 and out[0].startswith("rx: reacher_hard expert, seeds 0,1; grid target_update_period=25,100")
+         if line.startswith(("rx:", "fx:", "fc:", "fl:", "fw:", "fd:", "fe:", "fm:", "ls:"))]
+  assert len(out) == 9 and out[0].startswith(
+      "rx: reacher_hard expert, seeds 0,1; grid target_update_period=25,100")
   for part in ("512 envs x 256 updates (replay ratio 32)", "T 25", "action penalty True",
                "max seconds 900.0"):  # reacher_hard's recipe, the flags, $LEFT
     assert part in out[0], part
@@ -184,12 +187,15 @@ def test_check_parses_run_jobs_as_run_does_and_names_a_bad_one(tmp_path, capsys)
   assert "effect models beta_ar 0.01, L2 1, width 256; demonstrator shipped" in out[2], out
   assert "L2 1, width 256, turn-invariant; demonstrator trained (the shipped one has other " \
          "settings), seed 0" in out[3], out
-  assert "; demonstrator trained (none shipped), seed 0" in out[4], out  # no walker_run expert either
+  # (no walker_run expert either)
+  assert "; demonstrator trained (none shipped), seed 0" in out[4], out
   assert ("L2 0.1, width 256; demonstrator given, benchmarks/demonstrators/reacher_hard_plain"
           ".npz") in out[5], out  # its own settings: not turn-invariant
   assert ("turn-invariant; demonstrator given, tasks/demonstrators/reacher_hard.npz + "
           "benchmarks/demonstrators/reacher_hard_expert_64be96_200k_ee291e.npz") in out[6], out
-  assert out[7] == "ls: not a run.py command, not checked: ls -la $RES"
+  assert ("demonstrator given, tasks/demonstrators/reacher_hard.npz + elsewhere/d.npz (not all "
+          "here to check)") in out[7], out
+  assert out[8] == "ls: not a run.py command, not checked: ls -la $RES"
   for bad, said in (("--task walker_walk --method form --turn_invariant", "unbounded"),
                     ("--task reacher_easy --method form --demonstrator "
                      "tasks/demonstrators/reacher_hard.npz", "reacher_hard"),

@@ -33,8 +33,9 @@ Folding clipped rewards in biases the sd low, more so for small c: on Gaussian r
 running sd settles at 1.00 / 0.95 / 0.79 of the true one for c = 3 / 2 / 1.5 and falls towards
 0 for c <= 1, which is therefore refused.
 
-An ensemble of demonstrators (several files of one task and one setting: draws of one recipe)
-gives pD as their mixture, log pD = logsumexp_k log pD_k - log K: a density (so the reward keeps
+An ensemble of demonstrators (several files of one task and one setting: draws of one recipe,
+or models of several experts' demonstrations, which the pipeline notes) gives pD as their
+mixture, log pD = logsumexp_k log pD_k - log K: a density (so the reward keeps
 its meaning), at least the best model's density / K wherever one model has a spurious hole. Two
 demonstrators of one recipe gave reacher_hard's FORM 0.74 and 0.85 (benchmarks/NOTES.md,
 session 42). A single demonstrator's parameters are kept as they are; an ensemble's are stacked
@@ -96,15 +97,11 @@ class FormReward:
     module docstring."""
     config.check()
     grid.check_value("reward_clip", reward_clip)
-    if not isinstance(demonstrator, Demonstrator):
-      demonstrator = list(demonstrator)
-      if not demonstrator:
-        raise ValueError("no demonstrator given")
-    self.ensemble = 0 if isinstance(demonstrator, Demonstrator) else len(demonstrator)
-    if self.ensemble == 1:
-      demonstrator, self.ensemble = demonstrator[0], 0
-    elif self.ensemble:
-      demonstrator = stack(demonstrator)  # (refuses models of other shapes)
+    models = [demonstrator] if isinstance(demonstrator, Demonstrator) else list(demonstrator)
+    if not models or not all(isinstance(m, Demonstrator) for m in models):
+      raise TypeError(f"FormReward takes a Demonstrator or a list of them, got {demonstrator!r}")
+    self.ensemble = len(models) if len(models) > 1 else 0  # 0: one, unstacked
+    demonstrator = stack(models) if self.ensemble else models[0]  # (refuses other shapes)
     self.config = config
     self.standardise_reward = bool(standardise_reward)
     self.reward_clip = float(reward_clip)

@@ -13,14 +13,14 @@ Stages, each of which can also start from a saved artefact:
   3. imitation: MPO + Retrace on the FORM reward (mjx_form.imitation.form), never the task
      reward, in the compiled loop of mjx_form.rl.train, run by mjx_form.rl.runner.
 The demonstrator a run imitates is kept in its run directory (demonstrator.npz; an ensemble's
-others as demonstrator_1.npz, ...), so `--resume` needs nothing else. A missing or mismatched artefact raises PipelineError naming the file and
-the problem, before anything is written.
+others as demonstrator_1.npz, ...), so `--resume` needs nothing else. A missing or mismatched
+artefact raises PipelineError naming the file and the problem, before anything is written.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import itertools
+import glob
 import os
 import shutil
 from typing import Callable
@@ -111,15 +111,18 @@ def prepare(env, config: em.EffectModelConfig, explicit: dict, artefacts: Artefa
   ready demonstrator must agree with them); `reward`: the FormReward's reward settings
   (`standardise_reward`, `reward_clip`: see mjx_form.imitation.form).
   """
-  given = tuple(artefacts.demonstrator or ())
-  runner.check_run_dir(run_dir, resume, also=tuple(map(kept_name, range(max(len(given), 2)))))
+  given = artefacts.demonstrator
+  if isinstance(given, str):
+    raise TypeError("Artefacts.demonstrator is a tuple of paths")
+  # (any demonstrator file in it: a leftover demonstrator_2.npz would join a later --resume)
+  runner.check_run_dir(run_dir, resume, also=(DEMONSTRATOR_FILE, *sorted(
+      os.path.basename(p) for p in glob.glob(os.path.join(run_dir, "demonstrator_*.npz")))))
   reward = reward or {}
   kept = os.path.join(run_dir, DEMONSTRATOR_FILE)
   if resume:
-    if not os.path.exists(kept):
+    paths = kept_paths(run_dir)
+    if not paths:
       raise PipelineError(f"--resume: {run_dir} holds no {DEMONSTRATOR_FILE}")
-    paths = [os.path.join(run_dir, kept_name(i)) for i in itertools.takewhile(
-        lambda i: os.path.exists(os.path.join(run_dir, kept_name(i))), itertools.count())]
     config, demonstrators, sha256 = ensemble([(p, _load(p, env)) for p in paths], explicit)
     return FormReward(config, demonstrators, sha256, **reward)
 
@@ -151,8 +154,7 @@ def prepare(env, config: em.EffectModelConfig, explicit: dict, artefacts: Artefa
     return FormReward(*demonstrator_from_file(file, kept, explicit), file.metadata["sha256"],
                       **reward)
 
-  os.makedirs(run_dir, exist_ok=True)
-  for i, ((path, file), demonstrator) in enumerate(zip(ready, demonstrators)):
+  for (path, file), demonstrator in zip(ready, demonstrators):
     print_fn(f"demonstrator {path}: best of {file.metadata['training'].get('steps')} training "
              f"steps at step {file.metadata['training'].get('best_step')}, held-out "
              f"log-likelihood by offset {file.metadata['training'].get('heldout_log_likelihood')}")
@@ -165,10 +167,21 @@ def prepare(env, config: em.EffectModelConfig, explicit: dict, artefacts: Artefa
                                                     jnp.asarray(demos_obs))
       print_fn(f"its log-likelihood on this run's {len(demos_obs)} demonstrations by offset: "
                + " ".join(f"{v:.2f}" for v in np.asarray(fit)))
+  os.makedirs(run_dir, exist_ok=True)
+  for i, (path, _) in enumerate(ready):  # (after every check: no partial run directory)
     shutil.copyfile(path, os.path.join(run_dir, kept_name(i)))
   if len(ready) > 1:
     print_fn(f"an ensemble of {len(ready)} demonstrators: log pD is their mixture's")
   return FormReward(config, demonstrators, sha256, **reward)
+
+
+def kept_paths(run_dir: str) -> list[str]:
+  """The demonstrators kept in a run directory, in order: demonstrator.npz, demonstrator_1.npz,
+  ... up to the first missing one (none: [])."""
+  paths = []
+  while os.path.exists(path := os.path.join(run_dir, kept_name(len(paths)))):
+    paths.append(path)
+  return paths
 
 
 def kept_name(i: int) -> str:
@@ -190,12 +203,18 @@ def ensemble(ready: list[tuple[str, effect_models.EffectModelFile]], explicit: d
   models = [demonstrator_from_file(file, path, explicit) for path, file in ready]
   (first, _), config = ready[0], models[0][0]
   for (path, _), (other, _) in zip(ready[1:], models[1:]):
-    if other.to_dict() != config.to_dict():
-      raise PipelineError(f"{path}: trained with other effect-model settings than {first} "
-                          f"({other.to_dict()} against {config.to_dict()}): an ensemble's "
-                          "demonstrators share one setting")
+    theirs, ours = other.to_dict(), config.to_dict()
+    differ = {k: (theirs.get(k), ours.get(k)) for k in sorted(set(theirs) | set(ours))
+              if theirs.get(k) != ours.get(k)}
+    if differ:
+      raise PipelineError(f"{path}: trained with other effect-model settings than {first} ("
+                          + ", ".join(f"{k} {a} against {b}" for k, (a, b) in differ.items())
+                          + "): an ensemble's demonstrators share one setting")
   checksums = [file.metadata["sha256"] for _, file in ready]
   for i, sha in enumerate(checksums):
+    if sha in checksums[:i] and ready[i][0] == ready[checksums.index(sha)][0]:
+      raise PipelineError(f"{ready[i][0]}: given twice (an ensemble's demonstrators must "
+                          "differ)")
     if sha in checksums[:i]:
       raise PipelineError(f"{ready[i][0]}: the same demonstrator as "
                           f"{ready[checksums.index(sha)][0]} (an ensemble's must differ)")
