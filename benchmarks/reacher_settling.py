@@ -16,7 +16,8 @@ from the expert's own starts, how the policy's failed episodes end (still or sha
 whether they ever came within 5 cm), what the demonstrator pays for their second half against
 the policy's successful episodes and the expert's on the same starts, and how often they fail by
 where the expert's shoulder ends on the same starts (near +-pi or elsewhere; starts where the
-expert itself scores 800 or less are left out of that); and, for the expert and each policy on
+expert itself scores 800 or less are left out of that), how the expert gets there (passing
++-pi or not) and where the failed episodes' shoulder ends; and, for the expert and each policy on
 those starts, the demonstrator's log pD by where the shoulder is at x_t (wrapped: near +-pi or
 elsewhere) and of the transitions that cross +-pi (`--demonstrator`: another demonstrator file
 of the task to score with). Appends `kind: reacher_settling` records.
@@ -211,9 +212,22 @@ def main(argv=None) -> int:
           + f"; beyond {probe['near_pi_edge_rad']:g} rad: "
           + ("-" if near is None else f"{near:.0%}")
           + ", elsewhere: " + ("-" if elsewhere is None else f"{elsewhere:.0%}"))
+    endings = endings_by_angle(expert_run[0][..., position.start],
+                               runs[name][0][..., position.start], runs[name][1] < 100.0)
+    fmt = lambda x, f: "-" if x is None else format(x, f)
+    print("    the shoulder by bin of the expert's end: expert passes +-pi / turns positive; "
+          "the failed episodes' final angle (circular mean, sd): " + "; ".join(
+              f"{fmt(g['expert_passes_pi'], '.0%')} / {fmt(g['expert_turns_positive'], '.0%')}"
+              f", {g['failed']} at {fmt(g['failed_end_mean_rad'], '+.2f')} "
+              f"({fmt(g['failed_end_circular_sd_rad'], '.2f')})"
+              for g in endings["by_expert_final_shoulder"])
+          + f"; all failed: {fmt(endings['failed_end_mean_rad'], '+.2f')} "
+          f"({fmt(endings['failed_end_circular_sd_rad'], '.2f')})")
     if writer:
       writer.write(kind="reacher_settling", probe="failed_episodes", behaviour=name,
                    episodes=args.episodes, **probe, **common_fields)
+      writer.write(kind="reacher_settling", probe="endings_by_angle", behaviour=name,
+                   episodes=args.episodes, **endings, **common_fields)
   return 0
 
 
@@ -235,6 +249,42 @@ def failed_episodes(run, expert_run, parts: dict) -> dict:
   return {**episode_groups(obs, returns, log_d, expert_log_d, parts),
           **failures_by_angle((returns < 100.0)[reached], shoulder[reached]),
           "starts_the_expert_missed": int((~reached).sum())}
+
+
+def endings_by_angle(expert_shoulder, shoulder, failed, bins: int = 8) -> dict:
+  """How the expert and a policy move the shoulder from the same starts: expert_shoulder and
+  shoulder [K, T+1] (raw), failed [K] (the policy's episodes under 100). By bin of the expert's
+  final wrapped angle (`wrapped_bins`; None where empty): episodes, the share where the expert
+  passes +-pi (an odd multiple of pi) at some step and the share where its net turn is
+  positive; the policy's failed episodes there and their final angles' circular mean and
+  circular standard deviation sqrt(-2 ln R) (rad; 0: all end at one angle). The same for all
+  failed episodes together: one angle with a small spread is a pose the policy parks in
+  whatever the target."""
+  expert_shoulder, shoulder = np.asarray(expert_shoulder), np.asarray(shoulder)
+  failed = np.asarray(failed, bool)
+  _, index = wrapped_bins(expert_shoulder[:, -1], bins)
+  turn = np.floor((expert_shoulder + np.pi) / (2 * np.pi))
+  passes = np.any(turn[:, 1:] != turn[:, :-1], axis=1)
+  positive = expert_shoulder[:, -1] > expert_shoulder[:, 0]
+  end = shoulder[:, -1]
+
+  def circular(m):
+    if not m.any():
+      return None, None
+    z = np.exp(1j * end[m]).mean()
+    return float(np.angle(z)), float(np.sqrt(-2 * np.log(max(abs(z), 1e-12))))
+
+  share = lambda v, m: float(v[m].mean()) if m.any() else None
+  by_bin = []
+  for b in range(bins):
+    m = index == b
+    mean, sd = circular(m & failed)
+    by_bin.append({"episodes": int(m.sum()), "expert_passes_pi": share(passes, m),
+                   "expert_turns_positive": share(positive, m), "failed": int((m & failed).sum()),
+                   "failed_end_mean_rad": mean, "failed_end_circular_sd_rad": sd})
+  mean, sd = circular(failed)
+  return {"by_expert_final_shoulder": by_bin, "failed": int(failed.sum()),
+          "failed_end_mean_rad": mean, "failed_end_circular_sd_rad": sd}
 
 
 def wrapped_bins(angle, bins: int):

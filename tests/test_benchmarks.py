@@ -556,6 +556,32 @@ def test_reacher_settling_shares_failures_by_the_final_shoulder_angle():
   assert bench.failures_by_angle(failed, np.zeros(5))["failed_share_expert_final_shoulder_near_pi"] is None
 
 
+def test_reacher_settling_splits_endings_by_the_experts_final_shoulder():
+  """endings_by_angle, checked by hand: the expert's passes of +-pi and net turns by the bin of
+  its final angle; the failed episodes' final angles as a circular mean and sd."""
+  bench = load_script("reacher_settling", folder="benchmarks")
+  # expert: ends at 3.0 (bin 7) passing pi from 2.0; at 3.0 turning down from 3.2 (passes pi:
+  # 3.2 is past it); at -0.1 (bin 3) from 0.5; at -3.0 (bin 0) from -2.0, not passing.
+  expert = np.array([[2.0, 3.5, 3.0 + 2 * np.pi], [3.2, 3.1, 3.0], [0.5, 0.2, -0.1],
+                     [-2.0, -2.5, -3.0]])
+  # the policy: failed episodes end at pi - 0.1 and -pi + 0.1 (circular mean pi, sd 0.1) and
+  # at 4 pi - 2.3 (= -2.3); the third episode succeeds
+  policy = np.array([[0.0, np.pi - 0.1], [0.0, -np.pi + 0.1], [0.0, 1.0],
+                     [0.0, 4 * np.pi - 2.3]])
+  out = bench.endings_by_angle(expert, policy, np.array([1, 1, 0, 1], bool))
+  bins = out["by_expert_final_shoulder"]
+  assert [g["episodes"] for g in bins] == [1, 0, 0, 1, 0, 0, 0, 2]
+  assert bins[7]["expert_passes_pi"] == 1.0 and bins[7]["expert_turns_positive"] == 0.5
+  assert bins[0]["expert_passes_pi"] == 0.0 and bins[0]["expert_turns_positive"] == 0.0
+  assert bins[1]["expert_passes_pi"] is None and bins[1]["failed_end_mean_rad"] is None
+  assert bins[7]["failed"] == 2 and abs(abs(bins[7]["failed_end_mean_rad"]) - np.pi) < 1e-9
+  assert bins[7]["failed_end_circular_sd_rad"] == pytest.approx(
+      np.sqrt(-2 * np.log(np.cos(0.1))))
+  assert bins[0]["failed_end_mean_rad"] == pytest.approx(-2.3)
+  assert bins[0]["failed_end_circular_sd_rad"] == pytest.approx(0.0, abs=1e-6)
+  assert bins[3]["failed"] == 0 and out["failed"] == 3
+
+
 def test_reacher_settling_scores_the_shoulder_by_place_and_the_crossings_of_pi():
   """log_pd_by_shoulder: bins, near +-pi / elsewhere and the transitions crossing +-pi are
   taken at x_t's wrapped shoulder (whole turns change nothing), checked by hand."""
