@@ -272,7 +272,7 @@ def endings_by_angle(expert_shoulder, shoulder, failed, bins: int = 8) -> dict:
     if not m.any():
       return None, None
     z = np.exp(1j * end[m]).mean()
-    return float(np.angle(z)), float(np.sqrt(-2 * np.log(max(abs(z), 1e-12))))
+    return float(np.angle(z)), float(np.sqrt(-2 * np.log(np.clip(abs(z), 1e-12, 1.0))) + 0.0)
 
   share = lambda v, m: float(v[m].mean()) if m.any() else None
   by_bin = []

@@ -579,6 +579,7 @@ def test_reacher_settling_splits_endings_by_the_experts_final_shoulder():
       np.sqrt(-2 * np.log(np.cos(0.1))))
   assert bins[0]["failed_end_mean_rad"] == pytest.approx(-2.3)
   assert bins[0]["failed_end_circular_sd_rad"] == pytest.approx(0.0, abs=1e-6)
+  assert str(bins[0]["failed_end_circular_sd_rad"])[0] != "-"  # (one episode: 0, not -0)
   assert bins[3]["failed"] == 0 and out["failed"] == 3
 
 
