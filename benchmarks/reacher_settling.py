@@ -263,7 +263,7 @@ def endings_by_angle(expert_shoulder, shoulder, failed, bins: int = 8) -> dict:
   expert_shoulder, shoulder = np.asarray(expert_shoulder), np.asarray(shoulder)
   failed = np.asarray(failed, bool)
   _, index = wrapped_bins(expert_shoulder[:, -1], bins)
-  turn = np.floor((expert_shoulder + np.pi) / (2 * np.pi))
+  turn = turn_index(expert_shoulder)
   passes = np.any(turn[:, 1:] != turn[:, :-1], axis=1)
   positive = expert_shoulder[:, -1] > expert_shoulder[:, 0]
   end = shoulder[:, -1]
@@ -285,6 +285,12 @@ def endings_by_angle(expert_shoulder, shoulder, failed, bins: int = 8) -> dict:
   mean, sd = circular(failed)
   return {"by_expert_final_shoulder": by_bin, "failed": int(failed.sum()),
           "failed_end_mean_rad": mean, "failed_end_circular_sd_rad": sd}
+
+
+def turn_index(raw):
+  """Which turn each raw angle lies in (its count of 2 pi past [-pi, pi)): two angles of one
+  episode in different turns have passed an odd multiple of pi between them."""
+  return np.floor((np.asarray(raw) + np.pi) / (2 * np.pi))
 
 
 def wrapped_bins(angle, bins: int):
@@ -318,7 +324,7 @@ def log_pd_by_shoulder(shoulder, log_d, speed, bins: int = 8, edge: float = 2.5,
   over SPEED_BINS[2]) (None: none)."""
   raw = np.asarray(shoulder)
   a, index = wrapped_bins(raw[:, :-1], bins)
-  turn = np.floor((raw + np.pi) / (2 * np.pi))  # which turn each angle lies in
+  turn = turn_index(raw)
   log_d = np.asarray(log_d)
   mean = lambda m: float(log_d[m].mean()) if m.any() else None
   group = lambda m: {"log_pd": mean(m), "transitions": int(m.sum())}

@@ -143,8 +143,6 @@ def _form_models(run, args) -> str:
   """A FORM job's effect-model settings and where its demonstrator comes from, decided as
   run.py decides them (`run.effect_model_settings`, `pipeline.shipped_demonstrator`)."""
   import tasks  # noqa: E402
-  from mjx_form.files import effect_models  # noqa: E402
-  from mjx_form.imitation import effect_model as em  # noqa: E402
   from mjx_form.imitation import pipeline  # noqa: E402
   env = tasks.make(args.task, physics=args.physics)
   explicit, config = run.effect_model_settings(args, env)
@@ -153,9 +151,7 @@ def _form_models(run, args) -> str:
   elif args.demonstrator and not all(map(os.path.exists, args.demonstrator)):
     where = f"given, {' + '.join(args.demonstrator)} (not all here to check)"
   elif args.demonstrator:
-    ready = [(path, effect_models.load_effect_model(
-        path, task=args.task, observation_layout=env.observation_layout, distractors=None))
-             for path in args.demonstrator]
+    ready = [(path, pipeline.load_demonstrator(path, env)) for path in args.demonstrator]
     # (refused, as run.py refuses them, where the job's flags ask for other settings or the
     # files of an ensemble differ in theirs)
     config, _, _ = pipeline.ensemble(ready, explicit)

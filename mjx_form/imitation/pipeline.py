@@ -95,7 +95,9 @@ def demonstrations(env, artefacts: Artefacts, episodes: int, physics: str, seed:
                "physics": physics, "expert": info}
 
 
-def _load(path: str, env) -> effect_models.EffectModelFile:
+def load_demonstrator(path: str, env) -> effect_models.EffectModelFile:
+  """The demonstrator file at `path`, refused (naming it) unless it is of `env`'s task and
+  observation layout, without distractors."""
   return effect_models.load_effect_model(path, task=env.name,
                                          observation_layout=env.observation_layout,
                                          distractors=None)
@@ -123,12 +125,12 @@ def prepare(env, config: em.EffectModelConfig, explicit: dict, artefacts: Artefa
     paths = kept_paths(run_dir)
     if not paths:
       raise PipelineError(f"--resume: {run_dir} holds no {DEMONSTRATOR_FILE}")
-    config, demonstrators, sha256 = ensemble([(p, _load(p, env)) for p in paths], explicit)
+    config, demonstrators, sha256 = ensemble([(p, load_demonstrator(p, env)) for p in paths], explicit)
     return FormReward(config, demonstrators, sha256, **reward)
 
   ready: list[tuple[str, effect_models.EffectModelFile]] = []  # (path, file)
   if given:
-    ready = [(path, _load(path, env)) for path in given]
+    ready = [(path, load_demonstrator(path, env)) for path in given]
   elif not artefacts.train_demonstrator:
     path, file, why = shipped_demonstrator(env, config)
     if path is not None:
@@ -212,12 +214,10 @@ def ensemble(ready: list[tuple[str, effect_models.EffectModelFile]], explicit: d
                           + "): an ensemble's demonstrators share one setting")
   checksums = [file.metadata["sha256"] for _, file in ready]
   for i, sha in enumerate(checksums):
-    if sha in checksums[:i] and ready[i][0] == ready[checksums.index(sha)][0]:
-      raise PipelineError(f"{ready[i][0]}: given twice (an ensemble's demonstrators must "
-                          "differ)")
     if sha in checksums[:i]:
-      raise PipelineError(f"{ready[i][0]}: the same demonstrator as "
-                          f"{ready[checksums.index(sha)][0]} (an ensemble's must differ)")
+      path, earlier = ready[i][0], ready[checksums.index(sha)][0]
+      what = "given twice" if path == earlier else f"the same demonstrator as {earlier}"
+      raise PipelineError(f"{path}: {what} (an ensemble's demonstrators must differ)")
   return config, [d for _, d in models], ensemble_sha256(checksums)
 
 
@@ -228,7 +228,7 @@ def shipped_demonstrator(env, config: em.EffectModelConfig
   shipped = tasks.bundled_demonstrator(env.name)
   if shipped is None:
     return None, None, f"no demonstrator is shipped for {env.name}"
-  file = _load(shipped, env)
+  file = load_demonstrator(shipped, env)
   try:  # (read back through the settings: a key written at its default still matches)
     same = em.EffectModelConfig(**file.metadata["config"]).to_dict() == config.to_dict()
   except TypeError:
