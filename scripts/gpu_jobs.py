@@ -166,7 +166,8 @@ def _form_models(run, args) -> str:
     where += f", seed {run.demonstrator_seed_of(args)}"
   return (f"effect models beta_ar {config.beta_ar:g}, L2 {config.l2:g}, width {config.width}"
           f"{', turn-invariant' if config.period else ''}"
-          f"{', angle increments' if config.angle_increments else ''}; demonstrator {where}")
+          f"{', angle increments' if config.angle_increments else ''}"
+          f"{', angle inputs' if config.angle_inputs else ''}; demonstrator {where}")
 
 
 def machine_gpus() -> list[str]:

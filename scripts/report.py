@@ -571,6 +571,8 @@ def _form_variant(record: dict) -> str:
     regularisers.append("turn-invariant")
   if model.get("angle_increments"):
     regularisers.append("angle increments")
+  if model.get("angle_inputs"):
+    regularisers.append("angle inputs")
   if settings.get("reward", {}).get("demonstrators"):
     regularisers.append(f"ensemble of {settings['reward']['demonstrators']} demonstrators")
   return ", ".join([reward, f"T {period}", *regularisers,
@@ -984,6 +986,8 @@ def effect_model_table(records: list[dict], best_per_task: bool = True,
     turns = "invariant" if any(s.get("period") or ()) else "-"  # (EffectModelConfig.period)
     if s.get("angle_increments"):
       turns += ", increments"
+    if s.get("angle_inputs"):
+      turns += ", angle inputs"
     batch = (f"{s['batch_size']} x {s['window']}" if "batch_size" in s and "window" in s
              else "-")  # windows x transitions per training step
     demos = r.get("demonstrations") or {}

@@ -50,7 +50,7 @@ METHODS = ("form", "expert", "random")
 # Options that only --method form reads (a user who gives one to another method is told so).
 FORM_ONLY = ("expert", "demos", "demo_episodes", "save_demos", "demonstrator",
              "train_demonstrator", "demonstrator_seed", "beta_ar", "effect_l2", "turn_invariant",
-             "angle_increments",
+             "angle_increments", "angle_inputs",
              "reward_scale", "reward_clip")
 
 DEFAULT_COMPILATION_CACHE = os.path.join(
@@ -258,6 +258,10 @@ def parse_args(argv=None) -> argparse.Namespace:
                     help="turn-invariant effect models predict each periodic angle's change "
                          "rather than its value (a residual parameterisation; not the "
                          "paper's; default: the task's setting, off)")
+  form.add_argument("--angle_inputs", action=argparse.BooleanOptionalAction, default=None,
+                    help="effect models with --angle_increments see each periodic angle as its "
+                         "cos and sin rather than its wrapped value, which jumps at +-pi (not "
+                         "the paper's; default: the task's setting, off)")
   train.add_argument("--preset", default=None, choices=settings.PRESETS,
                      help="default: measured settings; paper: the paper's. For form: the "
                           "reward scale, reward clip, target period and sampled-Q precision "
@@ -424,7 +428,7 @@ def effect_model_settings(args: argparse.Namespace, env):
   ValueError for --turn_invariant on a task without unbounded angles."""
   explicit = {"beta_ar": args.beta_ar, "l2": args.effect_l2,
               "period": settings.turn_period(env, args.turn_invariant),
-              "angle_increments": args.angle_increments}
+              "angle_increments": args.angle_increments, "angle_inputs": args.angle_inputs}
   # Effect models share the width of the other networks, and a demonstrator trains on batches
   # shaped like the learner's (batch_size windows of unroll_length transitions).
   config = settings.effect_model_config(args.task, env, width=args.network_width, **explicit)

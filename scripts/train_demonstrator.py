@@ -60,6 +60,10 @@ def main(argv=None) -> int:
                       help="a turn-invariant model predicts each periodic angle's change, not "
                            "its value (mjx_form/imitation/effect_model.py; default: the task's "
                            "setting, off)")
+  parser.add_argument("--angle_inputs", action=argparse.BooleanOptionalAction, default=None,
+                      help="a model with --angle_increments sees each periodic angle as its cos "
+                           "and sin, not its wrapped value (mjx_form/imitation/effect_model.py; "
+                           "default: the task's setting, off)")
   defaults = demonstrator.DemonstratorTraining()
   for name in ("max_steps", "batch_size", "window", "eval_every", "patience"):
     parser.add_argument(f"--{name}", type=int, default=getattr(defaults, name))
@@ -76,14 +80,16 @@ def main(argv=None) -> int:
     period = settings.turn_period(env, args.turn_invariant)
     configs = [settings.effect_model_config(args.task, env, width=args.width, beta_ar=b, l2=l,
                                             period=period,
-                                            angle_increments=args.angle_increments)
+                                            angle_increments=args.angle_increments,
+                                            angle_inputs=args.angle_inputs)
                for b, l in grid]
   except ValueError as e:
     parser.error(str(e))
   outs = [args.out] if len(grid) == 1 else [
       os.path.join(args.out, f"{args.task}_ar{c.beta_ar:g}_l2{c.l2:g}"
                              f"{'_turn' if c.period else ''}"
-                             f"{'_increments' if c.angle_increments else ''}.npz")
+                             f"{'_increments' if c.angle_increments else ''}"
+                             f"{'_angle_inputs' if c.angle_inputs else ''}.npz")
       for c in configs]
   existing = [o for o in outs if os.path.exists(o)]
   if existing:

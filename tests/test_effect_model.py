@@ -514,3 +514,163 @@ def test_angle_increments_held_out_likelihood_at_every_offset():
         jnp.asarray(target, jnp.float32))
     np.testing.assert_allclose(got[d - 1], float(jnp.mean(pairs) + em.log_jacobian(norm)),
                                rtol=1e-4, atol=1e-4)
+
+
+# --- angle inputs -------------------------------------------------------------------------
+
+INPUTS = dataclasses.replace(INCREMENTS, angle_inputs=True)
+
+
+def test_angle_inputs_encoder_sees_the_cos_and_sin_of_the_raw_angle():
+  """With `angle_inputs` the encoder's input for the standardised x is [cos theta, x_1, x_2,
+  sin theta], theta the raw angle (numpy, from the raw observations), whatever whole turns x
+  was moved by (`shifts`); the first layer takes D + 1 inputs. Without it: x itself; without
+  the turns: refused."""
+  rng = np.random.default_rng(12)
+  model = em.make_model(INPUTS, D)
+  norm = _norm(rng)
+  t = em.turns(model, norm)
+  raw = rng.normal(size=(7, D)) * 3
+  raw[:, 0] = rng.uniform(-12, 12, size=7)
+  x = em.standardise(norm, jnp.asarray(raw, jnp.float32))
+  std = np.sqrt(np.asarray(norm.var, np.float64) + em.NORMALIZER_EPS)
+  z = (raw - np.asarray(norm.mean, np.float64)) / std
+  expected = np.concatenate([np.cos(raw[:, :1]), z[:, 1:], np.sin(raw[:, :1])], axis=-1)
+  inputs, _ = em.shifts(model, t, x)
+  assert np.abs(np.asarray(inputs)[:, 0]).max() > 1  # (some are moved by whole turns)
+  for a in (x, x - inputs):
+    np.testing.assert_allclose(em.encoder_inputs(model, t, a), expected, atol=1e-5)
+  params = em.init_params(model, jax.random.PRNGKey(0))
+  assert params["params"]["encoder"]["Dense_0"]["kernel"].shape == (D + 1, INPUTS.width)
+  assert em.encoder_inputs(em.make_model(INCREMENTS, D), t, x) is x
+  with pytest.raises(ValueError, match="needs the turns"):
+    em.encoder_inputs(model, None, x)
+
+
+def test_angle_inputs_density_ignores_full_turns_and_has_no_seam_at_pi():
+  """log p(x' | x) of an angle-inputs model (random parameters) is unchanged by full turns of
+  both; x at pi - 1e-4 and at -pi + 1e-4 (nearly the same pose, x' moved with x) score alike,
+  where the increments model with standardised wrapped inputs jumps."""
+  rng = np.random.default_rng(13)
+  norm = _norm(rng)
+  f32 = lambda a: jnp.asarray(a, jnp.float32)
+  model = em.make_model(INPUTS, D)
+  params = em.init_params(model, jax.random.PRNGKey(0))
+  x = rng.normal(size=(8, D)) * 3
+  x[:, 0] = rng.uniform(-12, 12, size=8)
+  x_next = x + rng.normal(size=(8, D)) * 0.3
+  got = np.asarray(em.transition_log_prob(model, params, norm, f32(x), f32(x_next)))
+  assert np.all(np.isfinite(got))
+  turns = rng.integers(-3, 4, size=8)
+  np.testing.assert_allclose(
+      em.transition_log_prob(model, params, norm, f32(_turned(x, turns)),
+                             f32(_turned(x_next, turns))), got, rtol=1e-4, atol=1e-3)
+  below = rng.normal(size=(8, D))
+  below[:, 0] = np.pi - 1e-4
+  above = below.copy()
+  above[:, 0] = -np.pi + 1e-4
+  step = rng.normal(size=(8, D)) * 0.3
+  for config in (INPUTS, INCREMENTS):
+    m = em.make_model(config, D)
+    p = em.init_params(m, jax.random.PRNGKey(0))
+    a, b = (np.asarray(em.transition_log_prob(m, p, norm, f32(s), f32(s + step)))
+            for s in (below, above))
+    if config.angle_inputs:
+      np.testing.assert_allclose(a, b, rtol=0, atol=2e-3)
+    else:  # the seam the angle inputs remove
+      assert np.abs(a - b).max() > 0.1, np.abs(a - b)
+
+
+def test_angle_input_settings_are_checked():
+  for base in (CONFIG, TURNING):
+    with pytest.raises(ValueError, match=r"angle_inputs needs angle increments \(--angle_incr"):
+      dataclasses.replace(base, angle_inputs=True).check()
+  with pytest.raises(ValueError, match="angle_inputs must be true or false"):
+    dataclasses.replace(INCREMENTS, angle_inputs=1).check()
+  INPUTS.check()
+  assert "angle_inputs" not in INCREMENTS.to_dict()  # as files before the setting existed
+  assert INPUTS.to_dict()["angle_inputs"] is True
+  assert em.EffectModelConfig(**json.loads(json.dumps(INPUTS.to_dict()))) == INPUTS
+
+
+def test_a_files_angle_inputs_are_kept_and_a_run_asking_otherwise_is_refused(tmp_path):
+  """A demonstrator file keeps angle_inputs; read back it rebuilds its model. A run asking for
+  the other setting is refused naming it, either way, as is an ensemble of both kinds and a
+  file whose parameters are not an angle-inputs model's."""
+  from mjx_form.files import effect_models
+  from mjx_form.imitation import pipeline
+
+  def save(name, config, params_of=None):
+    params = em.init_params(em.make_model(params_of or config, D), jax.random.PRNGKey(0))
+    meta = {"task": "reacher_easy", "observation_size": D, "observation_layout": [["x", D]],
+            "distractors": None, "config": config.to_dict(), "training": {},
+            "demonstrations": {}}
+    effect_models.save_effect_model(tmp_path / name, jax.device_get(params), np.zeros(D),
+                                    np.ones(D), meta)
+    return str(tmp_path / name), effect_models.load_effect_model(tmp_path / name)
+
+  path, file = save("inputs.npz", INPUTS)
+  assert file.metadata["config"]["angle_inputs"] is True
+  assert pipeline.demonstrator_from_file(file, path, {"angle_inputs": True})[0] == INPUTS
+  with pytest.raises(pipeline.PipelineError, match="trained with angle_inputs=True, this run "
+                                                   "asks for False"):
+    pipeline.demonstrator_from_file(file, path, {"angle_inputs": False})
+  plain_path, plain = save("increments.npz", INCREMENTS)
+  assert "angle_inputs" not in plain.metadata["config"]
+  with pytest.raises(pipeline.PipelineError, match="trained with angle_inputs=False, this run "
+                                                   "asks for True"):
+    pipeline.demonstrator_from_file(plain, plain_path, {"angle_inputs": True})
+  with pytest.raises(pipeline.PipelineError, match="angle_inputs"):
+    pipeline.ensemble([(path, file), (plain_path, plain)], None)
+  wrong_path, wrong = save("wrong.npz", INPUTS, params_of=INCREMENTS)
+  with pytest.raises(pipeline.PipelineError, match="do not fit"):
+    pipeline.demonstrator_from_file(wrong, wrong_path)
+
+
+def test_train_demonstrator_script_refuses_angle_inputs_without_increments(tmp_path, capsys):
+  from conftest import load_script
+  script = load_script("train_demonstrator")
+  with pytest.raises(SystemExit) as exit_:
+    script.main(["--task", "reacher_hard", "--angle_inputs", "--out", str(tmp_path / "a.npz")])
+  assert exit_.value.code == 2
+  assert "angle_inputs needs angle increments (--angle_increments" in capsys.readouterr().err
+  assert not (tmp_path / "a.npz").exists()
+
+
+def test_angle_inputs_model_trains_and_sees_its_samples_angle():
+  """An update of an angle-inputs model (no weight decay): finite metrics, and every parameter
+  moves, the first layer's cos and sin rows included (the gradient reaches them). Its
+  autoregressive term's second input is the sample put back into observation space (x_t + the
+  sampled angle change), as cos and sin (numpy)."""
+  rng = np.random.default_rng(14)
+  model = em.make_model(INPUTS, D)
+  no_l2 = dataclasses.replace(INPUTS, l2=0.0)  # (the weight decay alone would move each kernel)
+  state = em.init(model, no_l2, jax.random.PRNGKey(0))
+  obs = rng.normal(size=(2, 9, D)) * [1.0, 3.0, 0.5]
+  obs[..., 0] = np.cumsum(rng.normal(size=(2, 9)) * 2.0, axis=1)  # wanders past pi
+  key = jax.random.PRNGKey(7)
+  new, metrics = jax.jit(lambda s, o: em.update(model, no_l2, s, o, jnp.ones((2, 8)), key))(
+      state, jnp.asarray(obs, jnp.float32))
+  assert all(np.isfinite(float(v)) for v in metrics.values()), metrics
+  for a, b in zip(jax.tree.leaves(state.params), jax.tree.leaves(new.params)):
+    assert not np.array_equal(a, b)
+  first = [np.asarray(p["params"]["encoder"]["Dense_0"]["kernel"])  # [D + 1, W]
+           for p in (state.params, new.params)]
+  assert np.all(first[0][[0, D]] != first[1][[0, D]])
+  # The autoregressive term, at the parameters before the step and the batch's standardisation.
+  params, norm = state.params, new.normalizer
+  x = np.asarray(em.standardise(norm, jnp.asarray(obs, jnp.float32)), np.float64)
+  std = np.sqrt(np.asarray(norm.var, np.float64) + em.NORMALIZER_EPS)
+  mean = np.asarray(norm.mean, np.float64)
+
+  def mixture(a):  # the model on standardised a [..., D], its encoder input made with numpy
+    theta = a[..., :1] * std[0] + mean[0]
+    f = jnp.asarray(np.concatenate([np.cos(theta), a[..., 1:], np.sin(theta)], -1), jnp.float32)
+    return model.apply(params, f, method=lambda m, f: m.predict(m.encoder(f), 1))
+
+  sampled = np.asarray(mixture(x[:, :-2]).sample(key), np.float64)
+  sampled[..., 0] += x[:, :-2, 0]  # the angle's change added back to x_t
+  target = x[:, 2:].copy()
+  target[..., 0] -= sampled[..., 0]
+  expected = jnp.mean(mixture(sampled).log_prob(jnp.asarray(target, jnp.float32)))
+  np.testing.assert_allclose(metrics["log_prob_autoregressive"], expected, rtol=1e-4, atol=1e-4)

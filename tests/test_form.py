@@ -380,6 +380,29 @@ def test_angle_increments_flag_reaches_the_effect_models():
     config("reacher_easy", "--angle_increments")
 
 
+def test_angle_inputs_flag_reaches_the_effect_models(capsys):
+  """--angle_inputs: with --angle_increments, reacher_hard's models see the shoulder as its cos
+  and sin; off by default (absent from the settings); refused, naming --angle_increments,
+  without it; --no-angle_inputs is an explicit setting (a demonstrator must agree with it)."""
+  import tasks
+  cli = load_script("run")
+  env = tasks.make("reacher_hard")
+  settings_of = lambda *argv: cli.effect_model_settings(
+      cli.parse_args(["--task", "reacher_hard", "--method", "form", *argv]), env)
+  explicit, default = settings_of()
+  assert not default.angle_inputs and "angle_inputs" not in default.to_dict()
+  assert explicit["angle_inputs"] is None
+  on = settings_of("--angle_increments", "--angle_inputs")[1]
+  assert on.angle_inputs and on.angle_increments and on.period == default.period
+  explicit, off = settings_of("--angle_increments", "--no-angle_inputs")
+  assert explicit["angle_inputs"] is False and not off.angle_inputs
+  with pytest.raises(ValueError, match="--angle_increments"):
+    settings_of("--angle_inputs")
+  with pytest.raises(SystemExit):
+    cli.parse_args(["--method", "expert", "--no-angle_inputs"])
+  assert "--angle_inputs apply to --method form only" in capsys.readouterr().err
+
+
 def test_sampled_q_precision_reaches_the_learner_per_method():
   """FORM's learner computes the sampled actions' Q in bfloat16 unless --preset paper or
   --no-sampled_q_bfloat16; an expert run of a task without a recipe (the default task,

@@ -17,7 +17,9 @@ Metadata keys (besides format, version, sha256):
   distractors         null, or the distractor setting of the observations it was trained on
   config              the EffectModelConfig it was trained with (width, num_components,
                       max_offset, beta_ar, l2, learning_rate, normalizer_decay, min_scale;
-                      period and angle_increments where set)
+                      period, angle_increments and angle_inputs where set; a run refuses
+                      a file whose settings differ from those it asks for, naming them:
+                      mjx_form.imitation.pipeline.demonstrator_from_file)
   training            steps, best_step, batch_size, window, seconds, heldout_log_likelihood
                       (raw observation space, nats per transition, one value per offset
                       1..max_offset), the held-out curve, episodes used for training/held out

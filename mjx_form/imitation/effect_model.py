@@ -29,6 +29,12 @@ paper): the model predicts each periodic feature's change x_{t+delta} - x_t inst
 moved value, a residual parameterisation of those features (the mixture's mean no longer has
 to reproduce x_t itself; the moved value is continuous in the moved input either way). The
 target is moved by x_t (a translation given x_t: log p unchanged, Jacobian 1).
+
+Angle inputs (`EffectModelConfig.angle_inputs`, with `angle_increments` only; not in the paper):
+the encoder sees each periodic feature of x_t as the cosine and sine of its raw angle
+theta = 2 pi x / period instead of its standardised wrapped value, which jumps by a turn at
++-period/2 (`encoder_inputs`). The input is then continuous across that seam as the increments
+target is, and blind to full turns by construction; the mixture and its target are unchanged.
 """
 
 from __future__ import annotations
@@ -67,21 +73,25 @@ class EffectModelConfig:
   # A turn-invariant model predicts its periodic features' changes, not their values (module
   # docstring); off: the values (as before this setting existed).
   angle_increments: bool = False
+  # The encoder sees the periodic features as cos and sin of their raw angles (module
+  # docstring); needs angle_increments. Off: their standardised values (as before it existed).
+  angle_inputs: bool = False
 
   def __post_init__(self):  # from a file's JSON list, too
     object.__setattr__(self, "period", tuple(float(p) for p in self.period))
 
   def to_dict(self) -> dict:
     """The settings as files and records keep them (JSON's shapes: `period` a list, and none
-    where there is no period, as before turn invariance existed; `angle_increments` only where
-    on, as before it existed)."""
+    where there is no period, as before turn invariance existed; `angle_increments` and
+    `angle_inputs` only where on, as before they existed)."""
     out = dataclasses.asdict(self)
     if self.period:
       out["period"] = list(self.period)
     else:
       del out["period"]
-    if not self.angle_increments:
-      del out["angle_increments"]
+    for name in ("angle_increments", "angle_inputs"):
+      if not out[name]:
+        del out[name]
     return out
 
   def check(self) -> None:
@@ -101,17 +111,23 @@ class EffectModelConfig:
         self.period and not any(self.period)):
       raise ValueError(f"effect model period must be finite values >= 0, one at least > 0 "
                        f"(or none), got {self.period}")
-    if not isinstance(self.angle_increments, bool):
-      raise ValueError(f"effect model angle_increments must be true or false, got "
-                       f"{self.angle_increments!r}")
+    for name in ("angle_increments", "angle_inputs"):
+      if not isinstance(getattr(self, name), bool):
+        raise ValueError(f"effect model {name} must be true or false, got "
+                         f"{getattr(self, name)!r}")
     if self.angle_increments and not self.period:
       raise ValueError("effect model angle_increments needs a turn-invariant model (a period: "
                        "--turn_invariant)")
+    if self.angle_inputs and not self.angle_increments:
+      raise ValueError("effect model angle_inputs needs angle increments (--angle_increments, "
+                       "on a turn-invariant model)")
 
 
 class EffectModel(nn.Module):
-  """(standardised x_t [..., D], offset) -> GaussianMixture over standardised x_{t+offset}
-  (moved by `shifts`: with `angle_increments`, over the periodic features' changes)."""
+  """(standardised x_t [..., D], offset, turns) -> GaussianMixture over standardised
+  x_{t+offset} (moved by `shifts`: with `angle_increments`, over the periodic features'
+  changes). The turns (`turns`, of the model's own standardisation) are needed only with
+  `angle_inputs` (`encoder_inputs`)."""
 
   observation_size: int
   width: int = 256
@@ -120,14 +136,17 @@ class EffectModel(nn.Module):
   min_scale: float = 1e-4
   period: tuple[float, ...] = ()  # EffectModelConfig.period
   angle_increments: bool = False  # EffectModelConfig.angle_increments
+  angle_inputs: bool = False  # EffectModelConfig.angle_inputs
 
   def setup(self):
     self.encoder = Encoder(self.width)
     self.hidden = nn.Dense(self.width)
     self.head = nn.Dense(self.num_components * (1 + 2 * self.observation_size))
 
-  def encode(self, x: jax.Array) -> jax.Array:  # [..., D] -> [..., width]
-    return self.encoder(x)
+  def encode(self, x: jax.Array, t: Turns | None = None) -> jax.Array:
+    """x [..., D] standardised (moved by `shifts`' first value), t: the turns of the model's
+    standardisation (None: none; needed with `angle_inputs`) -> [..., width]."""
+    return self.encoder(encoder_inputs(self, t, x))
 
   def predict(self, h: jax.Array, offset: int) -> GaussianMixture:  # h [..., width]
     onehot = jax.nn.one_hot(offset - 1, self.max_offset, dtype=h.dtype)
@@ -138,8 +157,8 @@ class EffectModel(nn.Module):
     mean, raw_scale = jnp.split(out[..., k:].reshape(out.shape[:-1] + (k, 2 * d)), 2, axis=-1)
     return GaussianMixture(logits, mean, scale_from_raw(raw_scale, self.min_scale))
 
-  def __call__(self, x: jax.Array, offset: int = 1) -> GaussianMixture:
-    return self.predict(self.encode(x), offset)
+  def __call__(self, x: jax.Array, offset: int = 1, t: Turns | None = None) -> GaussianMixture:
+    return self.predict(self.encode(x, t), offset)
 
 
 def make_model(config: EffectModelConfig, observation_size: int) -> EffectModel:
@@ -147,7 +166,8 @@ def make_model(config: EffectModelConfig, observation_size: int) -> EffectModel:
     raise ValueError(f"effect model period has {len(config.period)} entries, the observations "
                      f"have {observation_size}")
   return EffectModel(observation_size, config.width, config.num_components, config.max_offset,
-                     config.min_scale, config.period, config.angle_increments)
+                     config.min_scale, config.period, config.angle_increments,
+                     config.angle_inputs)
 
 
 class EffectModelState(NamedTuple):
@@ -161,8 +181,14 @@ def _optimizer(config: EffectModelConfig) -> optax.GradientTransformation:
   return optax.adam(config.learning_rate)
 
 
+def init_params(model: EffectModel, key: jax.Array):
+  """Fresh parameters of `model` (the encoder's first layer takes `encoder_inputs`' size)."""
+  d = model.observation_size
+  return model.init(key, jnp.zeros((1, d)), 1, turns(model, normalizer.init(d)))
+
+
 def init(model: EffectModel, config: EffectModelConfig, key: jax.Array) -> EffectModelState:
-  params = model.init(key, jnp.zeros((1, model.observation_size)))
+  params = init_params(model, key)
   return EffectModelState(params, _optimizer(config).init(params),
                           normalizer.init(model.observation_size), jnp.zeros((), jnp.int32))
 
@@ -229,11 +255,29 @@ def shifts(model: EffectModel, t: Turns | None, anchor: jax.Array
            ) -> tuple[jax.Array, jax.Array]:
   """(what to subtract from x_t, what to subtract from x_{t+delta}) for pairs anchored at the
   standardised x_t `anchor` [..., D]: both x_t's `turn_shift`, or with `angle_increments` the
-  target's periodic features x_t itself (the model predicts their change)."""
+  target's periodic features x_t itself (the model predicts their change). (With
+  `angle_inputs` the encoder sees the periodic features' cos and sin, which no whole turn
+  changes: the first then matters for the other features only, where it is 0.)"""
   move = turn_shift(t, anchor)
   if t is None or not model.angle_increments:
     return move, move
   return move, jnp.where(t.period > 0, anchor, move)
+
+
+def encoder_inputs(model: EffectModel, t: Turns | None, x: jax.Array) -> jax.Array:
+  """What the encoder sees of the standardised x [..., D]: x itself, or with `angle_inputs`
+  [..., D + P] (P periodic features): x with each periodic feature replaced by cos theta, then
+  the P sin theta in feature order, theta = 2 pi x_raw / period its raw angle. The raw value is
+  x * sqrt(var + eps) + mean under the standardisation of the turns `t` (`turns`), so
+  theta = 2 pi (x - t.low) / t.period - pi (cos and sin: whatever whole turns x was moved by)."""
+  if not model.angle_inputs:
+    return x
+  if t is None:
+    raise ValueError("an angle_inputs effect model needs the turns of its standardisation "
+                     "(`turns`) to encode")
+  periodic = np.flatnonzero(np.asarray(model.period) > 0)  # [P]
+  theta = 2 * np.pi * (x[..., periodic] - t.low[periodic]) / t.period[periodic] - np.pi
+  return jnp.concatenate([x.at[..., periodic].set(jnp.cos(theta)), jnp.sin(theta)], axis=-1)
 
 
 def wrap_raw(model: EffectModel, x: jax.Array) -> jax.Array:
@@ -252,7 +296,7 @@ def offset_log_probs(model: EffectModel, params, x: jax.Array,
   -> [max_offset, B, T] (pairs past x_T give values to be masked out); each pair moved by
   x_t's `shifts` under turns `t` (`turns`; None: not moved)."""
   inputs, targets = shifts(model, t, x[:, :-1])  # [B, T, D] each
-  h = model.apply(params, x[:, :-1] - inputs, method=model.encode)  # [B, T, W]
+  h = model.apply(params, x[:, :-1] - inputs, t, method=model.encode)  # [B, T, W]
   out = []
   for delta in range(1, model.max_offset + 1):
     mixture = model.apply(params, h, delta, method=model.predict)  # [B, T, K, D]
@@ -265,8 +309,9 @@ def transition_log_prob(model: EffectModel, params, norm: normalizer.NormalizerS
                         x: jax.Array, x_next: jax.Array) -> jax.Array:
   """Raw-space log p(x_next | x) at offset 1 (FORM's reward term): x, x_next [..., D] -> [...]."""
   x, x_next = standardise(norm, x), standardise(norm, x_next)
-  inputs, targets = shifts(model, turns(model, norm), x)
-  mixture = model.apply(params, x - inputs, 1)
+  t = turns(model, norm)
+  inputs, targets = shifts(model, t, x)
+  mixture = model.apply(params, x - inputs, 1, t)
   return mixture.log_prob(x_next - targets) + log_jacobian(norm)
 
 
@@ -291,12 +336,13 @@ def loss(model: EffectModel, config: EffectModelConfig, params, x: jax.Array,
   per_offset = jax.vmap(_masked_mean)(log_probs, masks)  # [max_offset]
   # Autoregressive term: x~_{t+1} ~ p(. | x_t) for t = 0..T-2, then log p(x_{t+2} | x~_{t+1}).
   # (With turns, x~_{t+1} is drawn in x_t's moved frame, then put back, then x~_{t+1} and
-  # x_{t+2} are moved by x~_{t+1}'s own shifts.)
+  # x_{t+2} are moved by x~_{t+1}'s own shifts; with angle inputs the encoder then sees the cos
+  # and sin of x~_{t+1}'s own angles.)
   inputs, targets = shifts(model, t, x[:, :-2])
   sampled = jax.lax.stop_gradient(
-      model.apply(params, x[:, :-2] - inputs, 1).sample(key)) + targets  # [B, T-1, D]
+      model.apply(params, x[:, :-2] - inputs, 1, t).sample(key)) + targets  # [B, T-1, D]
   inputs, targets = shifts(model, t, sampled)
-  ar_log_prob = model.apply(params, sampled - inputs, 1).log_prob(
+  ar_log_prob = model.apply(params, sampled - inputs, 1, t).log_prob(
       x[:, 2:] - targets)  # [B, T-1]
   ar_mask = masks[1, :, :-1]  # x_t, x_{t+1}, x_{t+2} in one episode
   ar = _masked_mean(ar_log_prob, ar_mask)

@@ -273,8 +273,8 @@ def demonstrator_from_file(file: effect_models.EffectModelFile, path: str,
                           "model shares the demonstrator's settings: leave it out, or train a "
                           "demonstrator with --train_demonstrator)")
   d = file.metadata["observation_size"]
-  expected = jax.eval_shape(em.make_model(config, d).init, jax.random.PRNGKey(0),
-                            jnp.zeros((1, d)))
+  model = em.make_model(config, d)
+  expected = jax.eval_shape(lambda key: em.init_params(model, key), jax.random.PRNGKey(0))
   shapes = lambda tree: jax.tree.map(lambda x: tuple(x.shape), tree)
   try:
     fits = shapes(file.params) == shapes(expected)
