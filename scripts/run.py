@@ -292,6 +292,8 @@ def parse_args(argv=None) -> argparse.Namespace:
                     help="steps between held-out evaluations of the demonstrator")
   form.add_argument("--demonstrator_patience", type=int, default=steps.patience,
                     help="held-out evaluations without improvement before it stops")
+  form.add_argument("--demonstrator_smoothing", type=int, default=steps.smoothing,
+                    help="evaluations whose mean the patience compares (single ones scatter)")
   train.add_argument("--final_eval_envs", type=int, default=256,
                      help="episodes of the fresh evaluation of the final and the best policy "
                           "once training is finished or stopped by --max_seconds (0: none; "
@@ -322,7 +324,8 @@ def parse_args(argv=None) -> argparse.Namespace:
   if args.task not in tasks.TASKS:
     parser.error(f"unknown task {args.task!r}; valid tasks: {', '.join(tasks.TASKS)}")
   for name in ("num_envs", "steps", "log_every", "env_steps", "eval_every", "checkpoint_every",
-               "demonstrator_steps", "demonstrator_eval_every", "demonstrator_patience"):
+               "demonstrator_steps", "demonstrator_eval_every", "demonstrator_patience",
+               "demonstrator_smoothing"):
     if getattr(args, name) <= 0:
       parser.error(f"--{name} must be a positive integer, got {getattr(args, name)}")
   if args.max_seconds is not None and args.max_seconds <= 0:
@@ -448,7 +451,7 @@ def form_source(args: argparse.Namespace, run_dir: str, results_path: str, print
   training = demonstrator_lib.DemonstratorTraining(
       max_steps=args.demonstrator_steps, batch_size=args.batch_size, window=args.unroll_length,
       eval_every=args.demonstrator_eval_every, patience=args.demonstrator_patience,
-      seed=demonstrator_seed,
+      smoothing=args.demonstrator_smoothing, seed=demonstrator_seed,
       max_seconds=None if args.max_seconds is None else args.max_seconds / 2)
   artefacts = pipeline.Artefacts(
       expert=args.expert, demos=args.demos, demonstrator=tuple(args.demonstrator or ()),

@@ -65,7 +65,7 @@ def main(argv=None) -> int:
                            "and sin, not its wrapped value (mjx_form/imitation/effect_model.py; "
                            "default: the task's setting, off)")
   defaults = demonstrator.DemonstratorTraining()
-  for name in ("max_steps", "batch_size", "window", "eval_every", "patience"):
+  for name in ("max_steps", "batch_size", "window", "eval_every", "patience", "smoothing"):
     parser.add_argument(f"--{name}", type=int, default=getattr(defaults, name))
   parser.add_argument("--max_seconds", type=float, default=None,
                       help="time budget of each training")
@@ -99,7 +99,8 @@ def main(argv=None) -> int:
   try:
     training = demonstrator.DemonstratorTraining(
         max_steps=args.max_steps, batch_size=args.batch_size, window=args.window,
-        eval_every=args.eval_every, patience=args.patience, seed=args.seed,
+        eval_every=args.eval_every, patience=args.patience, smoothing=args.smoothing,
+        seed=args.seed,
         max_seconds=args.max_seconds)
     artefacts = pipeline.Artefacts(expert=args.expert, demos=args.demos)
     obs, info = pipeline.demonstrations(env, artefacts, args.episodes, args.physics, args.seed,

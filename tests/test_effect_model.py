@@ -185,16 +185,37 @@ def test_demonstrator_learns_a_linear_system_and_keeps_its_best_step():
   np.testing.assert_allclose(report["heldout_log_likelihood"], after, atol=1e-3)
   assert report["heldout_episodes"] == 2 and report["training_episodes"] == 10
   assert any("held-out log p by offset" in line for line in lines)
-  # Why it stopped is reported: patience (6 evaluations without a better one) or the step limit.
+  # Why it stopped is reported: patience (6 evaluations without a better mean of the last
+  # `smoothing` ones) or the step limit.
   assert report["stopped_by"] == ("max_steps" if report["steps"] == 1500 else "patience")
+  means = [float(np.mean(c["heldout_log_likelihood"])) for c in report["curve"]]
   if report["stopped_by"] == "patience":
-    assert report["steps"] - report["best_step"] == 6 * 250
+    assert demonstrator.evaluations_since_best(means, training.smoothing) == 6
+    assert demonstrator.evaluations_since_best(means[:-1], training.smoothing) == 5
   # A time budget stops it after the evaluation that passes it, and says so.
   lines = []
   _, report = demonstrator.train(x, config, dataclasses.replace(training, max_seconds=1e-9),
                                  print_fn=lines.append)
   assert (report["steps"], report["stopped_by"]) == (250, "max_seconds")
   assert any("out of time" in line for line in lines)
+
+
+def test_evaluations_since_best_smooths_the_held_out_curve():
+  """Counted on the running mean of the last `smoothing` evaluations (fewer at the start):
+  by hand, [1, 3, 2, 2.5, 2.2] has running means [1, 3, 2, 2.5, 2.2] (1), [1, 2, 2.5, 2.25,
+  2.35] (2) and [1, 2, 2, 2.5, 2.2333] (3): last new maxima at evaluations 1, 2 and 3 (an equal
+  mean is not a new one)."""
+  means = [1.0, 3.0, 2.0, 2.5, 2.2]
+  assert [demonstrator.evaluations_since_best(means, s) for s in (1, 2, 3)] == [3, 2, 1]
+  assert demonstrator.evaluations_since_best(means[:1], 10) == 0
+  # A curve rising by 0.2 per evaluation with +-1 of scatter: the single evaluations' best is
+  # a lucky one for long stretches; the mean of 10 keeps finding new bests.
+  rising = [0.2 * i + (1.0 if i % 7 == 0 else -1.0 if i % 7 == 3 else 0.0) for i in range(60)]
+  waits = [demonstrator.evaluations_since_best(rising[:n], 1) for n in range(1, 61)]
+  smoothed = [demonstrator.evaluations_since_best(rising[:n], 10) for n in range(1, 61)]
+  assert max(waits) == 5 and max(smoothed[10:]) <= 1, (waits, smoothed)
+  with pytest.raises(ValueError, match="smoothing"):
+    demonstrator.DemonstratorTraining(smoothing=0).check(4, 100)
 
 
 # --- turn invariance ----------------------------------------------------------------------

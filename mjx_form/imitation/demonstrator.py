@@ -5,9 +5,11 @@ one). Each step samples `batch_size` windows of `window` transitions from random
 episodes and positions (every pair inside a window lies in one episode) and takes one
 `effect_model.update`. Every `eval_every` steps the raw-space log-likelihood per offset is
 measured on every pair of the held-out episodes; the parameters of the best held-out mean over
-offsets are kept, and training stops after `patience` evaluations without improvement or at
-`max_steps` (or once `max_seconds` have passed). Chunks of `eval_every` steps run as one
-compiled scan on the device.
+offsets are kept. Training stops at `max_steps`, once `max_seconds` have passed, or after
+`patience` evaluations in which the held-out mean, averaged over the last `smoothing`
+evaluations, has not reached a new best (`evaluations_since_best`): single evaluations scatter
+by ~1 nat while the curve still rises by a fraction of that per evaluation. Chunks of
+`eval_every` steps run as one compiled scan on the device.
 """
 
 from __future__ import annotations
@@ -25,22 +27,26 @@ from mjx_form.imitation import effect_model as em
 
 @dataclasses.dataclass(frozen=True)
 class DemonstratorTraining:
-  max_steps: int = 200_000  # the paper trains 2M steps; held-out likelihood decides here
+  # The paper trains 2M steps. reacher_hard's held-out likelihood still rose at 352k steps
+  # (offset 1: 29.09 at 194k, 30.67 at 326k; 0.3-0.5 nats per 25k steps; NOTES, session 43);
+  # 1M steps take ~18 min on one H100 (~940 steps/s).
+  max_steps: int = 1_000_000
   batch_size: int = 64  # windows per step (the learner's 64 unrolls)
   window: int = 100  # transitions per window
   eval_every: int = 2_000
-  # Evaluations without a better held-out likelihood before stopping. The held-out curve
-  # rises in steps with gaps of up to 5 evaluations between new bests while it still gains
-  # nats (reacher_hard, walker_walk, quadruped_walk records); 5 stopped reacher_hard's at 58k
-  # steps (kept 48k: 24.0 nats at offset 1), where a run left going was at 27.3 by 140k
-  # (NOTES, session 38). 15 is three of those gaps.
+  # Evaluations without a new best of the smoothed held-out curve before stopping. Single
+  # evaluations scatter by ~1 nat: patience 15 on them alone stopped a reacher_hard draw at
+  # 128k steps while it still rose (26.75 nats at offset 1 against 28.8-29.1 for draws trained
+  # to 200k; FORM with it 374.0, with theirs 720-823; NOTES, session 43). Over a window of 10
+  # evaluations none of the recorded curves would have stopped while rising.
   patience: int = 15
+  smoothing: int = 10
   heldout_fraction: float = 0.05
   seed: int = 0
   max_seconds: float | None = None  # stop after the evaluation that passes this time budget
 
   def check(self, episodes: int, steps: int) -> None:
-    for name in ("max_steps", "batch_size", "window", "eval_every", "patience"):
+    for name in ("max_steps", "batch_size", "window", "eval_every", "patience", "smoothing"):
       value = getattr(self, name)
       if isinstance(value, bool) or not isinstance(value, int) or value < 1:
         raise ValueError(f"demonstrator training {name} must be a positive integer, "
@@ -58,6 +64,17 @@ def split_episodes(episodes: int, heldout_fraction: float) -> tuple[np.ndarray, 
   """(training, held-out) episode indices: the last max(1, round(fraction * K)) are held out."""
   heldout = min(max(1, round(heldout_fraction * episodes)), episodes - 1)
   return np.arange(episodes - heldout), np.arange(episodes - heldout, episodes)
+
+
+def evaluations_since_best(means: list[float], smoothing: int) -> int:
+  """How many evaluations ago the running mean of the last `smoothing` held-out means (fewer at
+  the start) last reached a new maximum: 0 when the newest one did."""
+  best, since = -np.inf, 0
+  for i in range(len(means)):
+    recent = float(np.mean(means[max(0, i + 1 - smoothing):i + 1]))
+    since = 0 if recent > best else since + 1
+    best = max(best, recent)
+  return since
 
 
 def heldout_log_likelihood(model: em.EffectModel, params, norm, episodes: jax.Array,
@@ -112,7 +129,7 @@ def train(observations: np.ndarray, config: em.EffectModelConfig,
   key = jax.random.PRNGKey(training.seed)
   key, init_key = jax.random.split(key)
   state = em.init(model, config, init_key)
-  best_state, best, best_step, waited, curve = state, -np.inf, 0, 0, []
+  best_state, best, best_step, curve, means = state, -np.inf, 0, [], []
   start = time.perf_counter()
   steps, stopped_by = 0, "max_steps"
   print_fn(f"demonstrator: {len(train_idx)} training and {len(heldout_idx)} held-out episodes, "
@@ -130,9 +147,9 @@ def train(observations: np.ndarray, config: em.EffectModelConfig,
                   "train_log_prob": round(float(metrics["log_prob"]), 4)})
     improved = heldout.mean() > best
     if improved:
-      best_state, best, best_step, waited = state, float(heldout.mean()), steps, 0
-    else:
-      waited += 1
+      best_state, best, best_step = state, float(heldout.mean()), steps
+    means.append(float(heldout.mean()))
+    waited = evaluations_since_best(means, training.smoothing)
     warm = time.perf_counter() - warm_start
     rate = (steps - warm_steps) / warm if warm > 0 and steps > warm_steps else float("nan")
     left = f"  {(training.max_steps - steps) / rate:.0f}s left at most" if rate > 0 else ""
@@ -142,8 +159,8 @@ def train(observations: np.ndarray, config: em.EffectModelConfig,
              + " ".join(f"{v:.2f}" for v in heldout)
              + ("  (best)" if improved else f"  (best at {best_step:,})") + left)
     if waited >= training.patience:
-      print_fn(f"demonstrator: held-out likelihood has not improved for {waited} evaluations; "
-               f"keeping step {best_step:,}")
+      print_fn(f"demonstrator: held-out likelihood (mean of {training.smoothing} evaluations) "
+               f"has not improved for {waited} evaluations; keeping step {best_step:,}")
       stopped_by = "patience"
       break
     if training.max_seconds is not None and seconds >= training.max_seconds:
