@@ -641,3 +641,27 @@ def test_locomotion_speed_factors_are_the_tasks_reward(tmp_path, capsys):
   assert row["mean_return"] == pytest.approx(reward.sum(0).mean())
   assert row["speed_p10_p50_p90"][1] == pytest.approx(7.5)
   assert row["max_factor_error"] == pytest.approx(0.25)
+
+
+def test_demonstrator_heldout_scores_each_episode_as_the_training_record_scores_them_all():
+  """per_episode: each episode's mean log-likelihood per offset; over episodes of one length
+  their mean is demonstrator.heldout_log_likelihood of them all (what a training record
+  reports), for a turn-invariant model with its own standardisation; episodes differ."""
+  from mjx_form.imitation import demonstrator
+  from mjx_form.imitation import effect_model as em
+  from mjx_form.rl import normalizer
+  bench = load_script("demonstrator_heldout", folder="benchmarks")
+  config = em.EffectModelConfig(width=16, num_components=2, max_offset=3,
+                                period=(2 * np.pi, 0.0, 0.0))
+  model = em.make_model(config, 3)
+  params = em.init_params(model, jax.random.PRNGKey(3))
+  rng = np.random.default_rng(0)
+  episodes = np.cumsum(rng.normal(size=(4, 9, 3)) * [0.8, 0.3, 0.1], axis=1).astype(np.float32)
+  norm = normalizer.NormalizerState(np.array([0.5, -0.2, 0.1], np.float32),
+                                    np.array([2.0, 0.5, 0.3], np.float32), np.int32(1))
+  scores = bench.per_episode(model, params, norm, episodes)  # [K, max_offset]
+  assert scores.shape == (4, 3) and np.ptp(scores[:, 0]) > 0.1
+  whole = demonstrator.heldout_log_likelihood(model, params, norm, episodes)
+  np.testing.assert_allclose(scores.mean(axis=0), whole, rtol=1e-5, atol=1e-4)
+  one = demonstrator.heldout_log_likelihood(model, params, norm, episodes[2:3])
+  np.testing.assert_allclose(scores[2], one, rtol=1e-5, atol=1e-4)
