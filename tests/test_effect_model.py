@@ -568,6 +568,46 @@ def test_angle_inputs_encoder_sees_the_cos_and_sin_of_the_raw_angle():
     em.encoder_inputs(model, None, x)
 
 
+def test_angle_inputs_of_several_periods_in_feature_order_against_numpy():
+  """Two periodic features (1 and 3, periods 2 pi and 3): the encoder sees [x_0, cos theta_1,
+  x_2, cos theta_3, sin theta_1, sin theta_3], and transition_log_prob is the model on those
+  (numpy) predicting x'_0, x'_2 and the angles' changes, plus the change of variables; the
+  offset-1 pairs of offset_log_probs are the same density without it."""
+  period = np.array([0.0, 2 * np.pi, 0.0, 3.0])
+  config = dataclasses.replace(INPUTS, period=tuple(period), max_offset=1)
+  model = em.make_model(config, 4)
+  params = jax.jit(lambda key: em.init_params(model, key))(jax.random.PRNGKey(1))
+  rng = np.random.default_rng(15)
+  norm = normalizer.NormalizerState(jnp.asarray(rng.normal(size=4), jnp.float32),
+                                    jnp.asarray(rng.uniform(0.1, 4.0, size=4), jnp.float32),
+                                    jnp.asarray(3, jnp.int32))
+  raw = rng.normal(size=(6, 4)) * 2
+  raw[:, [1, 3]] = rng.uniform(-10, 10, size=(6, 2))  # several turns either way
+  raw_next = raw + rng.normal(size=(6, 4)) * 0.3
+  std = np.sqrt(np.asarray(norm.var, np.float64) + em.NORMALIZER_EPS)
+  z, z_next = ((a - np.asarray(norm.mean, np.float64)) / std for a in (raw, raw_next))
+  theta = 2 * np.pi * raw[:, [1, 3]] / period[[1, 3]]
+  features = np.concatenate([z[:, :1], np.cos(theta[:, :1]), z[:, 2:3], np.cos(theta[:, 1:]),
+                             np.sin(theta)], axis=-1)
+  x = em.standardise(norm, jnp.asarray(raw, jnp.float32))
+  np.testing.assert_allclose(em.encoder_inputs(model, em.turns(model, norm), x), features,
+                             atol=1e-5)
+  target = z_next.copy()
+  target[:, [1, 3]] -= z[:, [1, 3]]
+  expected = jax.jit(lambda f, y: model.apply(
+      params, f, method=lambda m, f: m.predict(m.encoder(f), 1)).log_prob(y))(
+          jnp.asarray(features, jnp.float32), jnp.asarray(target, jnp.float32))
+
+  @jax.jit
+  def densities(a, b):  # transition_log_prob, offset_log_probs' offset-1 pairs
+    pairs = em.standardise(norm, jnp.stack([a, b], 1))
+    return (em.transition_log_prob(model, params, norm, a, b) - em.log_jacobian(norm),
+            em.offset_log_probs(model, params, pairs, em.turns(model, norm))[0, :, 0])
+
+  for got in densities(jnp.asarray(raw, jnp.float32), jnp.asarray(raw_next, jnp.float32)):
+    np.testing.assert_allclose(got, expected, rtol=1e-4, atol=1e-3)
+
+
 def test_angle_inputs_density_ignores_full_turns_and_has_no_seam_at_pi():
   """log p(x' | x) of an angle-inputs model (random parameters) is unchanged by full turns of
   both; x at pi - 1e-4 and at -pi + 1e-4 (nearly the same pose, x' moved with x) score alike,
