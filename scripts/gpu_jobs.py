@@ -7,7 +7,8 @@ outlasts the machine. So a sitting of several runs starts them detached (`start`
 status to `--out` (the device's $OUT) as one `records.tgz`, so that whatever the sitting ends
 like, the records already polled are safe. The last poll (`--final`, or once every job has
 ended) also packs the run directories into parts of at most 15 MB, without checkpoints unless
-`--checkpoints` asks for each run's newest (lean ones, to resume in the next sitting).
+`--checkpoints` asks for each run's newest (lean ones, to resume in the next sitting); the
+runs' TensorBoard folders come last, where there is room (progress.csv holds the same values).
 
   python scripts/gpu_jobs.py check jobs.txt        # on the CPU, before the sitting
   python scripts/gpu_jobs.py start jobs.txt --dir /tmp/sitting --deadline 1200
@@ -284,15 +285,14 @@ def newest_checkpoints(folder: Path) -> set[Path]:
   return newest
 
 
-def _files(folder: Path, subs: tuple[str, ...], keep=frozenset()) -> list[Path]:
-  """The files of folder's `subs`, those in checkpoints folders left out except under `keep`."""
+def _files(folder: Path, subs: tuple[str, ...]) -> list[Path]:
+  """The files of folder's `subs`, those in checkpoints folders left out."""
   files = []
   for sub in subs:
     root = folder / sub
     for path in sorted(root.rglob("*")) if root.is_dir() else [root]:
       relative = path.relative_to(folder)
-      if path.is_file() and (not _in_checkpoints(relative)
-                             or any(k in path.parents for k in keep)):
+      if path.is_file() and not _in_checkpoints(relative):
         files.append(path)
   return files
 
@@ -326,20 +326,26 @@ def pack(folder: Path, out: Path, checkpoints: bool = False) -> list[Path]:
   """folder's runs in one .tgz, split into parts of at most PART_BYTES under `out`
   (runs.tgz.part00, ...); returns the parts. Checkpoints are left out, except with
   `checkpoints` each run's newest (lean ones, `--lean_checkpoints`, are a few MB), smallest
-  first, as many as keep the files under PACK_LIMIT (it names those left out). JobsError,
-  nothing packed, where the runs alone pass PACK_LIMIT."""
-  keep, total = set(), _bytes(_files(folder, ("runs",)))
-  if checkpoints:
-    sizes = {step: _bytes(step) for step in newest_checkpoints(folder / "runs")}
-    for step in sorted(sizes, key=sizes.get):
-      if total + sizes[step] <= PACK_LIMIT:
-        keep.add(step)
-        total += sizes[step]
-      else:
-        print(f"left out {step.relative_to(folder)} ({sizes[step] / 2**20:.0f} MiB): the packed "
-              f"runs may not pass {PACK_LIMIT / 2**20:.0f} MiB (use --lean_checkpoints)")
+  first, as many as keep the files under PACK_LIMIT; then each run's TensorBoard folder (`tb`,
+  the same values as its progress.csv: a six-member run's are ~18 MB), as many as fit. It names
+  those left out. JobsError, nothing packed, where the rest of the runs alone pass PACK_LIMIT."""
+  runs = folder / "runs"
+  boards = sorted(p for p in runs.rglob("tb") if p.is_dir()) if runs.is_dir() else []
+  files = [f for f in _files(folder, ("runs",)) if not any(b in f.parents for b in boards)]
+  total = _bytes(files)
+  optional = sorted(newest_checkpoints(runs), key=_bytes) if checkpoints else []
+  optional += sorted(boards, key=_bytes)
+  for extra in optional:
+    size = _bytes(extra)
+    if total + size <= PACK_LIMIT:
+      files += [f for f in sorted(extra.rglob("*")) if f.is_file()]
+      total += size
+    else:
+      hint = "" if extra.name == "tb" else " (use --lean_checkpoints)"
+      print(f"left out {extra.relative_to(folder)} ({size / 2**20:.0f} MiB): the packed "
+            f"runs may not pass {PACK_LIMIT / 2**20:.0f} MiB{hint}")
   archive = folder / "runs.tgz"
-  _archive(archive, folder, _files(folder, ("runs",), keep))
+  _archive(archive, folder, files)
   size = archive.stat().st_size
   if size > PACK_LIMIT or -(-size // PART_BYTES) > MAX_PARTS:
     raise JobsError(f"the runs packed take {size / 2**20:.0f} MiB, over the "

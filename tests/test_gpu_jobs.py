@@ -148,6 +148,35 @@ def test_pack_keeps_only_each_runs_newest_checkpoint_and_only_if_it_fits(tmp_pat
   assert "left out runs/wr/checkpoints/step_10" in capsys.readouterr().out
 
 
+def test_pack_leaves_tensorboard_logs_out_before_checkpoints(tmp_path, monkeypatch, capsys):
+  """A run's `tb` folder (what progress.csv holds too) comes after every newest checkpoint:
+  packed where there is room, left out (named) where a checkpoint would not fit with it."""
+  sitting(tmp_path)
+  run = tmp_path / "runs" / "hop"
+  (run / "checkpoints" / "step_7").mkdir(parents=True)
+  (run / "checkpoints" / "step_7" / "data").write_bytes(os.urandom(3000))
+  (run / "seed0" / "tb").mkdir(parents=True)
+  (run / "seed0" / "tb" / "events").write_bytes(os.urandom(2000))
+  (run / "seed0" / "progress.csv").write_text("step\n1\n")
+
+  def packed(**kwargs):
+    out = tmp_path / f"out{len(list(tmp_path.glob('out*')))}"
+    out.mkdir()
+    data = b"".join(p.read_bytes() for p in gpu_jobs.pack(tmp_path, out, **kwargs))
+    with tarfile.open(fileobj=io.BytesIO(data)) as tar:
+      return {n for n in tar.getnames() if tar.getmember(n).isfile()}
+
+  everything = {"runs/hop/seed0/progress.csv", "runs/hop/seed0/tb/events",
+                "runs/hop/checkpoints/step_7/data"}
+  assert packed(checkpoints=True) == everything
+  assert packed() == everything - {"runs/hop/checkpoints/step_7/data"}
+  monkeypatch.setattr(gpu_jobs, "PACK_LIMIT", 4000)  # the checkpoint fits, not with the logs
+  assert packed(checkpoints=True) == everything - {"runs/hop/seed0/tb/events"}
+  assert "left out runs/hop/seed0/tb (0 MiB)" in capsys.readouterr().out
+  monkeypatch.setattr(gpu_jobs, "PACK_LIMIT", 2500)  # the logs fit where the checkpoint does not
+  assert packed(checkpoints=True) == everything - {"runs/hop/checkpoints/step_7/data"}
+
+
 def test_check_parses_run_jobs_as_run_does_and_names_a_bad_one(tmp_path, capsys):
   """`check` prints the settings a run.py job would train with (the task's recipe, the flags,
   $LEFT filled in), lists other commands unchecked, and names a job whose flags run.py
