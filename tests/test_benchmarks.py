@@ -665,3 +665,22 @@ def test_demonstrator_heldout_scores_each_episode_as_the_training_record_scores_
   np.testing.assert_allclose(scores.mean(axis=0), whole, rtol=1e-5, atol=1e-4)
   one = demonstrator.heldout_log_likelihood(model, params, norm, episodes[2:3])
   np.testing.assert_allclose(scores[2], one, rtol=1e-5, atol=1e-4)
+  # Per transition at offset 1 (FORM's reward term, another code path): the same means.
+  steps = bench.transition_log_probs(model, params, norm, episodes)  # [K, T]
+  assert steps.shape == (4, 8)
+  np.testing.assert_allclose(steps.mean(axis=1), scores[:, 0], rtol=1e-5, atol=1e-4)
+
+
+def test_demonstrator_heldout_marks_the_transitions_that_change_the_observation_most():
+  """moving_mask: the share of transitions with the largest change after each dimension is
+  divided by its standard deviation (a dimension of large units does not decide alone)."""
+  bench = load_script("demonstrator_heldout", folder="benchmarks")
+  episodes = np.zeros((2, 6, 2), np.float32)  # [K, T+1, D]: 10 transitions
+  episodes[:, :, 1] = 100.0 * np.arange(6)  # large units, the same change everywhere
+  episodes[0, 3:, 0] = 1.0  # one jump in dimension 0: transition (0, 2)
+  episodes[1, 5, 0] = 3.0   # and a larger one: transition (1, 4)
+  mask = bench.moving_mask(episodes, 0.2)
+  expected = np.zeros((2, 5), bool)
+  expected[0, 2] = expected[1, 4] = True
+  np.testing.assert_array_equal(mask, expected)
+  assert bench.moving_mask(episodes, 0.1).sum() == 1 and bench.moving_mask(episodes, 0.1)[1, 4]
