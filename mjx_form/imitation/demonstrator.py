@@ -28,7 +28,7 @@ from mjx_form.imitation import effect_model as em
 @dataclasses.dataclass(frozen=True)
 class DemonstratorTraining:
   # The paper trains 2M steps. reacher_hard's held-out likelihood still rose at 352k steps
-  # (offset 1: 29.09 at 194k, 30.67 at 326k; 0.3-0.5 nats per 25k steps; NOTES, session 43);
+  # (offset 1: 29.09 at 194k, 30.67 at 326k; 0.3 nats per 25k steps; NOTES, session 43);
   # 1M steps take ~18 min on one H100 (~940 steps/s).
   max_steps: int = 1_000_000
   batch_size: int = 64  # windows per step (the learner's 64 unrolls)
