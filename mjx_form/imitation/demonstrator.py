@@ -36,7 +36,7 @@ class DemonstratorTraining:
   eval_every: int = 2_000
   # Evaluations without a new best of the smoothed held-out curve before stopping. Single
   # evaluations scatter by ~1 nat: patience 15 on them alone stopped a reacher_hard draw at
-  # 128k steps while it still rose (26.75 nats at offset 1 against 28.8-29.1 for draws trained
+  # 128k steps while it still rose (26.75 nats at offset 1 against 28.3-29.1 for draws trained
   # to 200k; FORM with it 374.0, with theirs 720-823; NOTES, session 43). Over a window of 10
   # evaluations none of the recorded curves would have stopped while rising.
   patience: int = 15
