@@ -37,23 +37,17 @@ import numpy as np  # noqa: E402
 import tasks  # noqa: E402
 from mjx_form.files import demos as demos_lib  # noqa: E402
 from mjx_form.files import results  # noqa: E402
+from mjx_form.imitation import demonstrator as demonstrator_lib  # noqa: E402
 from mjx_form.imitation import effect_model as em  # noqa: E402
 from mjx_form.imitation import pipeline  # noqa: E402
 
 
 def per_episode(model: em.EffectModel, params, norm, episodes: np.ndarray) -> np.ndarray:
   """Raw-space mean log p(x_{t+delta} | x_t) of each episode [K, T+1, D] (no episode ends
-  inside) per offset: [K, max_offset]."""
-  t = episodes.shape[1] - 1
-  masks = em.offset_masks(jnp.ones((1, t)), model.max_offset)  # [max_offset, 1, T]
-  pairs = masks.sum(axis=(1, 2))  # [max_offset]
-
-  @jax.jit
-  def one(episode):  # [T+1, D] -> [max_offset]
-    log_probs = em.offset_log_probs(model, params, em.standardise(norm, episode[None]),
-                                    em.turns(model, norm))
-    return jnp.sum(log_probs * masks, axis=(1, 2)) / pairs + em.log_jacobian(norm)
-
+  inside) per offset, as a training record's held-out log-likelihood of that episode alone
+  (`demonstrator.heldout_log_likelihood`): [K, max_offset]."""
+  one = jax.jit(lambda episode: demonstrator_lib.heldout_log_likelihood(model, params, norm,
+                                                                        episode[None]))
   return np.stack([np.asarray(one(jnp.asarray(e))) for e in episodes])
 
 

@@ -333,10 +333,10 @@ def pack(folder: Path, out: Path, checkpoints: bool = False) -> list[Path]:
   boards = sorted(p for p in runs.rglob("tb") if p.is_dir()) if runs.is_dir() else []
   files = [f for f in _files(folder, ("runs",)) if not any(b in f.parents for b in boards)]
   total = _bytes(files)
-  optional = sorted(newest_checkpoints(runs), key=_bytes) if checkpoints else []
-  optional += sorted(boards, key=_bytes)
-  for extra in optional:
-    size = _bytes(extra)
+  steps = {p: _bytes(p) for p in newest_checkpoints(runs)} if checkpoints else {}
+  logs = {p: _bytes(p) for p in boards}
+  for extra, size in [*sorted(steps.items(), key=lambda kv: kv[1]),
+                      *sorted(logs.items(), key=lambda kv: kv[1])]:
     if total + size <= PACK_LIMIT:
       files += [f for f in sorted(extra.rglob("*")) if f.is_file()]
       total += size

@@ -122,6 +122,15 @@ def test_pack_splits_into_parts_that_join_again(tmp_path, monkeypatch):
     gpu_jobs.pack(tmp_path, out)
 
 
+def _packed(tmp_path, **kwargs) -> set[str]:
+  """The files gpu_jobs.pack packs of the sitting folder tmp_path, into a fresh out folder."""
+  out = tmp_path / f"out{len(list(tmp_path.glob('out*')))}"
+  out.mkdir()
+  data = b"".join(p.read_bytes() for p in gpu_jobs.pack(tmp_path, out, **kwargs))
+  with tarfile.open(fileobj=io.BytesIO(data)) as tar:
+    return {n for n in tar.getnames() if tar.getmember(n).isfile()}
+
+
 def test_pack_keeps_only_each_runs_newest_checkpoint_and_only_if_it_fits(tmp_path, monkeypatch,
                                                                         capsys):
   sitting(tmp_path)
@@ -133,18 +142,11 @@ def test_pack_keeps_only_each_runs_newest_checkpoint_and_only_if_it_fits(tmp_pat
   (tmp_path / "runs" / "other").mkdir()
   (tmp_path / "runs" / "other" / "checkpoints").write_text("a file, not a folder")
 
-  def packed(**kwargs):
-    out = tmp_path / f"out{len(list(tmp_path.glob('out*')))}"
-    out.mkdir()
-    data = b"".join(p.read_bytes() for p in gpu_jobs.pack(tmp_path, out, **kwargs))
-    with tarfile.open(fileobj=io.BytesIO(data)) as tar:
-      return {n for n in tar.getnames() if tar.getmember(n).isfile()}
-
-  assert packed() == {"runs/wr/policy.npz"}
-  assert packed(checkpoints=True) == {"runs/wr/policy.npz",
+  assert _packed(tmp_path) == {"runs/wr/policy.npz"}
+  assert _packed(tmp_path, checkpoints=True) == {"runs/wr/policy.npz",
                                       "runs/wr/checkpoints/step_10/state/data"}
   monkeypatch.setattr(gpu_jobs, "PACK_LIMIT", 2000)
-  assert packed(checkpoints=True) == {"runs/wr/policy.npz"}
+  assert _packed(tmp_path, checkpoints=True) == {"runs/wr/policy.npz"}
   assert "left out runs/wr/checkpoints/step_10" in capsys.readouterr().out
 
 
@@ -159,22 +161,16 @@ def test_pack_leaves_tensorboard_logs_out_before_checkpoints(tmp_path, monkeypat
   (run / "seed0" / "tb" / "events").write_bytes(os.urandom(2000))
   (run / "seed0" / "progress.csv").write_text("step\n1\n")
 
-  def packed(**kwargs):
-    out = tmp_path / f"out{len(list(tmp_path.glob('out*')))}"
-    out.mkdir()
-    data = b"".join(p.read_bytes() for p in gpu_jobs.pack(tmp_path, out, **kwargs))
-    with tarfile.open(fileobj=io.BytesIO(data)) as tar:
-      return {n for n in tar.getnames() if tar.getmember(n).isfile()}
-
   everything = {"runs/hop/seed0/progress.csv", "runs/hop/seed0/tb/events",
                 "runs/hop/checkpoints/step_7/data"}
-  assert packed(checkpoints=True) == everything
-  assert packed() == everything - {"runs/hop/checkpoints/step_7/data"}
+  assert _packed(tmp_path, checkpoints=True) == everything
+  assert _packed(tmp_path) == everything - {"runs/hop/checkpoints/step_7/data"}
   monkeypatch.setattr(gpu_jobs, "PACK_LIMIT", 4000)  # the checkpoint fits, not with the logs
-  assert packed(checkpoints=True) == everything - {"runs/hop/seed0/tb/events"}
+  assert _packed(tmp_path, checkpoints=True) == everything - {"runs/hop/seed0/tb/events"}
   assert "left out runs/hop/seed0/tb (0 MiB)" in capsys.readouterr().out
   monkeypatch.setattr(gpu_jobs, "PACK_LIMIT", 2500)  # the logs fit where the checkpoint does not
-  assert packed(checkpoints=True) == everything - {"runs/hop/checkpoints/step_7/data"}
+  assert (_packed(tmp_path, checkpoints=True)
+          == everything - {"runs/hop/checkpoints/step_7/data"})
 
 
 def test_check_parses_run_jobs_as_run_does_and_names_a_bad_one(tmp_path, capsys):

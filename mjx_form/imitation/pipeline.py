@@ -125,7 +125,8 @@ def prepare(env, config: em.EffectModelConfig, explicit: dict, artefacts: Artefa
     paths = kept_paths(run_dir)
     if not paths:
       raise PipelineError(f"--resume: {run_dir} holds no {DEMONSTRATOR_FILE}")
-    config, demonstrators, sha256 = ensemble([(p, load_demonstrator(p, env)) for p in paths], explicit)
+    config, demonstrators, sha256 = ensemble([(p, load_demonstrator(p, env)) for p in paths],
+                                             explicit)
     return FormReward(config, demonstrators, sha256, **reward)
 
   ready: list[tuple[str, effect_models.EffectModelFile]] = []  # (path, file)
