@@ -5,10 +5,11 @@ The tree that travels to the GPU machine (tracked files, untracked ones and what
 must stay under 64 MiB, and ../shared/gpu/wheels.sh's wheels take 34 MB of it: the repository
 (~32 MB) left no room for a run's checkpoint to come back in. Most of those bytes are never
 imported by a training run: MuJoCo's `experimental/` folder (the Studio app and its GUI
-libraries, ~16 MB compressed; `import mujoco` does not load it) and MJX's `test_data/` (test
-models, 6.5 MB). This writes copies of the four wheels a sitting installs into `.whl-gpu/`
-(ignored by git) with those folders left out and their lines dropped from the wheel's RECORD,
-so pip installs them as it installs the originals:
+libraries, ~16 MB compressed; `import mujoco` does not load it), its Filament renderer and
+interactive viewer extensions (2.2 MB) and MJX's `test_data/` (test models, 6.5 MB). This
+writes copies of the four wheels a sitting installs into `.whl-gpu/` (ignored by git) with
+those files left out and their lines dropped from the wheel's RECORD, so pip installs them as
+it installs the originals (10.2 MB in all):
 
   python scripts/gpu_wheels.py            # reads .whl/, writes .whl-gpu/
   # on the GPU machine (carry .whl-gpu):
@@ -26,7 +27,10 @@ import zipfile
 
 # wheel file pattern -> folders inside it that a sitting never imports
 WHEELS = {
-    "mujoco-3.17.*-cp312-*.whl": ("mujoco/experimental/",),
+    # experimental/: the Studio app; _render_filament / _simulate: the Filament renderer
+    # (mujoco.mjrf) and the interactive viewer (mujoco.viewer), which a run never imports
+    "mujoco-3.17.*-cp312-*.whl": ("mujoco/experimental/", "mujoco/_render_filament.",
+                                  "mujoco/_simulate."),
     "mujoco_mjx-3.17.*.whl": ("mujoco/mjx/test_data/",),
     "trimesh-*.whl": (),
     "tensorboardx-*.whl": (),
