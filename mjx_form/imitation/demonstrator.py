@@ -27,18 +27,20 @@ from mjx_form.imitation import effect_model as em
 
 @dataclasses.dataclass(frozen=True)
 class DemonstratorTraining:
-  # The paper trains 2M steps. reacher_hard's held-out likelihood still rose at 352k steps
-  # (offset 1: 29.09 at 194k, 30.67 at 326k; 0.3 nats per 25k steps; NOTES, session 43);
-  # 1M steps take ~18 min on one H100 (~940 steps/s).
-  max_steps: int = 1_000_000
+  # The paper trains 2M steps. Longer is not better for FORM here: on reacher_hard's shipped
+  # demonstrations and seed, 200k steps (627d0d, held-out 29.09 nats at offset 1) gave FORM
+  # 822.8 over six seeds, 352k steps (97809d, 30.67 nats, still rising) gave 11.9, every seed
+  # failing (NOTES, sessions 43-44). 200k is the length every measured FORM result used.
+  max_steps: int = 200_000
   batch_size: int = 64  # windows per step (the learner's 64 unrolls)
   window: int = 100  # transitions per window
   eval_every: int = 2_000
   # Evaluations without a new best of the smoothed held-out curve before stopping. Single
   # evaluations scatter by ~1 nat: patience 15 on them alone stopped a reacher_hard draw at
   # 128k steps while it still rose (26.75 nats at offset 1 against 28.3-29.1 for draws trained
-  # to 200k; FORM with it 374.0, with theirs 720-823; NOTES, session 43). Over a window of 10
-  # evaluations none of the recorded curves would have stopped while rising.
+  # to 200k; FORM with it 374.0, with theirs 720-823; NOTES, session 43). The mean of the last 10
+  # (over offsets) stopped none of the recorded curves before 200k; past it, one at 228k where
+  # offset 1 still rose and the mean over offsets had paused for 30k steps (session 44).
   patience: int = 15
   smoothing: int = 10
   heldout_fraction: float = 0.05
