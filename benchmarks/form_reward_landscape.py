@@ -9,7 +9,11 @@ task return, the distribution of log pD, the rank correlation of an episode's re
 mean log pD within the behaviour (does the reward prefer its better episodes?), the share of
 the policy's mean outside [-1, 1] and its median scale (not for random actions), the
 observation dimensions furthest from the noiseless expert's (in its standard deviations: where
-a policy's posture differs), and the same rank correlation over all episodes; appends
+a policy's posture differs), which mixture component explains each transition (the one of
+largest weighted density: its weight and the geometric mean of its scales, in standardised
+units; a demonstrator that explains every transition off the expert's with one broad
+component pays them all about the same, and FORM's reward has no slope there), and the same
+rank correlation over all episodes; appends
 `kind: form_reward_landscape` records. For a task with raw unbounded angles
 (`Task.periodic_observations`), log pD is also split by whether the transition's next
 observation has them within [-pi, pi) or turned past (`log_pd_by_turn`).
@@ -74,6 +78,20 @@ def rollout(env, agent, noise, key, episodes):
   return jax.device_get(run(key))
 
 
+def responsible_component(mixture, target: np.ndarray) -> dict:
+  """Over transitions, the component with the largest weighted density at `target` [..., D]
+  under `mixture` ([..., K, D]): medians of its weight and of the geometric mean of its scales
+  (standardised units), and its share of the transitions per component index [K]."""
+  joint = np.asarray(mixture.component_log_probs(jnp.asarray(target)))  # [..., K]
+  top = joint.argmax(axis=-1)[..., None]  # [..., 1]
+  weights = np.asarray(jax.nn.softmax(mixture.logits, axis=-1))
+  scales = np.exp(np.asarray(jnp.log(mixture.scale)).mean(axis=-1))  # [..., K]
+  k = joint.shape[-1]
+  return {"weight_median": float(np.median(np.take_along_axis(weights, top, -1))),
+          "scale_median": float(np.median(np.take_along_axis(scales, top, -1))),
+          "share": [float(np.mean(top == i)) for i in range(k)]}
+
+
 def log_pd_by_turn(obs: np.ndarray, period: np.ndarray, log_d: np.ndarray) -> dict:
   """log pD [K, T] of transitions split by whether the next observation (obs [K, T+1, D]) has
   every periodic dimension (`period` [D] > 0) within [-period / 2, period / 2): the mean of
@@ -105,6 +123,8 @@ def main(argv=None) -> int:
   config, demonstrator = pipeline.demonstrator_from_file(file, path)
   model = em.make_model(config, env.observation_size)
   score = jax.jit(lambda obs: em.transition_log_prob(
+      model, demonstrator.params, demonstrator.normalizer, obs[:, :-1], obs[:, 1:]))
+  mixture_of = jax.jit(lambda obs: em.transition_mixture(
       model, demonstrator.params, demonstrator.normalizer, obs[:, :-1], obs[:, 1:]))
   expert = experts.load_expert(tasks.bundled_expert(args.task), env)
   try:
@@ -142,6 +162,7 @@ def main(argv=None) -> int:
     shift = (flat.mean(axis=0) - reference[0]) / reference[1]
     far = np.argsort(-np.abs(shift))[:3]
     turn = log_pd_by_turn(obs, period, log_d) if period.any() else None
+    explained = responsible_component(*mixture_of(jnp.asarray(obs)))
     print(f"  {name:22s} return {returns.mean():7.1f}  log pD per transition: mean "
           f"{log_d.mean():9.2f}  p5/p50/p95 {q[0]:9.2f} {q[1]:8.2f} {q[2]:8.2f}  "
           f"rank corr. with return {within:5.2f}  "
@@ -153,6 +174,9 @@ def main(argv=None) -> int:
             + ("-" if turn["within"] is None else f"{turn['within']:.2f}")
             + f", turned past ({turn['turned_share']:.0%} of transitions): "
             + ("-" if turn["turned"] is None else f"{turn['turned']:.2f}"))
+    shares = " / ".join(f"{v:.0%}" for v in explained["share"])
+    print(f"  {'':22s} explained by components {shares}, the responsible one's weight {explained['weight_median']:.3f} and scale "
+          f"{explained['scale_median']:.3f} sd (medians)")
     if writer:
       writer.write(kind="form_reward_landscape", task=args.task, method="form",
                    behaviour=name, noise=noise, episodes=args.episodes,
@@ -161,6 +185,7 @@ def main(argv=None) -> int:
                    spearman_return_log_pd=None if np.isnan(within) else within,
                    shift_from_expert={names[d]: float(shift[d]) for d in far}, **policy_stats,
                    **({} if turn is None else {"log_pd_by_turn": turn}),
+                   responsible_component=explained,
                    demonstrator_sha256=file.metadata["sha256"],
                    demonstrator_settings=config.to_dict())
   rho = stats.spearmanr(all_returns, all_scores).statistic

@@ -5,6 +5,7 @@ import json
 import os
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 from conftest import load_script
@@ -684,3 +685,32 @@ def test_demonstrator_heldout_marks_the_transitions_that_change_the_observation_
   expected[0, 2] = expected[1, 4] = True
   np.testing.assert_array_equal(mask, expected)
   assert bench.moving_mask(episodes, 0.1).sum() == 1 and bench.moving_mask(episodes, 0.1)[1, 4]
+
+
+def test_form_reward_landscape_names_the_component_that_explains_each_transition():
+  """responsible_component: the component of largest weighted density per transition, its
+  weight and the geometric mean of its scales, against a numpy computation on random mixtures
+  (one target placed on a chosen component's mean, so the argmax is known there)."""
+  bench = load_script("form_reward_landscape", folder="benchmarks")
+  from mjx_form.rl.distributions import GaussianMixture
+  rng = np.random.default_rng(3)
+  n, k, d = 50, 4, 3
+  logits = rng.normal(size=(n, k)).astype(np.float32)
+  mean = rng.normal(size=(n, k, d)).astype(np.float32)
+  scale = np.exp(rng.normal(size=(n, k, d))).astype(np.float32)
+  target = rng.normal(size=(n, d)).astype(np.float32)
+  target[0] = mean[0, 2]
+  scale[0, 2] = 1e-3  # a sharp component at the first target: it explains it
+  mixture = GaussianMixture(jnp.asarray(logits), jnp.asarray(mean), jnp.asarray(scale))
+  got = bench.responsible_component(mixture, target)
+  w = np.exp(logits - logits.max(-1, keepdims=True))
+  w /= w.sum(-1, keepdims=True)
+  z = (target[:, None] - mean) / scale
+  joint = np.log(w) + (-0.5 * z**2 - np.log(scale) - 0.5 * np.log(2 * np.pi)).sum(-1)
+  top = joint.argmax(-1)
+  assert top[0] == 2
+  rows = np.arange(n)
+  assert got["weight_median"] == pytest.approx(np.median(w[rows, top]), rel=1e-5)
+  geo = np.exp(np.log(scale).mean(-1))
+  assert got["scale_median"] == pytest.approx(np.median(geo[rows, top]), rel=1e-5)
+  assert got["share"] == pytest.approx([np.mean(top == i) for i in range(k)])

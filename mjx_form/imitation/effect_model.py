@@ -305,14 +305,21 @@ def offset_log_probs(model: EffectModel, params, x: jax.Array,
   return jnp.stack(out)
 
 
-def transition_log_prob(model: EffectModel, params, norm: normalizer.NormalizerState,
-                        x: jax.Array, x_next: jax.Array) -> jax.Array:
-  """Raw-space log p(x_next | x) at offset 1 (FORM's reward term): x, x_next [..., D] -> [...]."""
+def transition_mixture(model: EffectModel, params, norm: normalizer.NormalizerState,
+                       x: jax.Array, x_next: jax.Array) -> tuple[GaussianMixture, jax.Array]:
+  """The offset-1 mixture over the standardised (and `shifts`-moved) next observation, and
+  x_next in that space: x, x_next [..., D] raw -> (mixture [..., K, D], target [..., D])."""
   x, x_next = standardise(norm, x), standardise(norm, x_next)
   t = turns(model, norm)
   inputs, targets = shifts(model, t, x)
-  mixture = model.apply(params, x - inputs, 1, t)
-  return mixture.log_prob(x_next - targets) + log_jacobian(norm)
+  return model.apply(params, x - inputs, 1, t), x_next - targets
+
+
+def transition_log_prob(model: EffectModel, params, norm: normalizer.NormalizerState,
+                        x: jax.Array, x_next: jax.Array) -> jax.Array:
+  """Raw-space log p(x_next | x) at offset 1 (FORM's reward term): x, x_next [..., D] -> [...]."""
+  mixture, target = transition_mixture(model, params, norm, x, x_next)
+  return mixture.log_prob(target) + log_jacobian(norm)
 
 
 def _masked_mean(values: jax.Array, mask: jax.Array) -> jax.Array:
