@@ -36,10 +36,10 @@ running sd settles at 1.00 / 0.95 / 0.79 of the true one for c = 3 / 2 / 1.5 and
 An ensemble of demonstrators (several files of one task and one setting: draws of one recipe,
 or models of several experts' demonstrations, which the pipeline notes) gives pD as their
 mixture, log pD = logsumexp_k log pD_k - log K: a density (so the reward keeps
-its meaning), at least the best model's density / K wherever one model has a spurious hole. Two
-demonstrators of one recipe gave reacher_hard's FORM 0.74 and 0.85 (benchmarks/NOTES.md,
-session 42). A single demonstrator's parameters are kept as they are; an ensemble's are stacked
-along a leading axis of size K.
+its meaning), at least the best model's density / K wherever one model has a spurious hole.
+Demonstrators of one recipe gave reacher_hard's FORM 0.39-0.85 over four draws, and one trained
+longer 0.01 (benchmarks/NOTES.md, sessions 42-44). A single demonstrator's parameters are kept
+as they are; an ensemble's are stacked along a leading axis of size K.
 
 The source never sees the task reward (`needs_task_reward = False`: it is not even stored).
 """
