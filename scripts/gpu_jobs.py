@@ -168,7 +168,9 @@ def _form_models(run, args) -> str:
   return (f"effect models beta_ar {config.beta_ar:g}, L2 {config.l2:g}, width {config.width}"
           f"{', turn-invariant' if config.period else ''}"
           f"{', angle increments' if config.angle_increments else ''}"
-          f"{', angle inputs' if config.angle_inputs else ''}; demonstrator {where}")
+          f"{', angle inputs' if config.angle_inputs else ''}"
+          f"{f', max scale {config.max_scale:g}' if config.max_scale else ''}; "
+          f"demonstrator {where}")
 
 
 def machine_gpus() -> list[str]:

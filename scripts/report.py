@@ -573,6 +573,8 @@ def _form_variant(record: dict) -> str:
     regularisers.append("angle increments")
   if model.get("angle_inputs"):
     regularisers.append("angle inputs")
+  if model.get("max_scale"):
+    regularisers.append(f"scales below {model['max_scale']:g} sd")
   if settings.get("reward", {}).get("demonstrators"):
     regularisers.append(f"ensemble of {settings['reward']['demonstrators']} demonstrators")
   return ", ".join([reward, f"T {period}", *regularisers,
@@ -988,6 +990,8 @@ def effect_model_table(records: list[dict], best_per_task: bool = True,
       turns += ", increments"
     if s.get("angle_inputs"):
       turns += ", angle inputs"
+    if s.get("max_scale"):
+      turns += f", scales below {s['max_scale']:g} sd"
     batch = (f"{s['batch_size']} x {s['window']}" if "batch_size" in s and "window" in s
              else "-")  # windows x transitions per training step
     demos = r.get("demonstrations") or {}

@@ -50,7 +50,7 @@ METHODS = ("form", "expert", "random")
 # Options that only --method form reads (a user who gives one to another method is told so).
 FORM_ONLY = ("expert", "demos", "demo_episodes", "save_demos", "demonstrator",
              "train_demonstrator", "demonstrator_seed", "beta_ar", "effect_l2", "turn_invariant",
-             "angle_increments", "angle_inputs",
+             "angle_increments", "angle_inputs", "effect_max_scale",
              "reward_scale", "reward_clip")
 
 DEFAULT_COMPILATION_CACHE = os.path.join(
@@ -262,6 +262,11 @@ def parse_args(argv=None) -> argparse.Namespace:
                     help="effect models with --angle_increments see each periodic angle as its "
                          "cos and sin rather than its wrapped value, which jumps at +-pi (not "
                          "the paper's; default: the task's setting, off)")
+  form.add_argument("--effect_max_scale", type=float, default=None,
+                    help="soft cap on the effect models' mixture scales, in standardised units "
+                         "(not the paper's; default: none): a demonstrator cannot then pay all "
+                         "transitions off the expert's alike through one broad component "
+                         "(mjx_form/imitation/effect_model.py)")
   train.add_argument("--preset", default=None, choices=settings.PRESETS,
                      help="default: measured settings; paper: the paper's. For form: the "
                           "reward scale, reward clip, target period and sampled-Q precision "
@@ -431,7 +436,8 @@ def effect_model_settings(args: argparse.Namespace, env):
   ValueError for --turn_invariant on a task without unbounded angles."""
   explicit = {"beta_ar": args.beta_ar, "l2": args.effect_l2,
               "period": settings.turn_period(env, args.turn_invariant),
-              "angle_increments": args.angle_increments, "angle_inputs": args.angle_inputs}
+              "angle_increments": args.angle_increments, "angle_inputs": args.angle_inputs,
+              "max_scale": args.effect_max_scale}
   # Effect models share the width of the other networks, and a demonstrator trains on batches
   # shaped like the learner's (batch_size windows of unroll_length transitions).
   config = settings.effect_model_config(args.task, env, width=args.network_width, **explicit)

@@ -64,6 +64,9 @@ def main(argv=None) -> int:
                       help="a model with --angle_increments sees each periodic angle as its cos "
                            "and sin, not its wrapped value (mjx_form/imitation/effect_model.py; "
                            "default: the task's setting, off)")
+  parser.add_argument("--effect_max_scale", type=float, default=None,
+                      help="soft cap on the mixture's scales, in standardised units "
+                           "(mjx_form/imitation/effect_model.py; default: none, the paper's)")
   defaults = demonstrator.DemonstratorTraining()
   for name in ("max_steps", "batch_size", "window", "eval_every", "patience", "smoothing"):
     parser.add_argument(f"--{name}", type=int, default=getattr(defaults, name))
@@ -81,7 +84,8 @@ def main(argv=None) -> int:
     configs = [settings.effect_model_config(args.task, env, width=args.width, beta_ar=b, l2=l,
                                             period=period,
                                             angle_increments=args.angle_increments,
-                                            angle_inputs=args.angle_inputs)
+                                            angle_inputs=args.angle_inputs,
+                                            max_scale=args.effect_max_scale)
                for b, l in grid]
   except ValueError as e:
     parser.error(str(e))
@@ -89,7 +93,8 @@ def main(argv=None) -> int:
       os.path.join(args.out, f"{args.task}_ar{c.beta_ar:g}_l2{c.l2:g}"
                              f"{'_turn' if c.period else ''}"
                              f"{'_increments' if c.angle_increments else ''}"
-                             f"{'_angle_inputs' if c.angle_inputs else ''}.npz")
+                             f"{'_angle_inputs' if c.angle_inputs else ''}"
+                             f"{f'_max_scale{c.max_scale:g}' if c.max_scale else ''}.npz")
       for c in configs]
   existing = [o for o in outs if os.path.exists(o)]
   if existing:

@@ -743,3 +743,24 @@ def test_an_ensemble_of_demonstrator_files_is_checked_kept_and_resumed(tmp_path,
   (tmp_path / "leftover" / "demonstrator_1.npz").write_bytes(b"")
   with pytest.raises(Exception, match="already holds a run .*demonstrator_1.npz"):
     prepare(tmp_path / "leftover", (shipped,), resume=False)
+
+
+def test_effect_max_scale_flag_reaches_the_effect_models(capsys):
+  """--effect_max_scale caps the effect models' scales (none by default: absent from the
+  settings), refuses a value at or below min_scale, and applies to --method form only."""
+  import tasks
+  cli = load_script("run")
+  env = tasks.make("reacher_easy")
+  settings_of = lambda *argv: cli.effect_model_settings(
+      cli.parse_args(["--task", "reacher_easy", "--method", "form", *argv]), env)
+  explicit, default = settings_of()
+  assert default.max_scale is None and "max_scale" not in default.to_dict()
+  assert explicit["max_scale"] is None
+  explicit, capped = settings_of("--effect_max_scale", "1")
+  assert explicit["max_scale"] == 1.0 and capped.max_scale == 1.0
+  assert capped.to_dict() == {**default.to_dict(), "max_scale": 1.0}
+  with pytest.raises(ValueError, match="max_scale must be a number above min_scale"):
+    settings_of("--effect_max_scale", "0")
+  with pytest.raises(SystemExit):
+    cli.parse_args(["--method", "expert", "--effect_max_scale", "1"])
+  assert "--effect_max_scale apply to --method form only" in capsys.readouterr().err

@@ -30,6 +30,12 @@ moved value, a residual parameterisation of those features (the mixture's mean n
 to reproduce x_t itself; the moved value is continuous in the moved input either way). The
 target is moved by x_t (a translation given x_t: log p unchanged, Jacobian 1).
 
+Scale cap (`EffectModelConfig.max_scale`, not in the paper): every component's scale is held
+below max_scale standardised units by a soft cap (`distributions.scale_from_raw`). A reacher_hard
+demonstrator trained 352k steps explained all transitions off the expert's with one broad
+component (~3.3 sd) and so paid them all about the same: FORM's reward had no slope there and
+FORM failed (benchmarks/NOTES.md, session 44). Under a cap no component can act as such a floor.
+
 Angle inputs (`EffectModelConfig.angle_inputs`, with `angle_increments` only; not in the paper):
 the encoder sees each periodic feature of x_t as the cosine and sine of its raw angle
 theta = 2 pi x / period instead of its standardised wrapped value, which jumps by a turn at
@@ -76,20 +82,23 @@ class EffectModelConfig:
   # The encoder sees the periodic features as cos and sin of their raw angles (module
   # docstring); needs angle_increments. Off: their standardised values (as before it existed).
   angle_inputs: bool = False
+  # Soft cap on every component's scale, in standardised units (module docstring); None: none
+  # (the paper's, and files before the setting existed).
+  max_scale: float | None = None
 
   def __post_init__(self):  # from a file's JSON list, too
     object.__setattr__(self, "period", tuple(float(p) for p in self.period))
 
   def to_dict(self) -> dict:
     """The settings as files and records keep them (JSON's shapes: `period` a list, and none
-    where there is no period, as before turn invariance existed; `angle_increments` and
-    `angle_inputs` only where on, as before they existed)."""
+    where there is no period, as before turn invariance existed; `angle_increments`,
+    `angle_inputs` and `max_scale` only where set, as before they existed)."""
     out = dataclasses.asdict(self)
     if self.period:
       out["period"] = list(self.period)
     else:
       del out["period"]
-    for name in ("angle_increments", "angle_inputs"):
+    for name in ("angle_increments", "angle_inputs", "max_scale"):
       if not out[name]:
         del out[name]
     return out
@@ -121,6 +130,11 @@ class EffectModelConfig:
     if self.angle_inputs and not self.angle_increments:
       raise ValueError("effect model angle_inputs needs angle increments (--angle_increments, "
                        "on a turn-invariant model)")
+    if self.max_scale is not None and (
+        isinstance(self.max_scale, bool) or not isinstance(self.max_scale, (int, float))
+        or not self.min_scale < self.max_scale < float("inf")):
+      raise ValueError(f"effect model max_scale must be a number above min_scale "
+                       f"({self.min_scale:g}) and finite, or none; got {self.max_scale!r}")
 
 
 class EffectModel(nn.Module):
@@ -137,6 +151,7 @@ class EffectModel(nn.Module):
   period: tuple[float, ...] = ()  # EffectModelConfig.period
   angle_increments: bool = False  # EffectModelConfig.angle_increments
   angle_inputs: bool = False  # EffectModelConfig.angle_inputs
+  max_scale: float | None = None  # EffectModelConfig.max_scale
 
   def setup(self):
     self.encoder = Encoder(self.width)
@@ -155,7 +170,8 @@ class EffectModel(nn.Module):
     k, d = self.num_components, self.observation_size
     logits = out[..., :k]
     mean, raw_scale = jnp.split(out[..., k:].reshape(out.shape[:-1] + (k, 2 * d)), 2, axis=-1)
-    return GaussianMixture(logits, mean, scale_from_raw(raw_scale, self.min_scale))
+    return GaussianMixture(logits, mean,
+                           scale_from_raw(raw_scale, self.min_scale, self.max_scale))
 
   def __call__(self, x: jax.Array, offset: int = 1, t: Turns | None = None) -> GaussianMixture:
     return self.predict(self.encode(x, t), offset)
@@ -167,7 +183,7 @@ def make_model(config: EffectModelConfig, observation_size: int) -> EffectModel:
                      f"have {observation_size}")
   return EffectModel(observation_size, config.width, config.num_components, config.max_offset,
                      config.min_scale, config.period, config.angle_increments,
-                     config.angle_inputs)
+                     config.angle_inputs, config.max_scale)
 
 
 class EffectModelState(NamedTuple):
