@@ -78,7 +78,7 @@ def rollout(env, agent, noise, key, episodes):
   return jax.device_get(run(key))
 
 
-def responsible_component(mixture, target: np.ndarray) -> dict:
+def responsible_component(mixture, target: jax.Array | np.ndarray) -> dict:
   """Over transitions, the component with the largest weighted density at `target` [..., D]
   under `mixture` ([..., K, D]): medians of its weight and of the geometric mean of its scales
   (standardised units), and its share of the transitions per component index [K]."""
@@ -175,7 +175,8 @@ def main(argv=None) -> int:
             + f", turned past ({turn['turned_share']:.0%} of transitions): "
             + ("-" if turn["turned"] is None else f"{turn['turned']:.2f}"))
     shares = " / ".join(f"{v:.0%}" for v in explained["share"])
-    print(f"  {'':22s} explained by components {shares}, the responsible one's weight {explained['weight_median']:.3f} and scale "
+    print(f"  {'':22s} explained by components {shares}, "
+          f"the responsible one's weight {explained['weight_median']:.3f} and scale "
           f"{explained['scale_median']:.3f} sd (medians)")
     if writer:
       writer.write(kind="form_reward_landscape", task=args.task, method="form",

@@ -25,7 +25,7 @@ import os
 import sys
 import zipfile
 
-# wheel file pattern -> folders inside it that a sitting never imports
+# wheel file pattern -> prefixes of the members (folders, files) a sitting never imports
 WHEELS = {
     # experimental/: the Studio app; _render_filament / _simulate: the Filament renderer
     # (mujoco.mjrf) and the interactive viewer (mujoco.viewer), which a run never imports
@@ -38,8 +38,8 @@ WHEELS = {
 
 
 def slim(source: str, target: str, drop: tuple[str, ...]) -> tuple[int, int]:
-  """Copies the wheel `source` to `target` without the members under `drop` (and their RECORD
-  lines). Returns (members kept, members dropped)."""
+  """Copies the wheel `source` to `target` without the members whose names start with one of
+  `drop` (and their RECORD lines). Returns (members kept, members dropped)."""
   kept = dropped = 0
   with zipfile.ZipFile(source) as src, zipfile.ZipFile(target + ".tmp", "w",
                                                        zipfile.ZIP_DEFLATED) as dst:

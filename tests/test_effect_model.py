@@ -742,8 +742,8 @@ CAPPED = dataclasses.replace(CONFIG, max_scale=1.0)
 
 def test_scale_cap_against_numpy():
   """scale_from_raw with max_scale m: s m / (s + m) for s = softplus(raw) + min_scale, against
-  numpy over raw in [-30, 30]: below m everywhere, non-decreasing, within a factor (1 + s/m) of s;
-  without a cap exactly softplus + min_scale."""
+  numpy over raw in [-30, 30]: below m everywhere, non-decreasing, m at raw 1e38 and inf (no
+  overflow); without a cap exactly softplus + min_scale."""
   from mjx_form.rl.distributions import scale_from_raw
   raw = np.linspace(-30.0, 30.0, 601)
   s = np.logaddexp(0.0, raw) + 1e-4
@@ -751,19 +751,19 @@ def test_scale_cap_against_numpy():
   np.testing.assert_allclose(capped, s * 2.0 / (s + 2.0), rtol=1e-5)
   assert capped.max() < 2.0 and np.all(np.diff(capped) >= 0)
   assert np.all(np.diff(capped[raw > -5]) > 0)  # (below, softplus is under float32's step)
-  np.testing.assert_array_less(s / (1 + s / 2.0) * (1 - 1e-5), capped)
+  huge = np.asarray(scale_from_raw(jnp.asarray([1e38, np.inf], jnp.float32), 1e-4, 2.0))
+  np.testing.assert_array_equal(huge, [2.0, 2.0])  # no product overflows
   np.testing.assert_allclose(np.asarray(scale_from_raw(jnp.asarray(raw), 1e-4)), s, rtol=1e-5)
 
 
 def test_capped_model_keeps_every_scale_below_max_scale():
   """A capped effect model's components stay below max_scale even where the head pushes the raw
-  scales far up (its bias +50); the same parameters uncapped give scales of ~50. Its log p is a
-  mixture density all the same (integrates to ~1 along one dimension)."""
+  scales far up (its bias +50); the same parameters uncapped give scales of ~50."""
   uncapped, capped = em.make_model(CONFIG, D), em.make_model(CAPPED, D)
   params = em.init_params(capped, jax.random.PRNGKey(0))
   head = params["params"]["head"]
   k = CONFIG.num_components
-  bias = head["bias"].at[k:].add(50.0)  # means and raw scales; the scales' are the upper half
+  bias = head["bias"].at[k:].add(50.0)  # every component's means and raw scales
   pushed = {"params": {**params["params"], "head": {**head, "bias": bias}}}
   x = jnp.asarray(np.random.default_rng(0).normal(size=(5, D)), jnp.float32)
   big = uncapped.apply(pushed, x, 1).scale
@@ -772,36 +772,49 @@ def test_capped_model_keeps_every_scale_below_max_scale():
   assert float(small.max()) < 1.0 and float(small.min()) > 0.95
   normal = capped.apply(params, x, 1).scale
   np.testing.assert_array_less(np.asarray(normal), 1.0)
-  mixture = capped.apply(params, x[:1], 1)
-  grid = np.linspace(-30, 30, 6001)
-  points = np.tile(np.asarray(mixture.mean[0, 0]), (grid.size, 1))  # vary dimension 0 only
-  points[:, 0] = grid
-  marginal = mixture._replace(logits=mixture.logits[0], mean=mixture.mean[0, :, :1],
-                              scale=mixture.scale[0, :, :1])
-  density = np.exp(np.asarray(marginal.log_prob(jnp.asarray(points[:, :1]))))
-  assert np.trapezoid(density, grid) == pytest.approx(1.0, abs=1e-3)
 
 
 def test_max_scale_settings_are_checked_and_kept_in_files(tmp_path):
   """max_scale: none or a finite number above min_scale; absent from to_dict where none (as
-  files before it existed); a file keeps it, and a run asking for another cap (or none against
-  a capped file, and the reverse) is refused naming it."""
+  files before it existed; an int is kept as a float); a file keeps it; a run asking for another
+  cap, or for one against an uncapped file, is refused naming it (a run that sets none takes
+  the file's), as is an ensemble of a capped and an uncapped file; the imitator model of a FORM
+  reward shares the cap."""
+  from mjx_form.imitation import form
   from mjx_form.files import effect_models
   from mjx_form.imitation import pipeline
   for bad in (0.0, 1e-4, float("inf"), float("nan"), True, "1"):
     with pytest.raises(ValueError, match="max_scale must be a number above min_scale"):
       dataclasses.replace(CONFIG, max_scale=bad).check()
   CAPPED.check()
+  assert dataclasses.replace(CONFIG, max_scale=1) == CAPPED
+  assert json.dumps(dataclasses.replace(CONFIG, max_scale=1).to_dict()) == json.dumps(
+      CAPPED.to_dict())
   assert "max_scale" not in CONFIG.to_dict() and CAPPED.to_dict()["max_scale"] == 1.0
   assert em.EffectModelConfig(**json.loads(json.dumps(CAPPED.to_dict()))) == CAPPED
-  params = em.init_params(em.make_model(CAPPED, D), jax.random.PRNGKey(0))
-  meta = {"task": "reacher_easy", "observation_size": D, "observation_layout": [["x", D]],
-          "distractors": None, "config": CAPPED.to_dict(), "training": {}, "demonstrations": {}}
-  effect_models.save_effect_model(tmp_path / "c.npz", jax.device_get(params), np.zeros(D),
-                                  np.ones(D), meta)
-  path, file = str(tmp_path / "c.npz"), effect_models.load_effect_model(tmp_path / "c.npz")
+
+  def save(name, config):
+    params = em.init_params(em.make_model(config, D), jax.random.PRNGKey(0))
+    meta = {"task": "reacher_easy", "observation_size": D, "observation_layout": [["x", D]],
+            "distractors": None, "config": config.to_dict(), "training": {},
+            "demonstrations": {}}
+    effect_models.save_effect_model(tmp_path / name, jax.device_get(params), np.zeros(D),
+                                    np.ones(D), meta)
+    return str(tmp_path / name), effect_models.load_effect_model(tmp_path / name)
+
+  path, file = save("c.npz", CAPPED)
   assert pipeline.demonstrator_from_file(file, path, {"max_scale": 1.0})[0] == CAPPED
   assert pipeline.demonstrator_from_file(file, path, {"max_scale": None})[0] == CAPPED
-  with pytest.raises(pipeline.PipelineError, match="trained with max_scale=1.0, this run asks "
-                                                   "for 2.0"):
+  with pytest.raises(pipeline.PipelineError, match=r"trained with max_scale \(--effect_max_sc"
+                                                   r"ale\)=1.0, this run asks for 2.0"):
     pipeline.demonstrator_from_file(file, path, {"max_scale": 2.0})
+  plain_path, plain = save("plain.npz", CONFIG)
+  with pytest.raises(pipeline.PipelineError, match=r"trained with max_scale \(--effect_max_sc"
+                                                   r"ale\)=None, this run asks for 1.0"):
+    pipeline.demonstrator_from_file(plain, plain_path, {"max_scale": 1.0})
+  with pytest.raises(pipeline.PipelineError, match="max_scale"):
+    pipeline.ensemble([(path, file), (plain_path, plain)], None)
+  config, demonstrator = pipeline.demonstrator_from_file(file, path)
+  reward = form.FormReward(config, demonstrator)
+  assert reward.model.max_scale == 1.0
+  assert reward.settings()["effect_model"]["max_scale"] == 1.0

@@ -748,7 +748,6 @@ def test_an_ensemble_of_demonstrator_files_is_checked_kept_and_resumed(tmp_path,
 def test_effect_max_scale_flag_reaches_the_effect_models(capsys):
   """--effect_max_scale caps the effect models' scales (none by default: absent from the
   settings), refuses a value at or below min_scale, and applies to --method form only."""
-  import tasks
   cli = load_script("run")
   env = tasks.make("reacher_easy")
   settings_of = lambda *argv: cli.effect_model_settings(

@@ -17,8 +17,8 @@ Metadata keys (besides format, version, sha256):
   distractors         null, or the distractor setting of the observations it was trained on
   config              the EffectModelConfig it was trained with (width, num_components,
                       max_offset, beta_ar, l2, learning_rate, normalizer_decay, min_scale;
-                      period, angle_increments and angle_inputs where set; a run refuses
-                      a file whose settings differ from those it asks for, naming them:
+                      period, angle_increments, angle_inputs and max_scale where set; a run
+                      refuses a file whose settings differ from those it asks for, naming them:
                       mjx_form.imitation.pipeline.demonstrator_from_file)
   training            steps, best_step, batch_size, window, seconds, heldout_log_likelihood
                       (raw observation space, nats per transition, one value per offset

@@ -88,6 +88,8 @@ class EffectModelConfig:
 
   def __post_init__(self):  # from a file's JSON list, too
     object.__setattr__(self, "period", tuple(float(p) for p in self.period))
+    if isinstance(self.max_scale, int) and not isinstance(self.max_scale, bool):
+      object.__setattr__(self, "max_scale", float(self.max_scale))  # one JSON text for 1 and 1.0
 
   def to_dict(self) -> dict:
     """The settings as files and records keep them (JSON's shapes: `period` a list, and none

@@ -268,7 +268,8 @@ def demonstrator_from_file(file: effect_models.EffectModelFile, path: str,
     raise PipelineError(f"{path}: unusable effect-model settings: {e}") from None
   for key, value in (explicit or {}).items():
     if value is not None and getattr(config, key) != value:
-      name = "turn-invariance period (--turn_invariant)" if key == "period" else key
+      name = {"period": "turn-invariance period (--turn_invariant)",
+              "max_scale": "max_scale (--effect_max_scale)"}.get(key, key)
       raise PipelineError(f"{path}: the demonstrator was trained with {name}="
                           f"{getattr(config, key)}, this run asks for {value} (the imitator "
                           "model shares the demonstrator's settings: leave it out, or train a "

@@ -17,10 +17,10 @@ _HALF_LOG_2PI = 0.5 * math.log(2.0 * math.pi)
 def scale_from_raw(raw: jax.Array, min_scale: float = 1e-4,
                    max_scale: float | None = None) -> jax.Array:
   """Maps an unconstrained network output to a standard deviation: s = softplus(raw) +
-  min_scale, or with `max_scale` m the soft cap s m / (s + m) (about s where s << m, below m
-  always, smooth in raw)."""
+  min_scale, or with `max_scale` m the soft cap s m / (s + m), written m / (1 + m / s) so that
+  no product overflows (about s where s << m, below m always, smooth in raw)."""
   s = jax.nn.softplus(raw) + min_scale
-  return s if max_scale is None else s * max_scale / (s + max_scale)
+  return s if max_scale is None else max_scale / (1.0 + max_scale / s)
 
 
 class DiagonalGaussian(NamedTuple):
