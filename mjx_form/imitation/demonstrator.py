@@ -40,7 +40,7 @@ class DemonstratorTraining:
   # 128k steps while it still rose (26.75 nats at offset 1 against 28.3-29.1 for draws trained
   # to 200k; FORM with it 374.0, with theirs 720-823; NOTES, session 43). The mean of the last 10
   # (over offsets) stopped none of the recorded curves before 200k; past it, one at 228k where
-  # offset 1 still rose and the mean over offsets had paused for 30k steps (session 44).
+  # offset 1 still rose and the mean over offsets had dipped and recovered (session 44).
   patience: int = 15
   smoothing: int = 10
   heldout_fraction: float = 0.05
