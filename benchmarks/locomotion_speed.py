@@ -1,12 +1,13 @@
 #!/usr/bin/env python3
 """Where a locomotion policy loses its return: too slow, or not upright?
 
-walker's and quadruped's rewards are products of a posture factor and a speed factor (dm_control:
-walker `stand_reward * (5 * move_reward + 1) / 6`, quadruped `upright * move_reward`; the
+walker's, quadruped's and hopper_hop's rewards are products of a posture factor and a speed
+factor (dm_control: walker `stand_reward * (5 * move_reward + 1) / 6`, quadruped `upright *
+move_reward`, hopper `standing * hopping`, standing: the torso 0.6-2 m above the foot; the
 speed factor is 1 at the task's speed or faster and falls linearly below it). This rolls out
 policies (mean action, clipped) on the CPU and reports, per policy, the mean return, the
 torso's forward speed (the task's own sensor: walker's subtree linear velocity, quadruped's
-velocimeter), the share of steps at the task's speed, and both factors' means, each over the
+velocimeter, hopper's subtree linear velocity), the share of steps at the task's speed, and both factors' means, each over the
 second half of the episodes (the gait, not the start). It also checks that the factors'
 product is the environment's reward, step by step. Appends `kind: locomotion_speed` records.
 
@@ -31,12 +32,25 @@ import numpy as np  # noqa: E402
 
 from mjx_form.sim.rewards import tolerance  # noqa: E402
 
-TASKS = ("walker_walk", "walker_run", "quadruped_walk", "quadruped_run")
+TASKS = ("walker_walk", "walker_run", "quadruped_walk", "quadruped_run", "hopper_hop")
+
+
+def target_speed(env) -> float:
+  """The forward speed at which the task's speed factor reaches 1."""
+  return {"walker": lambda: env.move_speed, "hopper": lambda: env.hop_speed}.get(
+      env.domain, lambda: env.desired_speed)()
 
 
 def factors(env, data):
   """(forward speed, posture factor, speed factor, the reward from them) of one state, as the
-  task's `get_reward` combines them (tasks/walker.py, tasks/quadruped.py)."""
+  task's `get_reward` combines them (tasks/walker.py, tasks/quadruped.py, tasks/hopper.py)."""
+  if env.domain == "hopper":
+    target = env.hop_speed
+    speed = env.speed(data)
+    posture = tolerance(env.height(data), (0.6, 2))
+    move = tolerance(speed, bounds=(target, float("inf")), margin=target / 2,
+                     value_at_margin=0.5, sigmoid="linear")
+    return speed, posture, move, posture * move
   if env.domain == "walker":
     target = env.move_speed
     speed = env.horizontal_velocity(data)
@@ -62,7 +76,7 @@ def rollout(env, agent, key, episodes):
 
 def summary(env, reward, speed, posture, move, product) -> dict:
   half = reward.shape[0] // 2
-  target = env.move_speed if env.domain == "walker" else env.desired_speed
+  target = target_speed(env)
   return {"mean_return": float(reward.sum(0).mean()),
           "return_std": float(reward.sum(0).std()),
           "target_speed": float(target),

@@ -19,6 +19,7 @@ class Hopper(ControlSuiteTask):
   """Stand upright (hopping=False) or hop forward (hopping=True)."""
 
   domain = "hopper"
+  hop_speed = _HOP_SPEED  # the speed hop's reward asks for (m/s)
   observation_elements = (("position", 6), ("velocity", 7), ("touch", 2))
   periodic_observations = ("position[1]",)  # rooty, the torso's pitch (no joint limit)
   xml_file = "hopper.xml"
@@ -59,8 +60,8 @@ class Hopper(ControlSuiteTask):
   def get_reward(self, data, task):
     standing = tolerance(self.height(data), (_STAND_HEIGHT, 2))
     if self.hopping:
-      hopping = tolerance(self.speed(data), bounds=(_HOP_SPEED, float("inf")),
-                          margin=_HOP_SPEED / 2, value_at_margin=0.5, sigmoid="linear")
+      hopping = tolerance(self.speed(data), bounds=(self.hop_speed, float("inf")),
+                          margin=self.hop_speed / 2, value_at_margin=0.5, sigmoid="linear")
       return standing * hopping
     small_control = tolerance(data.ctrl, margin=1, value_at_margin=0, sigmoid="quadratic").mean()
     small_control = (small_control + 4) / 5

@@ -714,3 +714,18 @@ def test_form_reward_landscape_names_the_component_that_explains_each_transition
   geo = np.exp(np.log(scale).mean(-1))
   assert got["scale_median"] == pytest.approx(np.median(geo[rows, top]), rel=1e-5)
   assert got["share"] == pytest.approx([np.mean(top == i) for i in range(k)])
+
+
+def test_locomotion_speed_factors_are_hopper_hops_reward():
+  """hopper_hop: standing (torso 0.6-2 m above the foot) times the speed factor (1 at 2 m/s,
+  0.5 at 1 m/s) is the environment's reward at every step, for hopper_stand's expert rolled out
+  on hop (it stands, so the speed factor is low); target speed 2."""
+  bench = load_script("locomotion_speed", folder="benchmarks")
+  import tasks
+  from mjx_form.files import experts
+  env = tasks.make("hopper_hop")
+  agent = experts.load_expert(tasks.bundled_expert("hopper_stand"), env, any_task=True)
+  reward, speed, posture, move, product = bench.rollout(env, agent, jax.random.PRNGKey(0), 2)
+  row = bench.summary(env, reward, speed, posture, move, product)
+  assert row["max_factor_error"] <= 1e-5 and row["target_speed"] == 2.0
+  assert row["posture_factor_mean"] > 0.9 and row["speed_factor_mean"] < 0.5
