@@ -6,9 +6,9 @@ factor (dm_control: walker `stand_reward * (5 * move_reward + 1) / 6`, quadruped
 move_reward`, hopper `standing * hopping`, standing: the torso 0.6-2 m above the foot; the
 speed factor is 1 at the task's speed or faster and falls linearly below it). This rolls out
 policies (mean action, clipped) on the CPU and reports, per policy, the mean return, the
-torso's forward speed (the task's own sensor: walker's subtree linear velocity, quadruped's
-velocimeter, hopper's subtree linear velocity), the share of steps at the task's speed, and both factors' means, each over the
-second half of the episodes (the gait, not the start). It also checks that the factors'
+torso's forward speed (the task's own sensor: walker's and hopper's subtree linear velocity,
+quadruped's velocimeter), the share of steps at the task's speed, and both factors' means, each
+over the second half of the episodes (the gait, not the start). It also checks that the factors'
 product is the environment's reward, step by step. Appends `kind: locomotion_speed` records.
 
   python benchmarks/locomotion_speed.py --task walker_run --policy runs/wr/seed0/policy.npz
@@ -37,29 +37,30 @@ TASKS = ("walker_walk", "walker_run", "quadruped_walk", "quadruped_run", "hopper
 
 def target_speed(env) -> float:
   """The forward speed at which the task's speed factor reaches 1."""
-  return {"walker": lambda: env.move_speed, "hopper": lambda: env.hop_speed}.get(
-      env.domain, lambda: env.desired_speed)()
+  if env.domain == "walker":
+    return env.move_speed
+  if env.domain == "hopper":
+    return env.hop_speed
+  return env.desired_speed
 
 
 def factors(env, data):
   """(forward speed, posture factor, speed factor, the reward from them) of one state, as the
   task's `get_reward` combines them (tasks/walker.py, tasks/quadruped.py, tasks/hopper.py)."""
+  target = target_speed(env)
   if env.domain == "hopper":
-    target = env.hop_speed
     speed = env.speed(data)
     posture = tolerance(env.height(data), (0.6, 2))
     move = tolerance(speed, bounds=(target, float("inf")), margin=target / 2,
                      value_at_margin=0.5, sigmoid="linear")
     return speed, posture, move, posture * move
   if env.domain == "walker":
-    target = env.move_speed
     speed = env.horizontal_velocity(data)
     standing = tolerance(env.torso_height(data), bounds=(1.2, float("inf")), margin=0.6)
     posture = (3 * standing + (1 + env.torso_upright(data)) / 2) / 4
     move = tolerance(speed, bounds=(target, float("inf")), margin=target / 2,
                      value_at_margin=0.5, sigmoid="linear")
     return speed, posture, move, posture * (5 * move + 1) / 6
-  target = env.desired_speed
   speed = env.torso_velocity(data)[0]
   posture = tolerance(env.torso_upright(data), bounds=(1.0, float("inf")), sigmoid="linear",
                       margin=2.0, value_at_margin=0)

@@ -654,22 +654,25 @@ def test_angle_input_settings_are_checked():
   assert em.EffectModelConfig(**json.loads(json.dumps(INPUTS.to_dict()))) == INPUTS
 
 
+def _saved_demonstrator(path, config, params_of=None):
+  """(path, loaded file) of a reacher_easy-like demonstrator file saved at `path` with
+  `config`'s settings and freshly initialised parameters of `params_of` (default: `config`)."""
+  from mjx_form.files import effect_models
+  params = em.init_params(em.make_model(params_of or config, D), jax.random.PRNGKey(0))
+  meta = {"task": "reacher_easy", "observation_size": D, "observation_layout": [["x", D]],
+          "distractors": None, "config": config.to_dict(), "training": {},
+          "demonstrations": {}}
+  effect_models.save_effect_model(path, jax.device_get(params), np.zeros(D), np.ones(D), meta)
+  return str(path), effect_models.load_effect_model(path)
+
+
 def test_a_files_angle_inputs_are_kept_and_a_run_asking_otherwise_is_refused(tmp_path):
   """A demonstrator file keeps angle_inputs; read back it rebuilds its model. A run asking for
   the other setting is refused naming it, either way, as is an ensemble of both kinds and a
   file whose parameters are not an angle-inputs model's."""
-  from mjx_form.files import effect_models
   from mjx_form.imitation import pipeline
-
-  def save(name, config, params_of=None):
-    params = em.init_params(em.make_model(params_of or config, D), jax.random.PRNGKey(0))
-    meta = {"task": "reacher_easy", "observation_size": D, "observation_layout": [["x", D]],
-            "distractors": None, "config": config.to_dict(), "training": {},
-            "demonstrations": {}}
-    effect_models.save_effect_model(tmp_path / name, jax.device_get(params), np.zeros(D),
-                                    np.ones(D), meta)
-    return str(tmp_path / name), effect_models.load_effect_model(tmp_path / name)
-
+  save = lambda name, config, params_of=None: _saved_demonstrator(tmp_path / name, config,
+                                                                  params_of)
   path, file = save("inputs.npz", INPUTS)
   assert file.metadata["config"]["angle_inputs"] is True
   assert pipeline.demonstrator_from_file(file, path, {"angle_inputs": True})[0] == INPUTS
@@ -781,7 +784,6 @@ def test_max_scale_settings_are_checked_and_kept_in_files(tmp_path):
   the file's), as is an ensemble of a capped and an uncapped file; the imitator model of a FORM
   reward shares the cap."""
   from mjx_form.imitation import form
-  from mjx_form.files import effect_models
   from mjx_form.imitation import pipeline
   for bad in (0.0, 1e-4, float("inf"), float("nan"), True, "1"):
     with pytest.raises(ValueError, match="max_scale must be a number above min_scale"):
@@ -792,16 +794,7 @@ def test_max_scale_settings_are_checked_and_kept_in_files(tmp_path):
       CAPPED.to_dict())
   assert "max_scale" not in CONFIG.to_dict() and CAPPED.to_dict()["max_scale"] == 1.0
   assert em.EffectModelConfig(**json.loads(json.dumps(CAPPED.to_dict()))) == CAPPED
-
-  def save(name, config):
-    params = em.init_params(em.make_model(config, D), jax.random.PRNGKey(0))
-    meta = {"task": "reacher_easy", "observation_size": D, "observation_layout": [["x", D]],
-            "distractors": None, "config": config.to_dict(), "training": {},
-            "demonstrations": {}}
-    effect_models.save_effect_model(tmp_path / name, jax.device_get(params), np.zeros(D),
-                                    np.ones(D), meta)
-    return str(tmp_path / name), effect_models.load_effect_model(tmp_path / name)
-
+  save = lambda name, config: _saved_demonstrator(tmp_path / name, config)
   path, file = save("c.npz", CAPPED)
   assert pipeline.demonstrator_from_file(file, path, {"max_scale": 1.0})[0] == CAPPED
   assert pipeline.demonstrator_from_file(file, path, {"max_scale": None})[0] == CAPPED
