@@ -154,9 +154,11 @@ def _form_models(run, args) -> str:
   elif args.demonstrator:
     ready = [(path, pipeline.load_demonstrator(path, env)) for path in args.demonstrator]
     # (refused, as run.py refuses them, where the job's flags ask for other settings or the
-    # files of an ensemble differ in theirs)
-    config, _, _ = pipeline.ensemble(ready, explicit)
-    where = f"given, {' + '.join(args.demonstrator)}"
+    # files of an ensemble, or of the members, differ in theirs)
+    config = (pipeline.members_of if args.member_demonstrators else pipeline.ensemble)(
+        ready, explicit)[0]
+    where = (f"one per member, {', '.join(args.demonstrator)}" if args.member_demonstrators
+             else f"given, {' + '.join(args.demonstrator)}")
   elif args.train_demonstrator:
     where = "trained (--train_demonstrator)"
   else:

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import math
 import os
 import sys
 import time
@@ -49,7 +50,7 @@ from mjx_form.sim.wrappers import AutoReset  # noqa: E402
 METHODS = ("form", "expert", "random")
 # Options that only --method form reads (a user who gives one to another method is told so).
 FORM_ONLY = ("expert", "demos", "demo_episodes", "save_demos", "demonstrator",
-             "train_demonstrator", "demonstrator_seed", "beta_ar", "effect_l2", "turn_invariant",
+             "member_demonstrators", "train_demonstrator", "demonstrator_seed", "beta_ar", "effect_l2", "turn_invariant",
              "angle_increments", "angle_inputs", "effect_max_scale",
              "reward_scale", "reward_clip")
 
@@ -236,6 +237,10 @@ def parse_args(argv=None) -> argparse.Namespace:
                     "tasks/demonstrators/<task>.npz where its settings are this run's, else "
                     "one is trained); given several times, an ensemble: log pD is their "
                     "mixture's (files of one task and one setting)")
+  form.add_argument("--member_demonstrators", action="store_true",
+                    help="the --demonstrator files go one to each member of the population, in "
+                         "the members' order (--seeds, then --grid), instead of an ensemble: "
+                         "one program compares demonstrators, e.g. draws of one recipe")
   form.add_argument("--train_demonstrator", action="store_true",
                     help="train a demonstrator even where one is shipped")
   form.add_argument("--demonstrator_seed", type=int, default=None,
@@ -319,10 +324,16 @@ def parse_args(argv=None) -> argparse.Namespace:
              if getattr(args, name) != parser.get_default(name)]
     if given:
       parser.error(f"{', '.join(given)} apply to --method form only")
-  if args.resume and (args.demonstrator or args.train_demonstrator
+  if args.resume and (args.demonstrator or args.train_demonstrator or args.member_demonstrators
                       or args.demonstrator_seed is not None):
     parser.error("--resume uses the demonstrators kept in the run directory: leave out "
-                 "--demonstrator, --train_demonstrator and --demonstrator_seed")
+                 "--demonstrator, --member_demonstrators, --train_demonstrator and "
+                 "--demonstrator_seed")
+  if args.member_demonstrators:
+    members = len(args.seeds or (args.seed,)) * math.prod(len(v) for v in args.grid.values())
+    if len(args.demonstrator or ()) != members or members < 2:
+      parser.error(f"--member_demonstrators: give one --demonstrator per member (the "
+                   f"population has {members}), got {len(args.demonstrator or ())}")
   if args.demonstrator and args.train_demonstrator:
     parser.error("--demonstrator and --train_demonstrator exclude each other (a run trains "
                  "its demonstrator or uses the ones given)")
@@ -461,6 +472,7 @@ def form_source(args: argparse.Namespace, run_dir: str, results_path: str, print
       max_seconds=None if args.max_seconds is None else args.max_seconds / 2)
   artefacts = pipeline.Artefacts(
       expert=args.expert, demos=args.demos, demonstrator=tuple(args.demonstrator or ()),
+      member_demonstrators=args.member_demonstrators,
       demo_episodes=args.demo_episodes, train_demonstrator=args.train_demonstrator,
       save_demos=args.save_demos, training=training)
   return pipeline.prepare(env, config, explicit,

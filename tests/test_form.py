@@ -3,6 +3,7 @@ that never sees the task reward, and `scripts/run.py --method form` through ever
 the README's main command on (reacher_easy, small sizes; the loop runs over the 2 forced host
 devices)."""
 
+import dataclasses
 import json
 import os
 import re
@@ -144,6 +145,46 @@ def test_an_ensemble_runs_in_the_compiled_loop_on_two_devices(form_trainer):
   kept = jax.device_get(state.source.demonstrator)  # [P, K, ...]
   np.testing.assert_array_equal(kept.normalizer.mean[0], np.stack(
       [np.asarray(_demonstrator().normalizer.mean)] * 2))
+
+
+def test_demonstrators_per_member_give_each_member_its_own(form_trainer):
+  """Demonstrators per member: member i of a population (over the two devices, one member
+  each) imitates the i-th, computing what a single run with its seed and that demonstrator
+  computes; its state holds its own; its records name its own checksum and the run's name all.
+  Refused: fewer than 2, a checksum count that differs, a population of another size."""
+  demos = [_demonstrator(0), _demonstrator(3)]
+  source = FormReward(EFFECT, demos, ["sha-a", "sha-b"], member_demonstrators=True)
+  assert source.ensemble == 0 and source.members == 2
+  population = Trainer(CONFIG, mesh_lib.make_mesh(), source, seeds=(0, 1))
+  state, metrics = population.init(population.keys()), []
+  for _ in range(2):
+    state, m = population.iteration(state)
+    metrics.append(jax.device_get(m))
+  kept = jax.device_get(state.source.demonstrator)  # [P, ...]: member i's own
+  for i, d in enumerate(demos):
+    np.testing.assert_array_equal(kept.normalizer.mean[i], np.asarray(d.normalizer.mean))
+  other = Trainer(dataclasses.replace(CONFIG, seed=1), mesh_lib.make_mesh(),
+                  FormReward(EFFECT, demos[1]))
+  alone = [_iterate(form_trainer, 2)[1], _iterate(other, 2, key=1)[1]]  # seed i, demos[i]
+  for i in range(2):
+    for name in ("demonstrator_log_prob", "form_reward", "imitator_batch_log_prob",
+                 "q_online"):
+      np.testing.assert_allclose([m[name][i] for m in metrics], [m[name][0] for m in alone[i]],
+                                 rtol=1e-3, atol=1e-3, err_msg=f"member {i} {name}")
+  # (the two demonstrators score the same transitions differently, through the members' states)
+  obs = jnp.asarray(np.random.default_rng(2).normal(size=(3, 5, D)), jnp.float32)
+  scores = [np.asarray(source.log_probs(population.member(state.source, i), obs)[0])
+            for i in range(2)]
+  assert np.abs(scores[0] - scores[1]).mean() > 1.0
+  assert population.source.settings()["member_demonstrators"] == ["sha-a", "sha-b"]
+  mine = population.member_source(1).settings()
+  assert mine["demonstrator_sha256"] == "sha-b" and mine["demonstrator_per_member"] is True
+  assert "member_demonstrators" not in mine
+  with pytest.raises(ValueError, match="2 demonstrators per member for a population of 3"):
+    Trainer(CONFIG, mesh_lib.make_mesh(), source, seeds=(0, 1, 2))
+  for models, shas in (([demos[0]], ["sha-a"]), (demos, ["sha-a"]), (demos, "sha-a+sha-b")):
+    with pytest.raises(ValueError, match="demonstrators per member need 2 or more"):
+      FormReward(EFFECT, models, shas, member_demonstrators=True)
 
 
 def test_standardised_reward_uses_the_running_statistics_of_the_raw_reward():
@@ -434,9 +475,20 @@ def test_form_flags_are_refused_for_other_methods(capsys):
     with pytest.raises(SystemExit):
       cli.parse_args(argv)
     assert f"{named} apply to --method form only" in capsys.readouterr().err
+  # --member_demonstrators: one --demonstrator per member, 2 members or more
+  for argv, given, members in (
+      (["--seeds", "0,1,2", "--demonstrator", "a.npz", "--demonstrator", "b.npz"], 2, 3),
+      (["--seeds", "0,1", "--grid", "reward_clip=2,3", "--demonstrator", "a.npz"], 1, 4),
+      (["--demonstrator", "a.npz"], 1, 1), ([], 0, 1)):
+    with pytest.raises(SystemExit):
+      cli.parse_args(["--method", "form", "--member_demonstrators", *argv])
+    assert (f"--member_demonstrators: give one --demonstrator per member (the population has "
+            f"{members}), got {given}") in capsys.readouterr().err
+  assert cli.parse_args(["--method", "form", "--member_demonstrators", "--seeds", "0,1",
+                         "--demonstrator", "a.npz", "--demonstrator", "a.npz"]).demonstrator
   # --resume reads the kept demonstrators; a demonstrator flag beside it would be ignored
   for flags in (["--demonstrator", "a.npz"], ["--train_demonstrator"],
-                ["--demonstrator_seed", "1"]):
+                ["--demonstrator_seed", "1"], ["--member_demonstrators"]):
     with pytest.raises(SystemExit):
       cli.parse_args(["--resume", *flags])
     assert "--resume uses the demonstrators kept in the run directory" in (
@@ -743,6 +795,60 @@ def test_an_ensemble_of_demonstrator_files_is_checked_kept_and_resumed(tmp_path,
   (tmp_path / "leftover" / "demonstrator_1.npz").write_bytes(b"")
   with pytest.raises(Exception, match="already holds a run .*demonstrator_1.npz"):
     prepare(tmp_path / "leftover", (shipped,), resume=False)
+
+
+def test_demonstrator_files_per_member_are_checked_kept_and_resumed(tmp_path, monkeypatch):
+  """--member_demonstrators' files: refused before anything is recorded or written where two
+  were trained with other settings or fewer than 2 are given; else each is checked once on
+  the demonstrations (a file may go to several members) and kept once per member in order;
+  --resume reads them back as demonstrators per member where the run's config.json says so."""
+  from mjx_form.imitation import pipeline
+  env = tasks.make("reacher_easy")
+  config = settings.effect_model_config("reacher_easy", env)
+  shipped = tasks.bundled_demonstrator("reacher_easy")
+  former = os.path.join("benchmarks", "demonstrators", "reacher_easy_expert_d93ef5.npz")
+  file = effect_models.load_effect_model(former)
+  other = str(tmp_path / "other.npz")  # the former one's model, written as if trained at L2 1
+  meta = {k: v for k, v in file.metadata.items() if k not in ("format", "version", "sha256")}
+  effect_models.save_effect_model(other, file.params, file.mean, file.var, dict(
+      meta, config=dict(meta["config"], l2=1.0)))
+  demo_obs = np.random.default_rng(0).normal(size=(2, 201, D)).astype(np.float32)
+  recorded = []
+  def record(*args, **kwargs):
+    recorded.append(1)
+    return demo_obs, {"episodes": 2, "expert": {}}
+  monkeypatch.setattr(pipeline, "demonstrations", record)
+  prepare = lambda run_dir, paths, **kw: pipeline.prepare(
+      env, config, {}, pipeline.Artefacts(demonstrator=paths, member_demonstrators=True),
+      str(run_dir), physics="fast", seed=0, results_path=None, print_fn=lines.append, **kw)
+  for paths, message in (((former, other, former), r"other effect-model settings than .*"
+                                                   r"\(l2 1.0 against 0.1\)"),
+                         ((shipped,), "one --demonstrator file per member")):
+    lines = []
+    with pytest.raises(pipeline.PipelineError, match=message):
+      prepare(tmp_path / "refused", paths, resume=False)
+    assert not recorded and not (tmp_path / "refused").exists()
+  lines = []
+  source = prepare(tmp_path / "run", (shipped, former, shipped), resume=False)
+  shas = [effect_models.load_effect_model(p).metadata["sha256"] for p in (shipped, former)]
+  assert source.members == 3 and source.ensemble == 0
+  assert source.settings()["member_demonstrators"] == [shas[0], shas[1], shas[0]]
+  assert sum("its log-likelihood on this run's 2 demonstrations" in line for line in lines) == 2
+  for name, path in (("demonstrator.npz", shipped), ("demonstrator_1.npz", former),
+                     ("demonstrator_2.npz", shipped)):
+    assert open(tmp_path / "run" / name, "rb").read() == open(path, "rb").read()
+  (tmp_path / "run" / "config.json").write_text(json.dumps({"reward": source.settings()}))
+  resumed = prepare(tmp_path / "run", (), resume=True)
+  assert resumed.members == 3 and resumed.settings() == source.settings()
+  np.testing.assert_array_equal(resumed.demonstrator.normalizer.mean,
+                                source.demonstrator.normalizer.mean)
+  # Where config.json names no demonstrators per member, the kept files are an ensemble
+  # (refused here: one file is kept twice).
+  (tmp_path / "run" / "config.json").write_text("{}")
+  with pytest.raises(pipeline.PipelineError, match="the same demonstrator as"):
+    pipeline.prepare(env, config, {}, pipeline.Artefacts(), str(tmp_path / "run"),
+                     physics="fast", seed=0, results_path=None, print_fn=lines.append,
+                     resume=True)
 
 
 def test_effect_max_scale_flag_reaches_the_effect_models(capsys):

@@ -41,6 +41,13 @@ Demonstrators of one recipe gave reacher_hard's FORM 0.39-0.85 over four draws, 
 longer 0.01 (benchmarks/NOTES.md, sessions 42-44). A single demonstrator's parameters are kept
 as they are; an ensemble's are stacked along a leading axis of size K.
 
+Demonstrators per member (`member_demonstrators`): a population's member i imitates the i-th
+of P demonstrators (one each, not a mixture), so one program compares demonstrators, e.g. draws
+of one recipe, which set reacher_hard's FORM level far more than its seeds do (NOTES, sessions
+43-45). Every member's source state starts with the first one (`init` runs vmapped, blind to
+the member); `member_states` then puts each member's own in its state, where the reward reads
+it. `member(i)` is the source as member i's records describe it (its demonstrator's sha256).
+
 The source never sees the task reward (`needs_task_reward = False`: it is not even stored).
 """
 
@@ -88,25 +95,33 @@ class FormReward:
 
   def __init__(self, config: em.EffectModelConfig,
                demonstrator: Demonstrator | Sequence[Demonstrator],
-               demonstrator_sha256: str = "", standardise_reward: bool = False,
-               reward_clip: float = 0.0):
+               demonstrator_sha256: str | Sequence[str] = "", standardise_reward: bool = False,
+               reward_clip: float = 0.0, member_demonstrators: bool = False):
     """`demonstrator`: one, or a sequence of them (an ensemble where there are 2 or more: their
     mixture); `demonstrator_sha256` identifies the demonstrator file (an ensemble's: its files'
     sorted and joined by '+'; kept with checkpoints, so a run resumes only with the same ones);
     `standardise_reward`, `reward_clip` (in running standard deviations, 0: off): see the
-    module docstring."""
+    module docstring. `member_demonstrators`: the sequence gives a population's members one
+    each, in order (2 or more; `demonstrator_sha256` then one checksum per member)."""
     config.check()
     grid.check_value("reward_clip", reward_clip)
     models = [demonstrator] if isinstance(demonstrator, Demonstrator) else list(demonstrator)
     if not models or not all(isinstance(m, Demonstrator) for m in models):
       raise TypeError(f"FormReward takes a Demonstrator or a list of them, got {demonstrator!r}")
-    self.ensemble = len(models) if len(models) > 1 else 0  # 0: one, unstacked
-    demonstrator = stack(models) if self.ensemble else models[0]  # (refuses other shapes)
+    self.members = len(models) if member_demonstrators else 0  # 0: all members share them
+    if member_demonstrators and (len(models) < 2 or isinstance(demonstrator_sha256, str)
+                                 or len(demonstrator_sha256) != len(models)):
+      raise ValueError("demonstrators per member need 2 or more, and one sha256 each; got "
+                       f"{len(models)} and {demonstrator_sha256!r}")
+    self.ensemble = len(models) if len(models) > 1 and not self.members else 0  # 0: unstacked
+    demonstrator = stack(models) if len(models) > 1 else models[0]  # (refuses other shapes)
     self.config = config
     self.standardise_reward = bool(standardise_reward)
     self.reward_clip = float(reward_clip)
-    self.demonstrator = demonstrator  # an ensemble's leaves [K, ...]
-    self.demonstrator_sha256 = demonstrator_sha256
+    self.demonstrator = demonstrator  # an ensemble's or the members' leaves [K, ...]
+    self.demonstrator_sha256 = (tuple(demonstrator_sha256) if self.members
+                                else demonstrator_sha256)
+    self.member_index = None  # `member(i)`: whose records these settings describe
     self.observation_size = int(demonstrator.normalizer.mean.shape[-1])
     self.model = em.make_model(config, self.observation_size)
 
@@ -121,13 +136,34 @@ class FormReward:
       setattr(source, name, value)
     return source
 
+  def member(self, i: int) -> "FormReward":
+    """The source as member i of a population describes it (with demonstrators per member:
+    its own demonstrator's sha256; else this source)."""
+    if not self.members:
+      return self
+    source = copy.copy(self)
+    source.member_index = i
+    return source
+
   def init(self, key: jax.Array, observation_size: int, action_size: int) -> FormState:
     del action_size
     if observation_size != self.observation_size:
       raise ValueError(f"the demonstrator models {self.observation_size}-dimensional "
                        f"observations, the task has {observation_size}")
     demonstrator = jax.tree.map(jnp.asarray, self.demonstrator)
+    if self.members:  # the first member's, until `member_states`
+      demonstrator = jax.tree.map(lambda x: x[0], demonstrator)
     return FormState(demonstrator, em.init(self.model, self.config, key), normalizer.init(1))
+
+  def member_states(self, states: FormState, members: int) -> FormState:
+    """A population's source states [P, ...] (from `init`, vmapped) with each member's own
+    demonstrator (unchanged where the members share them)."""
+    if not self.members:
+      return states
+    if members != self.members:
+      raise ValueError(f"{self.members} demonstrators per member for a population of "
+                       f"{members} members")
+    return states._replace(demonstrator=jax.tree.map(jnp.asarray, self.demonstrator))
 
   def update(self, state: FormState, batch: dict, key: jax.Array) -> tuple[FormState, dict]:
     """One imitator step on the batch, then the batch's rewards (under the new imitator) are
@@ -143,9 +179,15 @@ class FormReward:
     return state._replace(reward=reward), metrics
 
   def settings(self) -> dict:
-    return {"effect_model": self.config.to_dict(),
-            "demonstrator_sha256": self.demonstrator_sha256,
-            **({"demonstrators": self.ensemble} if self.ensemble else {}),
+    if not self.members:
+      demonstrators = {"demonstrator_sha256": self.demonstrator_sha256,
+                       **({"demonstrators": self.ensemble} if self.ensemble else {})}
+    elif self.member_index is None:  # the run's: every member's
+      demonstrators = {"member_demonstrators": list(self.demonstrator_sha256)}
+    else:  # member i's records: its own, and that the members had their own
+      demonstrators = {"demonstrator_sha256": self.demonstrator_sha256[self.member_index],
+                       "demonstrator_per_member": True}
+    return {"effect_model": self.config.to_dict(), **demonstrators,
             "standardise_reward": self.standardise_reward, "reward_clip": self.reward_clip}
 
   def clip_tail(self, stats: normalizer.NormalizerState, raw: jax.Array) -> jax.Array:

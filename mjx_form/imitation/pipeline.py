@@ -13,7 +13,8 @@ Stages, each of which can also start from a saved artefact:
   3. imitation: MPO + Retrace on the FORM reward (mjx_form.imitation.form), never the task
      reward, in the compiled loop of mjx_form.rl.train, run by mjx_form.rl.runner.
 The demonstrator a run imitates is kept in its run directory (demonstrator.npz; an ensemble's
-others as demonstrator_1.npz, ...), so `--resume` needs nothing else. A missing or mismatched
+others, or the other members' with demonstrators per member, as demonstrator_1.npz, ...), so
+`--resume` needs nothing else. A missing or mismatched
 artefact raises PipelineError naming the file and the problem, before anything is written.
 """
 
@@ -21,6 +22,7 @@ from __future__ import annotations
 
 import dataclasses
 import glob
+import json
 import os
 import shutil
 from typing import Callable
@@ -53,6 +55,7 @@ class Artefacts:
   expert: str | None = None  # policy file
   demos: str | None = None  # demonstration file
   demonstrator: tuple[str, ...] = ()  # effect-model files (2 or more: an ensemble)
+  member_demonstrators: bool = False  # the files go one to each member, not to a mixture
   demo_episodes: int | None = None  # None: 1000 to train a demonstrator, 16 to check one
   train_demonstrator: bool = False  # train even where one is shipped
   save_demos: str | None = None  # also write the recorded demonstrations here
@@ -121,14 +124,21 @@ def prepare(env, config: em.EffectModelConfig, explicit: dict, artefacts: Artefa
       os.path.basename(p) for p in glob.glob(os.path.join(run_dir, "demonstrator_*.npz")))))
   reward = reward or {}
   kept = os.path.join(run_dir, DEMONSTRATOR_FILE)
-  if resume:
+  if resume:  # (demonstrators per member where the run was started with them)
     paths = kept_paths(run_dir)
     if not paths:
       raise PipelineError(f"--resume: {run_dir} holds no {DEMONSTRATOR_FILE}")
-    config, demonstrators, sha256 = ensemble([(p, load_demonstrator(p, env)) for p in paths],
-                                             explicit)
+    ready = [(p, load_demonstrator(p, env)) for p in paths]
+    if "member_demonstrators" in _stored_reward(run_dir):  # (what the run was started with)
+      config, demonstrators, sha256 = members_of(ready, explicit)
+      return FormReward(config, demonstrators, sha256, member_demonstrators=True, **reward)
+    config, demonstrators, sha256 = ensemble(ready, explicit)
     return FormReward(config, demonstrators, sha256, **reward)
 
+  per_member = artefacts.member_demonstrators
+  if per_member and len(given) < 2:
+    raise PipelineError("demonstrators per member: give one --demonstrator file per member "
+                        f"(2 or more), got {len(given)}")
   ready: list[tuple[str, effect_models.EffectModelFile]] = []  # (path, file)
   if given:
     ready = [(path, load_demonstrator(path, env)) for path in given]
@@ -139,7 +149,7 @@ def prepare(env, config: em.EffectModelConfig, explicit: dict, artefacts: Artefa
     elif file is not None:
       print_fn(why + "; training one with this run's")
   if ready:  # ready demonstrators: refused, if they do not fit, before recording
-    config, demonstrators, sha256 = ensemble(ready, explicit)
+    config, demonstrators, sha256 = (members_of if per_member else ensemble)(ready, explicit)
   episodes = artefacts.demo_episodes or (DEFAULT_CHECK_EPISODES if ready
                                          else DEFAULT_TRAINING_EPISODES)
   can_record = artefacts.demos is not None or artefacts.expert is not None or (
@@ -157,7 +167,11 @@ def prepare(env, config: em.EffectModelConfig, explicit: dict, artefacts: Artefa
     return FormReward(*demonstrator_from_file(file, kept, explicit), file.metadata["sha256"],
                       **reward)
 
+  checked = set()
   for (path, file), demonstrator in zip(ready, demonstrators):
+    if file.metadata["sha256"] in checked:  # (a file given to several members)
+      continue
+    checked.add(file.metadata["sha256"])
     print_fn(f"demonstrator {path}: best of {file.metadata['training'].get('steps')} training "
              f"steps at step {file.metadata['training'].get('best_step')}, held-out "
              f"log-likelihood by offset {file.metadata['training'].get('heldout_log_likelihood')}")
@@ -173,9 +187,19 @@ def prepare(env, config: em.EffectModelConfig, explicit: dict, artefacts: Artefa
   os.makedirs(run_dir, exist_ok=True)
   for i, (path, _) in enumerate(ready):  # (after every check: no partial run directory)
     shutil.copyfile(path, os.path.join(run_dir, kept_name(i)))
+  if per_member:
+    print_fn("demonstrators per member, in the members' order: " + ", ".join(
+        f"{path} ({sha[:6]})" for (path, _), sha in zip(ready, sha256)))
+    return FormReward(config, demonstrators, sha256, member_demonstrators=True, **reward)
   if len(ready) > 1:
     print_fn(f"an ensemble of {len(ready)} demonstrators: log pD is their mixture's")
   return FormReward(config, demonstrators, sha256, **reward)
+
+
+def _stored_reward(run_dir: str) -> dict:
+  """The reward settings a run directory's config.json holds ({} where it names none)."""
+  with open(os.path.join(run_dir, "config.json")) as f:
+    return json.load(f).get("reward") or {}
 
 
 def kept_paths(run_dir: str) -> list[str]:
@@ -203,6 +227,21 @@ def ensemble(ready: list[tuple[str, effect_models.EffectModelFile]], explicit: d
   """The shared settings, the models and the identity of one demonstrator or an ensemble of
   them; refused where one does not fit, where two were trained with other settings (the
   imitator model shares them) and where one file is given twice."""
+  config, models = _shared_settings(ready, explicit, "an ensemble's demonstrators")
+  checksums = [file.metadata["sha256"] for _, file in ready]
+  for i, sha in enumerate(checksums):
+    if sha in checksums[:i]:
+      path, earlier = ready[i][0], ready[checksums.index(sha)][0]
+      what = "given twice" if path == earlier else f"the same demonstrator as {earlier}"
+      raise PipelineError(f"{path}: {what} (an ensemble's demonstrators must differ)")
+  return config, models, ensemble_sha256(checksums)
+
+
+def _shared_settings(ready: list[tuple[str, effect_models.EffectModelFile]],
+                     explicit: dict | None, whose: str
+                     ) -> tuple[em.EffectModelConfig, list[Demonstrator]]:
+  """The one effect-model setting of several demonstrator files and their models; refused
+  where one does not fit or two were trained with other settings (`whose` share one)."""
   models = [demonstrator_from_file(file, path, explicit) for path, file in ready]
   (first, _), config = ready[0], models[0][0]
   for (path, _), (other, _) in zip(ready[1:], models[1:]):
@@ -212,14 +251,17 @@ def ensemble(ready: list[tuple[str, effect_models.EffectModelFile]], explicit: d
     if differ:
       raise PipelineError(f"{path}: trained with other effect-model settings than {first} ("
                           + ", ".join(f"{k} {a} against {b}" for k, (a, b) in differ.items())
-                          + "): an ensemble's demonstrators share one setting")
-  checksums = [file.metadata["sha256"] for _, file in ready]
-  for i, sha in enumerate(checksums):
-    if sha in checksums[:i]:
-      path, earlier = ready[i][0], ready[checksums.index(sha)][0]
-      what = "given twice" if path == earlier else f"the same demonstrator as {earlier}"
-      raise PipelineError(f"{path}: {what} (an ensemble's demonstrators must differ)")
-  return config, [d for _, d in models], ensemble_sha256(checksums)
+                          + f"): {whose} share one setting")
+  return config, [d for _, d in models]
+
+
+def members_of(ready: list[tuple[str, effect_models.EffectModelFile]], explicit: dict | None
+               ) -> tuple[em.EffectModelConfig, list[Demonstrator], list[str]]:
+  """The shared settings, the models and the checksums of demonstrators per member, in order;
+  refused where one does not fit or where two were trained with other settings (the members
+  share one imitator model architecture). A file may go to several members."""
+  config, models = _shared_settings(ready, explicit, "a population's demonstrators")
+  return config, models, [file.metadata["sha256"] for _, file in ready]
 
 
 def shipped_demonstrator(env, config: em.EffectModelConfig

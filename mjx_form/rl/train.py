@@ -301,8 +301,10 @@ class Trainer:
                                learner=grid.learner_config(self.config.learner, learner_values))
 
   def member_source(self, i: int):
-    """Member i's reward source (its overrides of the source's settings applied)."""
-    return self._source_with(grid.split(self.overrides[i])[2])
+    """Member i's reward source (its overrides of the source's settings applied; a source with
+    something of its own per member, e.g. FORM's demonstrators, as member i)."""
+    source = self._source_with(grid.split(self.overrides[i])[2])
+    return source.member(i) if hasattr(source, "member") else source
 
   def _source_with(self, values: dict):
     """The reward source with `values` (Python, or a member's traced ones) for its settings."""
@@ -368,6 +370,9 @@ class Trainer:
   def _init(self, keys: jax.Array) -> TrainState:
     """Fresh members from their keys [P, 2] (`keys()`)."""
     members, env_keys, start = jax.vmap(self._init_member)(keys)
+    if hasattr(self.source, "member_states"):  # what the source gives each member of its own
+      members = members._replace(source=self.source.member_states(members.source,
+                                                                  self.members))
     wraps = [self.member_config(i).wrap_angles for i in range(self.members)]
     if any(wraps):  # each member's period [P, D]; zeros in a member that wraps nothing
       period = jnp.asarray(self.env.observation_period(), jnp.float32)
