@@ -150,7 +150,8 @@ def _form_models(run, args) -> str:
   if args.resume:
     where = "the one kept in its run directory (--resume)"
   elif args.demonstrator and not all(map(os.path.exists, args.demonstrator)):
-    where = f"given, {' + '.join(args.demonstrator)} (not all here to check)"
+    where = (f"one per member, {', '.join(args.demonstrator)}" if args.member_demonstrators
+             else f"given, {' + '.join(args.demonstrator)}") + " (not all here to check)"
   elif args.demonstrator:
     ready = [(path, pipeline.load_demonstrator(path, env)) for path in args.demonstrator]
     # (refused, as run.py refuses them, where the job's flags ask for other settings or the
@@ -165,7 +166,10 @@ def _form_models(run, args) -> str:
     path, file, _ = pipeline.shipped_demonstrator(env, config)
     where = ("shipped" if path else "trained (the shipped one has other settings)" if file
              else "trained (none shipped)")
-  if where.startswith("trained"):
+  if where.startswith("trained") and args.member_demonstrators:
+    first = run.demonstrator_seed_of(args)
+    where += f", one draw per member, seeds {first}-{first + run.members_of(args) - 1}"
+  elif where.startswith("trained"):
     where += f", seed {run.demonstrator_seed_of(args)}"
   return (f"effect models beta_ar {config.beta_ar:g}, L2 {config.l2:g}, width {config.width}"
           f"{', turn-invariant' if config.period else ''}"

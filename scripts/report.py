@@ -577,8 +577,9 @@ def _form_variant(record: dict) -> str:
     regularisers.append(f"scales below {model['max_scale']:g} sd")
   if settings.get("reward", {}).get("demonstrators"):
     regularisers.append(f"ensemble of {settings['reward']['demonstrators']} demonstrators")
-  if settings.get("reward", {}).get("demonstrator_per_member"):
-    regularisers.append("a demonstrator per member")
+  if settings.get("reward", {}).get("demonstrator_per_member"):  # (one row per demonstrator)
+    regularisers.append(f"demonstrator {settings['reward']['demonstrator_sha256'][:6]} of one "
+                        "per member")
   return ", ".join([reward, f"T {period}", *regularisers,
                     *_learner_notes(record, with_period=False)])
 

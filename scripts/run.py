@@ -50,9 +50,9 @@ from mjx_form.sim.wrappers import AutoReset  # noqa: E402
 METHODS = ("form", "expert", "random")
 # Options that only --method form reads (a user who gives one to another method is told so).
 FORM_ONLY = ("expert", "demos", "demo_episodes", "save_demos", "demonstrator",
-             "member_demonstrators", "train_demonstrator", "demonstrator_seed", "beta_ar", "effect_l2", "turn_invariant",
-             "angle_increments", "angle_inputs", "effect_max_scale",
-             "reward_scale", "reward_clip")
+             "member_demonstrators", "train_demonstrator", "demonstrator_seed", "beta_ar",
+             "effect_l2", "turn_invariant", "angle_increments", "angle_inputs",
+             "effect_max_scale", "reward_scale", "reward_clip")
 
 DEFAULT_COMPILATION_CACHE = os.path.join(
     os.environ.get("XDG_CACHE_HOME", os.path.expanduser("~/.cache")), "mjx_form", "jax")
@@ -239,8 +239,12 @@ def parse_args(argv=None) -> argparse.Namespace:
                     "mixture's (files of one task and one setting)")
   form.add_argument("--member_demonstrators", action="store_true",
                     help="the --demonstrator files go one to each member of the population, in "
-                         "the members' order (--seeds, then --grid), instead of an ensemble: "
-                         "one program compares demonstrators, e.g. draws of one recipe")
+                         "the members' order (seeds outermost: seed 0 with each --grid value, then "
+                         "seed 1, ...), instead of an ensemble: "
+                         "one program compares demonstrators, e.g. draws of one recipe; with "
+                         "--train_demonstrator, one draw per member is trained (seeds "
+                         "--demonstrator_seed + 0, 1, ...; the draws side by side in one "
+                         "program, on the same demonstrations)")
   form.add_argument("--train_demonstrator", action="store_true",
                     help="train a demonstrator even where one is shipped")
   form.add_argument("--demonstrator_seed", type=int, default=None,
@@ -330,8 +334,11 @@ def parse_args(argv=None) -> argparse.Namespace:
                  "--demonstrator, --member_demonstrators, --train_demonstrator and "
                  "--demonstrator_seed")
   if args.member_demonstrators:
-    members = len(args.seeds or (args.seed,)) * math.prod(len(v) for v in args.grid.values())
-    if len(args.demonstrator or ()) != members or members < 2:
+    members = members_of(args)
+    if args.train_demonstrator and members < 2:
+      parser.error(f"--member_demonstrators --train_demonstrator: a draw per member needs a "
+                   f"population of 2 or more (--seeds), got {members}")
+    if not args.train_demonstrator and (len(args.demonstrator or ()) != members or members < 2):
       parser.error(f"--member_demonstrators: give one --demonstrator per member (the "
                    f"population has {members}), got {len(args.demonstrator or ())}")
   if args.demonstrator and args.train_demonstrator:
@@ -455,6 +462,11 @@ def effect_model_settings(args: argparse.Namespace, env):
   return explicit, config
 
 
+def members_of(args: argparse.Namespace) -> int:
+  """How many members the run's population has (--seeds times the --grid's combinations)."""
+  return len(args.seeds or (args.seed,)) * math.prod(len(v) for v in args.grid.values())
+
+
 def demonstrator_seed_of(args: argparse.Namespace) -> int:
   """The seed of a FORM run's recorded demonstrations and trained demonstrator."""
   return args.seed if args.demonstrator_seed is None else args.demonstrator_seed
@@ -473,6 +485,8 @@ def form_source(args: argparse.Namespace, run_dir: str, results_path: str, print
   artefacts = pipeline.Artefacts(
       expert=args.expert, demos=args.demos, demonstrator=tuple(args.demonstrator or ()),
       member_demonstrators=args.member_demonstrators,
+      draw_seeds=(tuple(demonstrator_seed + i for i in range(members_of(args)))
+                  if args.member_demonstrators and args.train_demonstrator else ()),
       demo_episodes=args.demo_episodes, train_demonstrator=args.train_demonstrator,
       save_demos=args.save_demos, training=training)
   return pipeline.prepare(env, config, explicit,

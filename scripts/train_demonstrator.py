@@ -8,9 +8,13 @@
 Demonstrations are recorded from the expert (shipped, or --expert) on the device, or read from
 --demos. With several values of --beta_ar / --effect_l2, every combination is trained on the
 same demonstrations and written to the folder --out as <task>_ar<beta_ar>_l2<l2>.npz (with
-`_turn` before `.npz` for turn-invariant models: reacher_hard's by default). Each
-training appends a `kind: effect_model` record (held-out log-likelihood per offset, steps,
-the held-out curve) to --results.
+`_turn` before `.npz` for turn-invariant models: reacher_hard's by default). With several
+--seeds (one setting), draws of those seeds are trained side by side in one program on the
+same demonstrations (recorded with the first seed) and written to the folder --out as
+<task>_seed<s>.npz. Each training appends a `kind: effect_model` record (held-out
+log-likelihood per offset, steps, the held-out curve) to --results.
+
+  python scripts/train_demonstrator.py --task reacher_hard --seeds 0,1,2,3,4,5 --out runs/draws/
 """
 
 from __future__ import annotations
@@ -73,11 +77,21 @@ def main(argv=None) -> int:
   parser.add_argument("--max_seconds", type=float, default=None,
                       help="time budget of each training")
   parser.add_argument("--seed", type=int, default=0)
+  parser.add_argument("--seeds", default=None,
+                      help="comma-separated seeds: draws trained side by side (one setting)")
   parser.add_argument("--results", default=None, help="append kind=effect_model records here")
   args = parser.parse_args(argv)
   if args.task not in tasks.TASKS:
     parser.error(f"unknown task {args.task!r}; valid tasks: {', '.join(tasks.TASKS)}")
   grid = list(itertools.product(args.beta_ar or [None], args.effect_l2 or [None]))
+  try:
+    seeds = [int(v) for v in args.seeds.split(",")] if args.seeds else [args.seed]
+  except ValueError:
+    parser.error(f"--seeds: expected comma-separated integers, got {args.seeds!r}")
+  if len(set(seeds)) != len(seeds):
+    parser.error(f"--seeds must be distinct, got {args.seeds!r}")
+  if len(seeds) > 1 and len(grid) > 1:
+    parser.error("--seeds trains draws of one setting: give one --beta_ar and one --effect_l2")
   env = tasks.make(args.task, physics=args.physics)
   try:
     period = settings.turn_period(env, args.turn_invariant)
@@ -89,7 +103,9 @@ def main(argv=None) -> int:
                for b, l in grid]
   except ValueError as e:
     parser.error(str(e))
-  outs = [args.out] if len(grid) == 1 else [
+  outs = [args.out] if len(grid) == 1 and len(seeds) == 1 else [
+      os.path.join(args.out, f"{args.task}_seed{seed}.npz") for seed in seeds] if len(
+          seeds) > 1 else [
       os.path.join(args.out, f"{args.task}_ar{c.beta_ar:g}_l2{c.l2:g}"
                              f"{'_turn' if c.period else ''}"
                              f"{'_increments' if c.angle_increments else ''}"
@@ -105,12 +121,20 @@ def main(argv=None) -> int:
     training = demonstrator.DemonstratorTraining(
         max_steps=args.max_steps, batch_size=args.batch_size, window=args.window,
         eval_every=args.eval_every, patience=args.patience, smoothing=args.smoothing,
-        seed=args.seed,
+        seed=seeds[0],
         max_seconds=args.max_seconds)
     artefacts = pipeline.Artefacts(expert=args.expert, demos=args.demos)
-    obs, info = pipeline.demonstrations(env, artefacts, args.episodes, args.physics, args.seed,
+    obs, info = pipeline.demonstrations(env, artefacts, args.episodes, args.physics, seeds[0],
                                         say)
     training.check(len(obs), obs.shape[1] - 1)
+    if len(seeds) > 1:
+      os.makedirs(args.out, exist_ok=True)
+      files = pipeline.train_demonstrators(env, configs[0], obs, info, training, args.physics,
+                                           tuple(seeds), args.results, say, outs)
+      for seed, file in zip(seeds, files):
+        say(f"seed {seed}: held-out log-likelihood by offset: "
+            f"{file.metadata['training']['heldout_log_likelihood']}")
+      return 0
     for config, out in zip(configs, outs):
       say(f"training with beta_ar={config.beta_ar}, l2={config.l2} -> {out}")
       os.makedirs(os.path.dirname(os.path.abspath(out)), exist_ok=True)

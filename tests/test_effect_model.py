@@ -200,6 +200,34 @@ def test_demonstrator_learns_a_linear_system_and_keeps_its_best_step():
   assert any("out of time" in line for line in lines)
 
 
+def test_demonstrator_draws_side_by_side_are_the_draws_alone():
+  """Draws of several seeds trained in one program: each draw's report (its curve, where and
+  why it stopped, its best step) and best parameters are those of the draw trained alone, each
+  stopping on its own patience (1 evaluation without a new best, unsmoothed: the draws stop
+  at different steps here); repeated seeds are refused."""
+  rng = np.random.default_rng(7)
+  x = rng.normal(size=(6, 41, D)).astype(np.float32).cumsum(axis=1) * 0.1
+  config = dataclasses.replace(CONFIG, width=16, learning_rate=3e-3)
+  training = demonstrator.DemonstratorTraining(max_steps=400, batch_size=8, window=10,
+                                               eval_every=25, patience=1, smoothing=1,
+                                               heldout_fraction=0.2)
+  together = demonstrator.train_draws(x, config, training, (0, 1), print_fn=lambda _: None)
+  for seed, (state, report) in zip((0, 1), together):
+    alone_state, alone = demonstrator.train(x, config, dataclasses.replace(training, seed=seed),
+                                            print_fn=lambda _: None)
+    assert (report["steps"], report["best_step"], report["stopped_by"]) == (
+        alone["steps"], alone["best_step"], alone["stopped_by"]), (seed, report, alone)
+    np.testing.assert_allclose([c["heldout_log_likelihood"] for c in report["curve"]],
+                               [c["heldout_log_likelihood"] for c in alone["curve"]],
+                               rtol=1e-4, atol=1e-3)
+    for a, b in zip(jax.tree.leaves(state.params), jax.tree.leaves(alone_state.params)):
+      np.testing.assert_allclose(a, b, rtol=1e-4, atol=1e-5)
+  assert together[0][1]["steps"] != together[1][1]["steps"]  # (each its own stop)
+  assert all(r["stopped_by"] == "patience" for _, r in together)
+  with pytest.raises(ValueError, match="distinct seeds"):
+    demonstrator.train_draws(x, config, training, (3, 3))
+
+
 def test_evaluations_since_best_smooths_the_held_out_curve():
   """Counted on the running mean of the last `smoothing` evaluations (fewer at the start):
   by hand, [1, 3, 2, 2.5, 2.2] has running means [1, 3, 2, 2.5, 2.2] (1), [1, 2, 2.5, 2.25,
@@ -414,6 +442,24 @@ def test_train_demonstrator_script_trains_a_grid_and_refuses_bad_input(tmp_path,
   config = effect_models.load_effect_model(tmp_path / "plain.npz",
                                            task="reacher_hard").metadata["config"]
   assert "period" not in config
+  # --seeds: draws of one setting side by side, one file and one record each, named by seed
+  draws, records = tmp_path / "draws", tmp_path / "draws.jsonl"
+  assert script.main([*args, "--seeds", "3,7", "--out", str(draws),
+                      "--results", str(records)]) == 0
+  assert sorted(p.name for p in draws.iterdir()) == ["reacher_easy_seed3.npz",
+                                                      "reacher_easy_seed7.npz"]
+  metas = [effect_models.load_effect_model(draws / f"reacher_easy_seed{s}.npz").metadata
+           for s in (3, 7)]
+  assert [m["training"]["seed"] for m in metas] == [3, 7]
+  assert metas[0]["sha256"] != metas[1]["sha256"]
+  assert [json.loads(line)["seed"] for line in open(records)] == [3, 7]
+  for bad, said in ((["--seeds", "3,3"], "must be distinct"),
+                    (["--seeds", "3,x"], "comma-separated integers"),
+                    (["--seeds", "3,7", "--beta_ar", "0.1,1"], "one setting")):
+    with pytest.raises(SystemExit):
+      script.main([*args, *bad, "--out", str(tmp_path / "bad")])
+    assert said in capsys.readouterr().err
+  assert not (tmp_path / "bad").exists()
 
 
 # --- angle increments ---------------------------------------------------------------------

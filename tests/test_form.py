@@ -154,7 +154,7 @@ def test_demonstrators_per_member_give_each_member_its_own(form_trainer):
   Refused: fewer than 2, a checksum count that differs, a population of another size."""
   demos = [_demonstrator(0), _demonstrator(3)]
   source = FormReward(EFFECT, demos, ["sha-a", "sha-b"], member_demonstrators=True)
-  assert source.ensemble == 0 and source.members == 2
+  assert source.ensemble == 0 and source.per_member == 2
   population = Trainer(CONFIG, mesh_lib.make_mesh(), source, seeds=(0, 1))
   state, metrics = population.init(population.keys()), []
   for _ in range(2):
@@ -478,7 +478,7 @@ def test_form_flags_are_refused_for_other_methods(capsys):
   # --member_demonstrators: one --demonstrator per member, 2 members or more
   for argv, given, members in (
       (["--seeds", "0,1,2", "--demonstrator", "a.npz", "--demonstrator", "b.npz"], 2, 3),
-      (["--seeds", "0,1", "--grid", "reward_clip=2,3", "--demonstrator", "a.npz"], 1, 4),
+      (["--seeds", "0,1", "--grid", "reward_clip=2,3,4", "--demonstrator", "a.npz"], 1, 6),
       (["--demonstrator", "a.npz"], 1, 1), ([], 0, 1)):
     with pytest.raises(SystemExit):
       cli.parse_args(["--method", "form", "--member_demonstrators", *argv])
@@ -486,6 +486,13 @@ def test_form_flags_are_refused_for_other_methods(capsys):
             f"{members}), got {given}") in capsys.readouterr().err
   assert cli.parse_args(["--method", "form", "--member_demonstrators", "--seeds", "0,1",
                          "--demonstrator", "a.npz", "--demonstrator", "a.npz"]).demonstrator
+  with pytest.raises(SystemExit):  # a draw per member: a population
+    cli.parse_args(["--method", "form", "--member_demonstrators", "--train_demonstrator"])
+  assert "a draw per member needs a population of 2 or more (--seeds), got 1" in (
+      capsys.readouterr().err)
+  drawn = cli.parse_args(["--method", "form", "--member_demonstrators", "--train_demonstrator",
+                          "--seeds", "0,1,2"])
+  assert drawn.train_demonstrator and cli.members_of(drawn) == 3
   # --resume reads the kept demonstrators; a demonstrator flag beside it would be ignored
   for flags in (["--demonstrator", "a.npz"], ["--train_demonstrator"],
                 ["--demonstrator_seed", "1"], ["--member_demonstrators"]):
@@ -831,7 +838,7 @@ def test_demonstrator_files_per_member_are_checked_kept_and_resumed(tmp_path, mo
   lines = []
   source = prepare(tmp_path / "run", (shipped, former, shipped), resume=False)
   shas = [effect_models.load_effect_model(p).metadata["sha256"] for p in (shipped, former)]
-  assert source.members == 3 and source.ensemble == 0
+  assert source.per_member == 3 and source.ensemble == 0
   assert source.settings()["member_demonstrators"] == [shas[0], shas[1], shas[0]]
   assert sum("its log-likelihood on this run's 2 demonstrations" in line for line in lines) == 2
   for name, path in (("demonstrator.npz", shipped), ("demonstrator_1.npz", former),
@@ -839,9 +846,19 @@ def test_demonstrator_files_per_member_are_checked_kept_and_resumed(tmp_path, mo
     assert open(tmp_path / "run" / name, "rb").read() == open(path, "rb").read()
   (tmp_path / "run" / "config.json").write_text(json.dumps({"reward": source.settings()}))
   resumed = prepare(tmp_path / "run", (), resume=True)
-  assert resumed.members == 3 and resumed.settings() == source.settings()
+  assert resumed.per_member == 3 and resumed.settings() == source.settings()
   np.testing.assert_array_equal(resumed.demonstrator.normalizer.mean,
                                 source.demonstrator.normalizer.mean)
+  # Kept files that are not the ones config.json lists: named, nothing resumed.
+  second = (tmp_path / "run" / "demonstrator_1.npz").read_bytes()
+  (tmp_path / "run" / "demonstrator_1.npz").write_bytes(open(shipped, "rb").read())
+  with pytest.raises(pipeline.PipelineError, match="demonstrator_1.npz is not member 1's"):
+    prepare(tmp_path / "run", (), resume=True)
+  (tmp_path / "run" / "demonstrator_1.npz").write_bytes(second)
+  (tmp_path / "run" / "demonstrator_2.npz").rename(tmp_path / "third.npz")
+  with pytest.raises(pipeline.PipelineError, match="demonstrator_2.npz is missing"):
+    prepare(tmp_path / "run", (), resume=True)
+  (tmp_path / "third.npz").rename(tmp_path / "run" / "demonstrator_2.npz")
   # Where config.json names no demonstrators per member, the kept files are an ensemble
   # (refused here: one file is kept twice).
   (tmp_path / "run" / "config.json").write_text("{}")
@@ -849,6 +866,45 @@ def test_demonstrator_files_per_member_are_checked_kept_and_resumed(tmp_path, mo
     pipeline.prepare(env, config, {}, pipeline.Artefacts(), str(tmp_path / "run"),
                      physics="fast", seed=0, results_path=None, print_fn=lines.append,
                      resume=True)
+
+
+def test_demonstrator_draws_per_member_are_trained_side_by_side_and_kept(tmp_path,
+                                                                         monkeypatch):
+  """--member_demonstrators --train_demonstrator: one draw per member, of the given seeds, on
+  the same demonstrations, trained in one program; each kept in the run directory in order,
+  with its record (its seed) and its checksum as its member's; fewer than 2 seeds, or a seed
+  twice, refused before anything is recorded or written."""
+  from mjx_form.imitation import demonstrator, pipeline
+  env = tasks.make("reacher_easy")
+  config = em.EffectModelConfig(width=16)
+  demo_obs = np.random.default_rng(0).normal(size=(3, 201, D)).astype(np.float32)
+  recorded = []
+  def record(*args, **kwargs):
+    recorded.append(1)
+    return demo_obs, {"episodes": 3, "expert": {}}
+  monkeypatch.setattr(pipeline, "demonstrations", record)
+  training = demonstrator.DemonstratorTraining(max_steps=20, batch_size=4, window=20,
+                                               eval_every=10, heldout_fraction=0.34)
+  lines, curve = [], str(tmp_path / "curve.jsonl")
+  prepare = lambda run_dir, seeds: pipeline.prepare(
+      env, config, {}, pipeline.Artefacts(train_demonstrator=True, member_demonstrators=True,
+                                          draw_seeds=seeds, training=training),
+      str(run_dir), resume=False, physics="fast", seed=0, results_path=curve,
+      print_fn=lines.append)
+  for seeds in ((4,), (4, 4)):
+    with pytest.raises(pipeline.PipelineError, match="2 or more distinct draw seeds"):
+      prepare(tmp_path / "refused", seeds)
+    assert not recorded and not (tmp_path / "refused").exists()
+  source = prepare(tmp_path / "run", (4, 5))
+  assert recorded == [1] and source.per_member == 2
+  files = [effect_models.load_effect_model(str(tmp_path / "run" / name))
+           for name in ("demonstrator.npz", "demonstrator_1.npz")]
+  assert [f.metadata["training"]["seed"] for f in files] == [4, 5]
+  assert source.settings()["member_demonstrators"] == [f.metadata["sha256"] for f in files]
+  assert files[0].metadata["sha256"] != files[1].metadata["sha256"]
+  kept = [r for r in results.read_records(curve) if r["kind"] == "effect_model"]
+  assert [(r["seed"], r["settings"]["seed"]) for r in kept] == [(4, 4), (5, 5)]
+  assert any("2 draws side by side (seeds 4, 5)" in line for line in lines)
 
 
 def test_effect_max_scale_flag_reaches_the_effect_models(capsys):

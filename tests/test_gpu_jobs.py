@@ -198,12 +198,14 @@ def test_check_parses_run_jobs_as_run_does_and_names_a_bad_one(tmp_path, capsys)
       "fp: python scripts/run.py --task reacher_hard --method form --seeds 0,1 "
       "--member_demonstrators --demonstrator tasks/demonstrators/reacher_hard.npz "
       "--demonstrator benchmarks/demonstrators/reacher_hard_expert_64be96_200k_ee291e.npz\n"
+      "ft: python scripts/run.py --task reacher_hard --method form --seeds 0,1,2 "
+      "--member_demonstrators --train_demonstrator --demonstrator_seed 4\n"
       "ls: ls -la $RES\n")
   assert gpu_jobs.main(["check", str(jobs), "--deadline", "900"]) == 0
   out = [line for line in capsys.readouterr().out.splitlines()  # (not MuJoCo's import notes)
          if line.startswith(("rx:", "fx:", "fc:", "fl:", "fw:", "fd:", "fe:", "fm:", "fp:",
-                             "ls:"))]
-  assert len(out) == 10 and out[0].startswith(
+                             "ft:", "ls:"))]
+  assert len(out) == 11 and out[0].startswith(
       "rx: reacher_hard expert, seeds 0,1; grid target_update_period=25,100")
   for part in ("512 envs x 256 updates (replay ratio 32)", "T 25", "action penalty True",
                "max seconds 900.0"):  # reacher_hard's recipe, the flags, $LEFT
@@ -226,7 +228,9 @@ def test_check_parses_run_jobs_as_run_does_and_names_a_bad_one(tmp_path, capsys)
           "here to check)") in out[7], out
   assert ("turn-invariant; demonstrator one per member, tasks/demonstrators/reacher_hard.npz, "
           "benchmarks/demonstrators/reacher_hard_expert_64be96_200k_ee291e.npz") in out[8], out
-  assert out[9] == "ls: not a run.py command, not checked: ls -la $RES"
+  assert ("demonstrator trained (--train_demonstrator), one draw per member, seeds 4-6"
+          in out[9]), out
+  assert out[10] == "ls: not a run.py command, not checked: ls -la $RES"
   for bad, said in (("--task walker_walk --method form --turn_invariant", "unbounded"),
                     ("--task reacher_easy --method form --demonstrator "
                      "tasks/demonstrators/reacher_hard.npz", "reacher_hard"),

@@ -114,15 +114,17 @@ def test_form_table_averages_the_final_policy_over_seeds():
   table = report.form_table(mixed, expert_returns={"cheetah_run": 875.0},
                             demonstration_returns={"d1": 1000.0})
   assert "| 875.0 +- 25.0 | - | 875.0 | 1.00 | 0.89 |" in table, table
-  # Members with a demonstrator each: the variant says so; their experts are their own
-  # (one row over members of two demonstrators of other targets: the expert at export).
+  # Members with a demonstrator each (a population comparing them): one row per demonstrator,
+  # named in the variant, against its own demonstrations' return.
   own = [_final_return(s, v, settings={"reward": {"demonstrator_sha256": d,
                                                   "demonstrator_per_member": True}})
-         for s, v, d in ((0, 900.0, "d1"), (1, 850.0, "d2"))]
+         for s, v, d in ((0, 900.0, "d1aaaaaa"), (1, 850.0, "d2bbbbbb"))]
   table = report.form_table(own, expert_returns={"cheetah_run": 875.0},
-                            demonstration_returns={"d1": 1000.0, "d2": 950.0})
-  assert "| raw, T -, a demonstrator per member | 2 |" in table, table
-  assert "| 875.0 +- 25.0 | - | 875.0 | 1.00 | 0.89 |" in table, table
+                            demonstration_returns={"d1aaaaaa": 1000.0, "d2bbbbbb": 950.0})
+  assert ("| raw, T -, demonstrator d1aaaa of one per member | 1 | 256 | 20.0M | 10.0 min | "
+          "900.0 | - | 1000.0 | 0.90 |") in table, table
+  assert ("| raw, T -, demonstrator d2bbbb of one per member | 1 | 256 | 20.0M | 10.0 min | "
+          "850.0 | - | 950.0 | 0.89 |") in table, table
 
 
 def test_form_table_per_task_keeps_the_best_configuration_of_two_seeds_or_more():

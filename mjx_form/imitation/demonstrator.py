@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from typing import Callable
+from typing import Callable, Sequence
 
 import jax
 import jax.numpy as jnp
@@ -100,9 +100,23 @@ def heldout_log_likelihood(model: em.EffectModel, params, norm, episodes: jax.Ar
 def train(observations: np.ndarray, config: em.EffectModelConfig,
           training: DemonstratorTraining = DemonstratorTraining(),
           print_fn: Callable[[str], None] = print) -> tuple[em.EffectModelState, dict]:
-  """Trains a demonstrator on observations [K, T+1, D]; returns (the best held-out state, a
-  report: steps, best_step, heldout_log_likelihood per offset, curve, seconds, episodes)."""
+  """Trains a demonstrator on observations [K, T+1, D] with `training.seed`; returns (the best
+  held-out state, a report: steps, best_step, stopped_by, heldout_log_likelihood per offset,
+  curve, seconds, episodes)."""
+  return train_draws(observations, config, training, (training.seed,), print_fn)[0]
+
+
+def train_draws(observations: np.ndarray, config: em.EffectModelConfig,
+                training: DemonstratorTraining, seeds: Sequence[int],
+                print_fn: Callable[[str], None] = print
+                ) -> list[tuple[em.EffectModelState, dict]]:
+  """Trains one demonstrator per seed on the same observations and held-out split, side by
+  side in one program (vmapped: a draw computes what it computes alone); each keeps its best
+  held-out state and stops on its own patience (the others go on; a stopped draw's further
+  steps are discarded). Returns (state, report) per seed, as `train`'s."""
   config.check()
+  if not seeds or len(set(seeds)) != len(seeds):
+    raise ValueError(f"demonstrator draws need distinct seeds, got {list(seeds)}")
   k, t1, d = observations.shape
   training.check(k, t1 - 1)
   train_idx, heldout_idx = split_episodes(k, training.heldout_fraction)
@@ -121,60 +135,82 @@ def train(observations: np.ndarray, config: em.EffectModelConfig,
     state, metrics = em.update(model, config, state, windows, ones, update_key)
     return state, metrics
 
-  @jax.jit
-  def chunk(state, key):
-    state, metrics = jax.lax.scan(step, state, jax.random.split(key, training.eval_every))
-    return state, jax.tree.map(jnp.mean, metrics)
-
-  evaluate = jax.jit(lambda params, norm: heldout_log_likelihood(model, params, norm,
-                                                                 heldout_obs))
-  key = jax.random.PRNGKey(training.seed)
-  key, init_key = jax.random.split(key)
-  state = em.init(model, config, init_key)
-  best_state, best, best_step, curve, means = state, -np.inf, 0, [], []
-  start = time.perf_counter()
-  steps, stopped_by = 0, "max_steps"
-  print_fn(f"demonstrator: {len(train_idx)} training and {len(heldout_idx)} held-out episodes, "
-           f"batches of {b} windows of {w} transitions, up to {training.max_steps:,} steps")
-  while steps < training.max_steps:
+  def chunk_one(state, key):
     key, sub = jax.random.split(key)
-    state, metrics = chunk(state, sub)
+    state, metrics = jax.lax.scan(step, state, jax.random.split(sub, training.eval_every))
+    heldout = heldout_log_likelihood(model, state.params, state.normalizer, heldout_obs)
+    return state, key, jax.tree.map(jnp.mean, metrics), heldout
+
+  chunk = jax.jit(jax.vmap(chunk_one))  # over the draws: [S, ...] each
+
+  def init_one(seed):
+    key, init_key = jax.random.split(jax.random.PRNGKey(seed))
+    return em.init(model, config, init_key), key
+
+  states, keys = jax.vmap(init_one)(jnp.asarray(seeds))
+  n = len(seeds)
+  draws = [{"best_state": None, "best": -np.inf, "best_step": 0, "curve": [], "means": [],
+            "steps": 0, "stopped_by": None} for _ in range(n)]
+  start = time.perf_counter()
+  steps = 0
+  print_fn(f"demonstrator{'s' if n > 1 else ''}: {len(train_idx)} training and "
+           f"{len(heldout_idx)} held-out episodes, batches of {b} windows of {w} transitions, "
+           f"up to {training.max_steps:,} steps"
+           + (f", {n} draws side by side (seeds {', '.join(map(str, seeds))})" if n > 1 else ""))
+  while steps < training.max_steps and any(r["stopped_by"] is None for r in draws):
+    states, keys, metrics, heldouts = chunk(states, keys)
     steps += training.eval_every
-    heldout = np.asarray(evaluate(state.params, state.normalizer), np.float64)
+    heldouts = np.asarray(heldouts, np.float64)  # [S, max_offset]
     seconds = time.perf_counter() - start
     if steps == training.eval_every:  # the first chunk compiled; rates count from here
       warm_start, warm_steps = time.perf_counter(), steps
-    curve.append({"step": steps, "seconds": round(seconds, 2),
-                  "heldout_log_likelihood": [round(float(v), 4) for v in heldout],
-                  "train_log_prob": round(float(metrics["log_prob"]), 4)})
-    improved = heldout.mean() > best
-    if improved:
-      best_state, best, best_step = state, float(heldout.mean()), steps
-    means.append(float(heldout.mean()))
-    waited = evaluations_since_best(means, training.smoothing)
     warm = time.perf_counter() - warm_start
     rate = (steps - warm_steps) / warm if warm > 0 and steps > warm_steps else float("nan")
-    left = f"  {(training.max_steps - steps) / rate:.0f}s left at most" if rate > 0 else ""
     shown = f"{rate:,.0f}" if rate > 0 else "-"  # the first chunk compiles: not timed
-    print_fn(f"demonstrator step {steps:,}  {shown} steps/s  train log p "
-             f"{float(metrics['log_prob']):.2f}  held-out log p by offset "
-             + " ".join(f"{v:.2f}" for v in heldout)
-             + ("  (best)" if improved else f"  (best at {best_step:,})") + left)
-    if waited >= training.patience:
-      print_fn(f"demonstrator: held-out likelihood (mean of {training.smoothing} evaluations) "
-               f"has not improved for {waited} evaluations; keeping step {best_step:,}")
-      stopped_by = "patience"
-      break
-    if training.max_seconds is not None and seconds >= training.max_seconds:
-      print_fn(f"demonstrator: out of time after {seconds:.0f}s; keeping step {best_step:,}")
-      stopped_by = "max_seconds"
-      break
-  best_heldout = next(c["heldout_log_likelihood"] for c in curve if c["step"] == best_step)
-  # stopped_by: "patience", "max_seconds" or "max_steps" (a run cut by time depends on the
-  # machine's speed: the file and its record say so)
-  report = {"steps": steps, "best_step": best_step, "stopped_by": stopped_by,
-            "batch_size": b, "window": w,
-            "seconds": round(time.perf_counter() - start, 2),
-            "heldout_log_likelihood": best_heldout, "curve": curve,
-            "training_episodes": int(len(train_idx)), "heldout_episodes": int(len(heldout_idx))}
-  return best_state, report
+    left = f"  {(training.max_steps - steps) / rate:.0f}s left at most" if rate > 0 else ""
+    notes = []
+    for i, r in enumerate(draws):
+      if r["stopped_by"] is not None:
+        continue
+      heldout, log_prob = heldouts[i], float(metrics["log_prob"][i])
+      r["steps"] = steps
+      r["curve"].append({"step": steps, "seconds": round(seconds, 2),
+                         "heldout_log_likelihood": [round(float(v), 4) for v in heldout],
+                         "train_log_prob": round(log_prob, 4)})
+      improved = heldout.mean() > r["best"]
+      if improved:
+        r["best_state"] = jax.tree.map(lambda x, i=i: x[i], states)
+        r["best"], r["best_step"] = float(heldout.mean()), steps
+      r["means"].append(float(heldout.mean()))
+      best = "  (best)" if improved else f"  (best at {r['best_step']:,})"
+      if n == 1:
+        print_fn(f"demonstrator step {steps:,}  {shown} steps/s  train log p {log_prob:.2f}  "
+                 "held-out log p by offset " + " ".join(f"{v:.2f}" for v in heldout)
+                 + best + left)
+      else:
+        notes.append(f"seed {seeds[i]} {heldout[0]:.2f}{'*' if improved else ''}")
+      waited = evaluations_since_best(r["means"], training.smoothing)
+      who = "demonstrator" + (f" (seed {seeds[i]})" if n > 1 else "")
+      if waited >= training.patience:
+        print_fn(f"{who}: held-out likelihood (mean of {training.smoothing} evaluations) has "
+                 f"not improved for {waited} evaluations; keeping step {r['best_step']:,}")
+        r["stopped_by"] = "patience"
+      elif training.max_seconds is not None and seconds >= training.max_seconds:
+        print_fn(f"{who}: out of time after {seconds:.0f}s; keeping step {r['best_step']:,}")
+        r["stopped_by"] = "max_seconds"
+    if notes:
+      print_fn(f"demonstrators step {steps:,}  {shown} steps/s each  held-out log p at offset "
+               "1 (* new best of the mean over offsets): " + ", ".join(notes) + left)
+  out = []
+  for seed, r in zip(seeds, draws):
+    best_heldout = next(c["heldout_log_likelihood"] for c in r["curve"]
+                        if c["step"] == r["best_step"])
+    # stopped_by: "patience", "max_seconds" or "max_steps" (a run cut by time depends on the
+    # machine's speed: the file and its record say so)
+    out.append((r["best_state"], {
+        "seed": int(seed), "steps": r["steps"], "best_step": r["best_step"],
+        "stopped_by": r["stopped_by"] or "max_steps", "batch_size": b, "window": w,
+        "seconds": round(time.perf_counter() - start, 2),
+        "heldout_log_likelihood": best_heldout, "curve": r["curve"],
+        "training_episodes": int(len(train_idx)), "heldout_episodes": int(len(heldout_idx))}))
+  return out

@@ -46,7 +46,7 @@ of P demonstrators (one each, not a mixture), so one program compares demonstrat
 of one recipe, which set reacher_hard's FORM level far more than its seeds do (NOTES, sessions
 43-45). Every member's source state starts with the first one (`init` runs vmapped, blind to
 the member); `member_states` then puts each member's own in its state, where the reward reads
-it. `member(i)` is the source as member i's records describe it (its demonstrator's sha256).
+it. `as_member(i)` is the source as member i's records describe it (its demonstrator's sha256).
 
 The source never sees the task reward (`needs_task_reward = False`: it is not even stored).
 """
@@ -108,20 +108,20 @@ class FormReward:
     models = [demonstrator] if isinstance(demonstrator, Demonstrator) else list(demonstrator)
     if not models or not all(isinstance(m, Demonstrator) for m in models):
       raise TypeError(f"FormReward takes a Demonstrator or a list of them, got {demonstrator!r}")
-    self.members = len(models) if member_demonstrators else 0  # 0: all members share them
+    self.per_member = len(models) if member_demonstrators else 0  # 0: members share them
     if member_demonstrators and (len(models) < 2 or isinstance(demonstrator_sha256, str)
                                  or len(demonstrator_sha256) != len(models)):
       raise ValueError("demonstrators per member need 2 or more, and one sha256 each; got "
                        f"{len(models)} and {demonstrator_sha256!r}")
-    self.ensemble = len(models) if len(models) > 1 and not self.members else 0  # 0: unstacked
+    self.ensemble = len(models) if len(models) > 1 and not self.per_member else 0  # 0: none
     demonstrator = stack(models) if len(models) > 1 else models[0]  # (refuses other shapes)
     self.config = config
     self.standardise_reward = bool(standardise_reward)
     self.reward_clip = float(reward_clip)
     self.demonstrator = demonstrator  # an ensemble's or the members' leaves [K, ...]
-    self.demonstrator_sha256 = (tuple(demonstrator_sha256) if self.members
+    self.demonstrator_sha256 = (tuple(demonstrator_sha256) if self.per_member
                                 else demonstrator_sha256)
-    self.member_index = None  # `member(i)`: whose records these settings describe
+    self.member_index = None  # `as_member(i)`: whose records these settings describe
     self.observation_size = int(demonstrator.normalizer.mean.shape[-1])
     self.model = em.make_model(config, self.observation_size)
 
@@ -136,11 +136,13 @@ class FormReward:
       setattr(source, name, value)
     return source
 
-  def member(self, i: int) -> "FormReward":
+  def as_member(self, i: int) -> "FormReward":
     """The source as member i of a population describes it (with demonstrators per member:
     its own demonstrator's sha256; else this source)."""
-    if not self.members:
+    if not self.per_member:
       return self
+    if not 0 <= i < self.per_member:
+      raise IndexError(f"member {i} of {self.per_member} with demonstrators per member")
     source = copy.copy(self)
     source.member_index = i
     return source
@@ -151,17 +153,17 @@ class FormReward:
       raise ValueError(f"the demonstrator models {self.observation_size}-dimensional "
                        f"observations, the task has {observation_size}")
     demonstrator = jax.tree.map(jnp.asarray, self.demonstrator)
-    if self.members:  # the first member's, until `member_states`
+    if self.per_member:  # the first member's, until `member_states`
       demonstrator = jax.tree.map(lambda x: x[0], demonstrator)
     return FormState(demonstrator, em.init(self.model, self.config, key), normalizer.init(1))
 
   def member_states(self, states: FormState, members: int) -> FormState:
     """A population's source states [P, ...] (from `init`, vmapped) with each member's own
     demonstrator (unchanged where the members share them)."""
-    if not self.members:
+    if not self.per_member:
       return states
-    if members != self.members:
-      raise ValueError(f"{self.members} demonstrators per member for a population of "
+    if members != self.per_member:
+      raise ValueError(f"{self.per_member} demonstrators per member for a population of "
                        f"{members} members")
     return states._replace(demonstrator=jax.tree.map(jnp.asarray, self.demonstrator))
 
@@ -179,7 +181,7 @@ class FormReward:
     return state._replace(reward=reward), metrics
 
   def settings(self) -> dict:
-    if not self.members:
+    if not self.per_member:
       demonstrators = {"demonstrator_sha256": self.demonstrator_sha256,
                        **({"demonstrators": self.ensemble} if self.ensemble else {})}
     elif self.member_index is None:  # the run's: every member's

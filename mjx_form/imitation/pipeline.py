@@ -13,7 +13,7 @@ Stages, each of which can also start from a saved artefact:
   3. imitation: MPO + Retrace on the FORM reward (mjx_form.imitation.form), never the task
      reward, in the compiled loop of mjx_form.rl.train, run by mjx_form.rl.runner.
 The demonstrator a run imitates is kept in its run directory (demonstrator.npz; an ensemble's
-others, or the other members' with demonstrators per member, as demonstrator_1.npz, ...), so
+others, or the other members' where each member has its own, as demonstrator_1.npz, ...), so
 `--resume` needs nothing else. A missing or mismatched
 artefact raises PipelineError naming the file and the problem, before anything is written.
 """
@@ -56,6 +56,9 @@ class Artefacts:
   demos: str | None = None  # demonstration file
   demonstrator: tuple[str, ...] = ()  # effect-model files (2 or more: an ensemble)
   member_demonstrators: bool = False  # the files go one to each member, not to a mixture
+  # with member_demonstrators and train_demonstrator: the seeds of the draws trained, one per
+  # member, side by side in one program
+  draw_seeds: tuple[int, ...] = ()
   demo_episodes: int | None = None  # None: 1000 to train a demonstrator, 16 to check one
   train_demonstrator: bool = False  # train even where one is shipped
   save_demos: str | None = None  # also write the recorded demonstrations here
@@ -129,14 +132,21 @@ def prepare(env, config: em.EffectModelConfig, explicit: dict, artefacts: Artefa
     if not paths:
       raise PipelineError(f"--resume: {run_dir} holds no {DEMONSTRATOR_FILE}")
     ready = [(p, load_demonstrator(p, env)) for p in paths]
-    if "member_demonstrators" in _stored_reward(run_dir):  # (what the run was started with)
+    stored = _stored_reward(run_dir).get("member_demonstrators")
+    if stored is not None:  # (what the run was started with)
+      _check_kept(run_dir, ready, stored)
       config, demonstrators, sha256 = members_of(ready, explicit)
       return FormReward(config, demonstrators, sha256, member_demonstrators=True, **reward)
     config, demonstrators, sha256 = ensemble(ready, explicit)
     return FormReward(config, demonstrators, sha256, **reward)
 
   per_member = artefacts.member_demonstrators
-  if per_member and len(given) < 2:
+  if per_member and artefacts.train_demonstrator:
+    if len(set(artefacts.draw_seeds)) < 2 or len(set(artefacts.draw_seeds)) != len(
+        artefacts.draw_seeds):
+      raise PipelineError("demonstrators per member, trained: 2 or more distinct draw seeds, "
+                          f"got {list(artefacts.draw_seeds)}")
+  elif per_member and len(given) < 2:
     raise PipelineError("demonstrators per member: give one --demonstrator file per member "
                         f"(2 or more), got {len(given)}")
   ready: list[tuple[str, effect_models.EffectModelFile]] = []  # (path, file)
@@ -160,6 +170,15 @@ def prepare(env, config: em.EffectModelConfig, explicit: dict, artefacts: Artefa
   else:
     print_fn(f"no expert for {env.name}: the demonstrator is not checked on demonstrations")
 
+  if not ready and per_member:  # one draw per member, side by side, kept in the run directory
+    os.makedirs(run_dir, exist_ok=True)
+    paths = [os.path.join(run_dir, kept_name(i)) for i in range(len(artefacts.draw_seeds))]
+    files = train_demonstrators(env, config, demos_obs, demos_info, artefacts.training,
+                                physics, artefacts.draw_seeds, results_path, print_fn, paths)
+    config, demonstrators, sha256 = members_of(list(zip(paths, files)), explicit)
+    print_fn("demonstrators per member, in the members' order: draws of seeds "
+             + ", ".join(f"{s} ({h[:6]})" for s, h in zip(artefacts.draw_seeds, sha256)))
+    return FormReward(config, demonstrators, sha256, member_demonstrators=True, **reward)
   if not ready:  # train one; it is written to the run directory
     os.makedirs(run_dir, exist_ok=True)
     file = train_demonstrator(env, config, demos_obs, demos_info, artefacts.training, physics,
@@ -194,6 +213,23 @@ def prepare(env, config: em.EffectModelConfig, explicit: dict, artefacts: Artefa
   if len(ready) > 1:
     print_fn(f"an ensemble of {len(ready)} demonstrators: log pD is their mixture's")
   return FormReward(config, demonstrators, sha256, **reward)
+
+
+def _check_kept(run_dir: str, ready: list[tuple[str, effect_models.EffectModelFile]],
+                stored: list[str]) -> None:
+  """Refuses kept demonstrators per member that are not those config.json lists, naming the
+  first file missing or changed."""
+  for i, sha in enumerate(stored):
+    name = os.path.join(run_dir, kept_name(i))
+    if i >= len(ready):
+      raise PipelineError(f"--resume: {name} is missing (the run's {len(stored)} members "
+                          "each kept a demonstrator)")
+    if ready[i][1].metadata["sha256"] != sha:
+      raise PipelineError(f"--resume: {name} is not member {i}'s demonstrator (sha256 "
+                          f"{ready[i][1].metadata['sha256'][:12]}, config.json: {sha[:12]})")
+  if len(ready) > len(stored):
+    raise PipelineError(f"--resume: {ready[len(stored)][0]} is not one of the run's "
+                        f"{len(stored)} members' demonstrators")
 
 
 def _stored_reward(run_dir: str) -> dict:
@@ -344,24 +380,45 @@ def train_demonstrator(env, config: em.EffectModelConfig, demos_obs: np.ndarray,
                        demos_info: dict, training: demonstrator_lib.DemonstratorTraining,
                        physics: str, seed: int, results_path: str | None, print_fn,
                        path: str) -> effect_models.EffectModelFile:
-  """Trains a demonstrator on demonstrations (`demonstrations`' output), writes it to `path`
-  (never over an existing file) and a `kind: effect_model` record to `results_path`; returns
-  the file as read back."""
-  state, report = demonstrator_lib.train(demos_obs, config, training, print_fn)
-  metadata = {"task": env.name, "observation_size": env.observation_size,
-              "observation_layout": env.observation_layout, "distractors": None,
-              "config": config.to_dict(), "training": report,
-              "demonstrations": demos_info}
-  params = jax.device_get(state.params)
-  mean, var = np.asarray(state.normalizer.mean), np.asarray(state.normalizer.var)
-  if results_path:
-    results.ResultWriter(results_path).write(
-        kind="effect_model", task=env.name, method="form", physics=physics, seed=seed,
-        settings={**config.to_dict(), **dataclasses.asdict(training),
-                  "demo_episodes": demos_info["episodes"]},
-        demonstrations=_demonstrations_ids(demos_info),
-        **{k: report[k] for k in ("steps", "best_step", "stopped_by", "seconds",
-                                  "heldout_log_likelihood", "curve")})
-  effect_models.save_effect_model(path, params, mean, var, metadata)
-  print_fn(f"demonstrator written to {path}")
-  return effect_models.load_effect_model(path)
+  """Trains a demonstrator on demonstrations (`demonstrations`' output) with `training`'s
+  seed, writes it to `path` (never over an existing file) and a `kind: effect_model` record
+  (`seed`: the run's) to `results_path`; returns the file as read back."""
+  return _write_demonstrators(env, config, demos_info, training, physics, [seed],
+                              results_path, print_fn, [path],
+                              [demonstrator_lib.train(demos_obs, config, training, print_fn)])[0]
+
+
+def train_demonstrators(env, config: em.EffectModelConfig, demos_obs: np.ndarray,
+                        demos_info: dict, training: demonstrator_lib.DemonstratorTraining,
+                        physics: str, seeds: tuple[int, ...], results_path: str | None,
+                        print_fn, paths: list[str]) -> list[effect_models.EffectModelFile]:
+  """`train_demonstrator` for one draw per seed, trained side by side in one program
+  (`demonstrator.train_draws`), draw i written to paths[i]."""
+  trained = demonstrator_lib.train_draws(demos_obs, config, training, seeds, print_fn)
+  return _write_demonstrators(env, config, demos_info, training, physics, list(seeds),
+                              results_path, print_fn, paths, trained)
+
+
+def _write_demonstrators(env, config, demos_info, training, physics, seeds, results_path,
+                         print_fn, paths, trained) -> list[effect_models.EffectModelFile]:
+  """Each trained (state, report) written to its path with its `kind: effect_model` record."""
+  files = []
+  for seed, path, (state, report) in zip(seeds, paths, trained):
+    metadata = {"task": env.name, "observation_size": env.observation_size,
+                "observation_layout": env.observation_layout, "distractors": None,
+                "config": config.to_dict(), "training": report,
+                "demonstrations": demos_info}
+    params = jax.device_get(state.params)
+    mean, var = np.asarray(state.normalizer.mean), np.asarray(state.normalizer.var)
+    if results_path:
+      results.ResultWriter(results_path).write(
+          kind="effect_model", task=env.name, method="form", physics=physics, seed=seed,
+          settings={**config.to_dict(), **dataclasses.asdict(training), "seed": seed,
+                    "demo_episodes": demos_info["episodes"]},
+          demonstrations=_demonstrations_ids(demos_info),
+          **{k: report[k] for k in ("steps", "best_step", "stopped_by", "seconds",
+                                    "heldout_log_likelihood", "curve")})
+    effect_models.save_effect_model(path, params, mean, var, metadata)
+    print_fn(f"demonstrator written to {path}")
+    files.append(effect_models.load_effect_model(path))
+  return files

@@ -16,6 +16,10 @@ A source is an object with:
   fresh_metrics(state, unrolls) -> metrics (optional): diagnostics of each iteration's newly
       collected unrolls (same keys as a batch, [N, ...]), under the state before the
       iteration's updates; nothing in training depends on them
+  member_states(states, P) -> states (optional): a population's source states [P, ...] from
+      the vmapped `init` (which cannot tell the members apart), given what each member has of
+      its own (FORM's demonstrators per member)
+  as_member(i) -> source (optional): the source as member i's records describe it
 where `batch` is a dict of unrolls: observation [B, T+1, D] (raw, not standardised), action
 [B, T, A], discount [B, T], and reward [B, T] only when needs_task_reward is set.
 """

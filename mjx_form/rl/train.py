@@ -304,7 +304,7 @@ class Trainer:
     """Member i's reward source (its overrides of the source's settings applied; a source with
     something of its own per member, e.g. FORM's demonstrators, as member i)."""
     source = self._source_with(grid.split(self.overrides[i])[2])
-    return source.member(i) if hasattr(source, "member") else source
+    return source.as_member(i) if hasattr(source, "as_member") else source
 
   def _source_with(self, values: dict):
     """The reward source with `values` (Python, or a member's traced ones) for its settings."""
