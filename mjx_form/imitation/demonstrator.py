@@ -113,7 +113,8 @@ def train_draws(observations: np.ndarray, config: em.EffectModelConfig,
   """Trains one demonstrator per seed on the same observations and held-out split, side by
   side in one program (vmapped: a draw computes what it computes alone); each keeps its best
   held-out state and stops on its own patience (the others go on; a stopped draw's further
-  steps are discarded). Returns (state, report) per seed, as `train`'s."""
+  steps are discarded). Returns (state, report) per seed, as `train`'s (`seconds`: the
+  program's, the same for every draw)."""
   config.check()
   if not seeds or len(set(seeds)) != len(seeds):
     raise ValueError(f"demonstrator draws need distinct seeds, got {list(seeds)}")

@@ -14,8 +14,8 @@ Stages, each of which can also start from a saved artefact:
      reward, in the compiled loop of mjx_form.rl.train, run by mjx_form.rl.runner.
 The demonstrator a run imitates is kept in its run directory (demonstrator.npz; an ensemble's
 others, or the other members' where each member has its own, as demonstrator_1.npz, ...), so
-`--resume` needs nothing else. A missing or mismatched
-artefact raises PipelineError naming the file and the problem, before anything is written.
+`--resume` needs nothing else. A missing or mismatched artefact raises PipelineError naming
+the file and the problem, before anything is written.
 """
 
 from __future__ import annotations
