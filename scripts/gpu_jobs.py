@@ -168,7 +168,7 @@ def _form_models(run, args) -> str:
              else "trained (none shipped)")
   if where.startswith("trained") and args.member_demonstrators:
     first = run.demonstrator_seed_of(args)
-    where += f", one draw per member, seeds {first}-{first + run.members_of(args) - 1}"
+    where += f", one draw per member, seeds {first}-{first + run.population_size(args) - 1}"
   elif where.startswith("trained"):
     where += f", seed {run.demonstrator_seed_of(args)}"
   return (f"effect models beta_ar {config.beta_ar:g}, L2 {config.l2:g}, width {config.width}"

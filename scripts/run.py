@@ -334,10 +334,10 @@ def parse_args(argv=None) -> argparse.Namespace:
                  "--demonstrator, --member_demonstrators, --train_demonstrator and "
                  "--demonstrator_seed")
   if args.member_demonstrators:
-    members = members_of(args)
+    members = population_size(args)
     if args.train_demonstrator and members < 2:
       parser.error(f"--member_demonstrators --train_demonstrator: a draw per member needs a "
-                   f"population of 2 or more (--seeds), got {members}")
+                   f"population of 2 or more (--seeds and/or --grid), got {members}")
     if not args.train_demonstrator and (len(args.demonstrator or ()) != members or members < 2):
       parser.error(f"--member_demonstrators: give one --demonstrator per member (the "
                    f"population has {members}), got {len(args.demonstrator or ())}")
@@ -462,7 +462,7 @@ def effect_model_settings(args: argparse.Namespace, env):
   return explicit, config
 
 
-def members_of(args: argparse.Namespace) -> int:
+def population_size(args: argparse.Namespace) -> int:
   """How many members the run's population has (--seeds times the --grid's combinations)."""
   return len(args.seeds or (args.seed,)) * math.prod(len(v) for v in args.grid.values())
 
@@ -485,7 +485,7 @@ def form_source(args: argparse.Namespace, run_dir: str, results_path: str, print
   artefacts = pipeline.Artefacts(
       expert=args.expert, demos=args.demos, demonstrator=tuple(args.demonstrator or ()),
       member_demonstrators=args.member_demonstrators,
-      draw_seeds=(tuple(demonstrator_seed + i for i in range(members_of(args)))
+      draw_seeds=(tuple(demonstrator_seed + i for i in range(population_size(args)))
                   if args.member_demonstrators and args.train_demonstrator else ()),
       demo_episodes=args.demo_episodes, train_demonstrator=args.train_demonstrator,
       save_demos=args.save_demos, training=training)

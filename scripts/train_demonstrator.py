@@ -46,7 +46,8 @@ def main(argv=None) -> int:
   parser = argparse.ArgumentParser(description=__doc__,
                                    formatter_class=argparse.RawDescriptionHelpFormatter)
   parser.add_argument("--task", required=True)
-  parser.add_argument("--out", required=True, help="the file to write (a folder for a grid)")
+  parser.add_argument("--out", required=True,
+                      help="the file to write (a folder for a grid or several --seeds)")
   parser.add_argument("--expert", help="policy.npz to record (default: the shipped expert)")
   parser.add_argument("--demos", help="demonstrations to train on instead of recording them")
   parser.add_argument("--episodes", type=int, default=pipeline.DEFAULT_TRAINING_EPISODES,
@@ -76,22 +77,27 @@ def main(argv=None) -> int:
     parser.add_argument(f"--{name}", type=int, default=getattr(defaults, name))
   parser.add_argument("--max_seconds", type=float, default=None,
                       help="time budget of each training")
-  parser.add_argument("--seed", type=int, default=0)
+  parser.add_argument("--seed", type=int, default=None, help="(default 0)")
   parser.add_argument("--seeds", default=None,
-                      help="comma-separated seeds: draws trained side by side (one setting)")
+                      help="comma-separated seeds: draws trained side by side (one setting; "
+                           "the demonstrations recorded with the first)")
   parser.add_argument("--results", default=None, help="append kind=effect_model records here")
   args = parser.parse_args(argv)
   if args.task not in tasks.TASKS:
     parser.error(f"unknown task {args.task!r}; valid tasks: {', '.join(tasks.TASKS)}")
   grid = list(itertools.product(args.beta_ar or [None], args.effect_l2 or [None]))
+  if args.seeds is not None and args.seed is not None:
+    parser.error("--seed and --seeds exclude each other")
   try:
-    seeds = [int(v) for v in args.seeds.split(",")] if args.seeds else [args.seed]
+    seeds = [int(v) for v in args.seeds.split(",")] if args.seeds else [args.seed or 0]
   except ValueError:
     parser.error(f"--seeds: expected comma-separated integers, got {args.seeds!r}")
   if len(set(seeds)) != len(seeds):
     parser.error(f"--seeds must be distinct, got {args.seeds!r}")
   if len(seeds) > 1 and len(grid) > 1:
     parser.error("--seeds trains draws of one setting: give one --beta_ar and one --effect_l2")
+  if len(seeds) > 1 and os.path.exists(args.out) and not os.path.isdir(args.out):
+    parser.error(f"--out {args.out} is a file; several --seeds write to a folder")
   env = tasks.make(args.task, physics=args.physics)
   try:
     period = settings.turn_period(env, args.turn_invariant)
@@ -103,15 +109,17 @@ def main(argv=None) -> int:
                for b, l in grid]
   except ValueError as e:
     parser.error(str(e))
-  outs = [args.out] if len(grid) == 1 and len(seeds) == 1 else [
-      os.path.join(args.out, f"{args.task}_seed{seed}.npz") for seed in seeds] if len(
-          seeds) > 1 else [
-      os.path.join(args.out, f"{args.task}_ar{c.beta_ar:g}_l2{c.l2:g}"
-                             f"{'_turn' if c.period else ''}"
-                             f"{'_increments' if c.angle_increments else ''}"
-                             f"{'_angle_inputs' if c.angle_inputs else ''}"
-                             f"{f'_max_scale{c.max_scale:g}' if c.max_scale else ''}.npz")
-      for c in configs]
+  if len(seeds) > 1:  # draws of one setting, named by seed
+    outs = [os.path.join(args.out, f"{args.task}_seed{seed}.npz") for seed in seeds]
+  elif len(grid) > 1:  # a grid, named by setting
+    outs = [os.path.join(args.out, f"{args.task}_ar{c.beta_ar:g}_l2{c.l2:g}"
+                                   f"{'_turn' if c.period else ''}"
+                                   f"{'_increments' if c.angle_increments else ''}"
+                                   f"{'_angle_inputs' if c.angle_inputs else ''}"
+                                   f"{f'_max_scale{c.max_scale:g}' if c.max_scale else ''}.npz")
+            for c in configs]
+  else:
+    outs = [args.out]
   existing = [o for o in outs if os.path.exists(o)]
   if existing:
     print(f"error: {', '.join(existing)} exist (nothing was overwritten)", file=sys.stderr)
@@ -139,7 +147,7 @@ def main(argv=None) -> int:
       say(f"training with beta_ar={config.beta_ar}, l2={config.l2} -> {out}")
       os.makedirs(os.path.dirname(os.path.abspath(out)), exist_ok=True)
       file = pipeline.train_demonstrator(env, config, obs, info, training, args.physics,
-                                         args.seed, args.results, say, out)
+                                         seeds[0], args.results, say, out)
       heldout = file.metadata["training"]["heldout_log_likelihood"]
       say(f"held-out log-likelihood by offset: {heldout}")
   except ValueError as e:

@@ -453,13 +453,23 @@ def test_train_demonstrator_script_trains_a_grid_and_refuses_bad_input(tmp_path,
   assert [m["training"]["seed"] for m in metas] == [3, 7]
   assert metas[0]["sha256"] != metas[1]["sha256"]
   assert [json.loads(line)["seed"] for line in open(records)] == [3, 7]
-  for bad, said in ((["--seeds", "3,3"], "must be distinct"),
-                    (["--seeds", "3,x"], "comma-separated integers"),
-                    (["--seeds", "3,7", "--beta_ar", "0.1,1"], "one setting")):
+  (tmp_path / "taken.npz").write_bytes(b"x")
+  for bad, out, said in ((["--seeds", "3,3"], "bad", "must be distinct"),
+                         (["--seeds", "3,x"], "bad", "comma-separated integers"),
+                         (["--seeds", "3,7", "--beta_ar", "0.1,1"], "bad", "one setting"),
+                         (["--seeds", "3,7", "--seed", "1"], "bad", "exclude each other"),
+                         (["--seeds", "3,7"], "taken.npz", "is a file")):
     with pytest.raises(SystemExit):
-      script.main([*args, *bad, "--out", str(tmp_path / "bad")])
+      script.main([*args, *bad, "--out", str(tmp_path / out)])
     assert said in capsys.readouterr().err
-  assert not (tmp_path / "bad").exists()
+  assert not (tmp_path / "bad").exists() and (tmp_path / "taken.npz").read_bytes() == b"x"
+  # One seed (by --seeds or --seed): one file, its record and its training of that seed.
+  for flag in ("--seeds", "--seed"):
+    one, records = tmp_path / f"one{flag}.npz", tmp_path / f"one{flag}.jsonl"
+    assert script.main([*args, flag, "5", "--out", str(one), "--results", str(records)]) == 0
+    record = json.loads(open(records).readline())
+    assert (record["seed"], record["settings"]["seed"]) == (5, 5)
+    assert effect_models.load_effect_model(one).metadata["training"]["seed"] == 5
 
 
 # --- angle increments ---------------------------------------------------------------------

@@ -461,7 +461,7 @@ def test_sampled_q_precision_reaches_the_learner_per_method():
       cli.LearnerConfig())  # an expert run with no flags is the paper's learner
 
 
-def test_form_flags_are_refused_for_other_methods(capsys):
+def test_form_flags_are_refused_for_other_methods(capsys, monkeypatch, tmp_path):
   """A FORM flag given to --method expert or random is an error naming it, whichever value it
   was given (--no-turn_invariant included); without them those methods parse."""
   cli = load_script("run")
@@ -488,11 +488,19 @@ def test_form_flags_are_refused_for_other_methods(capsys):
                          "--demonstrator", "a.npz", "--demonstrator", "a.npz"]).demonstrator
   with pytest.raises(SystemExit):  # a draw per member: a population
     cli.parse_args(["--method", "form", "--member_demonstrators", "--train_demonstrator"])
-  assert "a draw per member needs a population of 2 or more (--seeds), got 1" in (
+  assert "a draw per member needs a population of 2 or more (--seeds and/or --grid), got 1" in (
       capsys.readouterr().err)
-  drawn = cli.parse_args(["--method", "form", "--member_demonstrators", "--train_demonstrator",
-                          "--seeds", "0,1,2"])
-  assert drawn.train_demonstrator and cli.members_of(drawn) == 3
+  # a draw per member: seeds --demonstrator_seed + 0, 1, ... (else --seed + ...), one per member
+  # of the seeds and the grid's values
+  from mjx_form.imitation import pipeline
+  monkeypatch.setattr(pipeline, "prepare", lambda *args, **kwargs: args[3])  # the Artefacts
+  for argv, seeds in ((["--seeds", "0,1,2", "--demonstrator_seed", "4"], (4, 5, 6)),
+                      (["--seeds", "0,1", "--grid", "reward_clip=2,3"], (0, 1, 2, 3)),
+                      (["--seed", "7", "--grid", "reward_clip=2,3"], (7, 8))):
+    drawn = cli.parse_args(["--method", "form", "--member_demonstrators", "--train_demonstrator",
+                            *argv])
+    artefacts = cli.form_source(drawn, str(tmp_path), None, print)
+    assert artefacts.draw_seeds == seeds and artefacts.train_demonstrator, (argv, artefacts)
   # --resume reads the kept demonstrators; a demonstrator flag beside it would be ignored
   for flags in (["--demonstrator", "a.npz"], ["--train_demonstrator"],
                 ["--demonstrator_seed", "1"], ["--member_demonstrators"]):

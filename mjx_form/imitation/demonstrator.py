@@ -111,7 +111,8 @@ def train_draws(observations: np.ndarray, config: em.EffectModelConfig,
                 print_fn: Callable[[str], None] = print
                 ) -> list[tuple[em.EffectModelState, dict]]:
   """Trains one demonstrator per seed on the same observations and held-out split, side by
-  side in one program (vmapped: a draw computes what it computes alone); each keeps its best
+  side in one program (vmapped: a draw computes what it computes alone, up to the order of
+  floating-point sums, which on a GPU carries into the curves over many steps); each keeps its best
   held-out state and stops on its own patience (the others go on; a stopped draw's further
   steps are discarded). Returns (state, report) per seed, as `train`'s (`seconds`: the
   program's, the same for every draw)."""
@@ -144,11 +145,11 @@ def train_draws(observations: np.ndarray, config: em.EffectModelConfig,
 
   chunk = jax.jit(jax.vmap(chunk_one))  # over the draws: [S, ...] each
 
-  def init_one(seed):
-    key, init_key = jax.random.split(jax.random.PRNGKey(seed))
+  def init_one(key):
+    key, init_key = jax.random.split(key)
     return em.init(model, config, init_key), key
 
-  states, keys = jax.vmap(init_one)(jnp.asarray(seeds))
+  states, keys = jax.vmap(init_one)(jnp.stack([jax.random.PRNGKey(s) for s in seeds]))
   n = len(seeds)
   draws = [{"best_state": None, "best": -np.inf, "best_step": 0, "curve": [], "means": [],
             "steps": 0, "stopped_by": None} for _ in range(n)]
@@ -161,6 +162,7 @@ def train_draws(observations: np.ndarray, config: em.EffectModelConfig,
   while steps < training.max_steps and any(r["stopped_by"] is None for r in draws):
     states, keys, metrics, heldouts = chunk(states, keys)
     steps += training.eval_every
+    log_probs, heldouts = jax.device_get((metrics["log_prob"], heldouts))  # one transfer
     heldouts = np.asarray(heldouts, np.float64)  # [S, max_offset]
     seconds = time.perf_counter() - start
     if steps == training.eval_every:  # the first chunk compiled; rates count from here
@@ -173,7 +175,7 @@ def train_draws(observations: np.ndarray, config: em.EffectModelConfig,
     for i, r in enumerate(draws):
       if r["stopped_by"] is not None:
         continue
-      heldout, log_prob = heldouts[i], float(metrics["log_prob"][i])
+      heldout, log_prob = heldouts[i], float(log_probs[i])
       r["steps"] = steps
       r["curve"].append({"step": steps, "seconds": round(seconds, 2),
                          "heldout_log_likelihood": [round(float(v), 4) for v in heldout],
@@ -202,6 +204,10 @@ def train_draws(observations: np.ndarray, config: em.EffectModelConfig,
     if notes:
       print_fn(f"demonstrators step {steps:,}  {shown} steps/s each  held-out log p at offset "
                "1 (* new best of the mean over offsets): " + ", ".join(notes) + left)
+  failed = [s for s, r in zip(seeds, draws) if r["best_state"] is None]
+  if failed:  # (a held-out likelihood that was never a number)
+    raise ValueError(f"demonstrator draws of seeds {failed}: no finite held-out "
+                     "log-likelihood at any evaluation")
   out = []
   for seed, r in zip(seeds, draws):
     best_heldout = next(c["heldout_log_likelihood"] for c in r["curve"]
