@@ -149,8 +149,9 @@ def test_an_ensemble_runs_in_the_compiled_loop_on_two_devices(form_trainer):
 
 def test_demonstrators_per_member_give_each_member_its_own(form_trainer):
   """Demonstrators per member: member i of a population (over the two devices, one member
-  each) imitates the i-th, computing what a single run with its seed and that demonstrator
-  computes; its state holds its own; its records name its own checksum and the run's name all.
+  each, or each member over both) imitates the i-th, computing what a single run with its seed
+  and that demonstrator computes; its state holds its own; its records name its own checksum
+  and the run's name all.
   Refused: fewer than 2, a checksum count that differs, a population of another size."""
   demos = [_demonstrator(0), _demonstrator(3)]
   source = FormReward(EFFECT, demos, ["sha-a", "sha-b"], member_demonstrators=True)
@@ -171,6 +172,13 @@ def test_demonstrators_per_member_give_each_member_its_own(form_trainer):
                  "q_online"):
       np.testing.assert_allclose([m[name][i] for m in metrics], [m[name][0] for m in alone[i]],
                                  rtol=1e-3, atol=1e-3, err_msg=f"member {i} {name}")
+  # The other layout (each member's environments split over both devices, its state on both)
+  # computes the same.
+  spread = Trainer(CONFIG, mesh_lib.make_mesh(), source, seeds=(0, 1), layout="environments")
+  assert population.layout == "members" and spread.layout == "environments"
+  _, first = spread.iteration(spread.init(spread.keys()))
+  np.testing.assert_allclose(jax.device_get(first["demonstrator_log_prob"]),
+                             metrics[0]["demonstrator_log_prob"], rtol=1e-4, atol=1e-3)
   # (the two demonstrators score the same transitions differently, through the members' states)
   obs = jnp.asarray(np.random.default_rng(2).normal(size=(3, 5, D)), jnp.float32)
   scores = [np.asarray(source.log_probs(population.member(state.source, i), obs)[0])
