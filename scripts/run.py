@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import math
 import os
 import sys
 import time
@@ -463,8 +462,8 @@ def effect_model_settings(args: argparse.Namespace, env):
 
 
 def population_size(args: argparse.Namespace) -> int:
-  """How many members the run's population has (--seeds times the --grid's combinations)."""
-  return len(args.seeds or (args.seed,)) * math.prod(len(v) for v in args.grid.values())
+  """How many members the run's population has (every seed with each --grid combination)."""
+  return len(grid.expand(args.seeds or (args.seed,), args.grid)[0])
 
 
 def demonstrator_seed_of(args: argparse.Namespace) -> int:

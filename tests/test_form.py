@@ -762,6 +762,31 @@ def test_a_demonstrator_that_does_not_fit_is_refused_before_anything_is_recorded
         resume=False, physics="fast", seed=0, results_path=None, print_fn=lambda line: None)
 
 
+def _reacher_easy_demonstrator_files(tmp_path) -> tuple[str, str, str]:
+  """(the shipped reacher_easy demonstrator, a former one, the former one's model written as if
+  trained at L2 1: a file of other settings)."""
+  shipped = tasks.bundled_demonstrator("reacher_easy")
+  former = os.path.join("benchmarks", "demonstrators", "reacher_easy_expert_d93ef5.npz")
+  file = effect_models.load_effect_model(former)
+  other = str(tmp_path / "other.npz")
+  meta = {k: v for k, v in file.metadata.items() if k not in ("format", "version", "sha256")}
+  effect_models.save_effect_model(other, file.params, file.mean, file.var, dict(
+      meta, config=dict(meta["config"], l2=1.0)))
+  return shipped, former, other
+
+
+def _stub_recording(monkeypatch, pipeline, episodes: int) -> list:
+  """Replaces the pipeline's recording of demonstrations by `episodes` random ones of
+  reacher's shape; the list returned gets an entry per recording."""
+  demo_obs = np.random.default_rng(0).normal(size=(episodes, 201, D)).astype(np.float32)
+  recorded = []
+  def record(*args, **kwargs):
+    recorded.append(1)
+    return demo_obs, {"episodes": episodes, "expert": {}}
+  monkeypatch.setattr(pipeline, "demonstrations", record)
+  return recorded
+
+
 def test_an_ensemble_of_demonstrator_files_is_checked_kept_and_resumed(tmp_path, monkeypatch):
   """Several --demonstrator files: each is checked on the demonstrations and kept in the run
   directory (demonstrator.npz, demonstrator_1.npz), the reward source scores with their mixture
@@ -770,19 +795,8 @@ def test_an_ensemble_of_demonstrator_files_is_checked_kept_and_resumed(tmp_path,
   from mjx_form.imitation import pipeline
   env = tasks.make("reacher_easy")
   config = settings.effect_model_config("reacher_easy", env)
-  shipped = tasks.bundled_demonstrator("reacher_easy")
-  former = os.path.join("benchmarks", "demonstrators", "reacher_easy_expert_d93ef5.npz")
-  file = effect_models.load_effect_model(former)
-  other = str(tmp_path / "other.npz")  # the former one's model, written as if trained at L2 1
-  meta = {k: v for k, v in file.metadata.items() if k not in ("format", "version", "sha256")}
-  effect_models.save_effect_model(other, file.params, file.mean, file.var, dict(
-      meta, config=dict(meta["config"], l2=1.0)))
-  demo_obs = np.random.default_rng(0).normal(size=(2, 201, D)).astype(np.float32)
-  recorded = []
-  def record(*args, **kwargs):
-    recorded.append(1)
-    return demo_obs, {"episodes": 2, "expert": {}}
-  monkeypatch.setattr(pipeline, "demonstrations", record)
+  shipped, former, other = _reacher_easy_demonstrator_files(tmp_path)
+  recorded = _stub_recording(monkeypatch, pipeline, episodes=2)
   prepare = lambda run_dir, paths, **kw: pipeline.prepare(
       env, config, {}, pipeline.Artefacts(demonstrator=paths), str(run_dir), physics="fast",
       seed=0, results_path=None, print_fn=lines.append, **kw)
@@ -828,19 +842,8 @@ def test_demonstrator_files_per_member_are_checked_kept_and_resumed(tmp_path, mo
   from mjx_form.imitation import pipeline
   env = tasks.make("reacher_easy")
   config = settings.effect_model_config("reacher_easy", env)
-  shipped = tasks.bundled_demonstrator("reacher_easy")
-  former = os.path.join("benchmarks", "demonstrators", "reacher_easy_expert_d93ef5.npz")
-  file = effect_models.load_effect_model(former)
-  other = str(tmp_path / "other.npz")  # the former one's model, written as if trained at L2 1
-  meta = {k: v for k, v in file.metadata.items() if k not in ("format", "version", "sha256")}
-  effect_models.save_effect_model(other, file.params, file.mean, file.var, dict(
-      meta, config=dict(meta["config"], l2=1.0)))
-  demo_obs = np.random.default_rng(0).normal(size=(2, 201, D)).astype(np.float32)
-  recorded = []
-  def record(*args, **kwargs):
-    recorded.append(1)
-    return demo_obs, {"episodes": 2, "expert": {}}
-  monkeypatch.setattr(pipeline, "demonstrations", record)
+  shipped, former, other = _reacher_easy_demonstrator_files(tmp_path)
+  recorded = _stub_recording(monkeypatch, pipeline, episodes=2)
   prepare = lambda run_dir, paths, **kw: pipeline.prepare(
       env, config, {}, pipeline.Artefacts(demonstrator=paths, member_demonstrators=True),
       str(run_dir), physics="fast", seed=0, results_path=None, print_fn=lines.append, **kw)
@@ -893,12 +896,7 @@ def test_demonstrator_draws_per_member_are_trained_side_by_side_and_kept(tmp_pat
   from mjx_form.imitation import demonstrator, pipeline
   env = tasks.make("reacher_easy")
   config = em.EffectModelConfig(width=16)
-  demo_obs = np.random.default_rng(0).normal(size=(3, 201, D)).astype(np.float32)
-  recorded = []
-  def record(*args, **kwargs):
-    recorded.append(1)
-    return demo_obs, {"episodes": 3, "expert": {}}
-  monkeypatch.setattr(pipeline, "demonstrations", record)
+  recorded = _stub_recording(monkeypatch, pipeline, episodes=3)
   training = demonstrator.DemonstratorTraining(max_steps=20, batch_size=4, window=20,
                                                eval_every=10, heldout_fraction=0.34)
   lines, curve = [], str(tmp_path / "curve.jsonl")
