@@ -380,12 +380,11 @@ def train_demonstrator(env, config: em.EffectModelConfig, demos_obs: np.ndarray,
                        demos_info: dict, training: demonstrator_lib.DemonstratorTraining,
                        physics: str, seed: int, results_path: str | None, print_fn,
                        path: str) -> effect_models.EffectModelFile:
-  """Trains a demonstrator on demonstrations (`demonstrations`' output) with `training`'s
-  seed, writes it to `path` (never over an existing file) and a `kind: effect_model` record
-  (`seed`: the run's) to `results_path`; returns the file as read back."""
-  return _write_demonstrators(env, config, demos_info, training, physics, [seed],
-                              results_path, print_fn, [path],
-                              [demonstrator_lib.train(demos_obs, config, training, print_fn)])[0]
+  """Trains a demonstrator of `seed` on demonstrations (`demonstrations`' output), writes it to
+  `path` (never over an existing file) and a `kind: effect_model` record to `results_path`;
+  returns the file as read back."""
+  return train_demonstrators(env, config, demos_obs, demos_info, training, physics, (seed,),
+                             results_path, print_fn, [path])[0]
 
 
 def train_demonstrators(env, config: em.EffectModelConfig, demos_obs: np.ndarray,
@@ -393,15 +392,8 @@ def train_demonstrators(env, config: em.EffectModelConfig, demos_obs: np.ndarray
                         physics: str, seeds: tuple[int, ...], results_path: str | None,
                         print_fn, paths: list[str]) -> list[effect_models.EffectModelFile]:
   """`train_demonstrator` for one draw per seed, trained side by side in one program
-  (`demonstrator.train_draws`), draw i written to paths[i]."""
+  (`demonstrator.train_draws`), draw i written to paths[i] with its record."""
   trained = demonstrator_lib.train_draws(demos_obs, config, training, seeds, print_fn)
-  return _write_demonstrators(env, config, demos_info, training, physics, list(seeds),
-                              results_path, print_fn, paths, trained)
-
-
-def _write_demonstrators(env, config, demos_info, training, physics, seeds, results_path,
-                         print_fn, paths, trained) -> list[effect_models.EffectModelFile]:
-  """Each trained (state, report) written to its path with its `kind: effect_model` record."""
   files = []
   for seed, path, (state, report) in zip(seeds, paths, trained):
     metadata = {"task": env.name, "observation_size": env.observation_size,
