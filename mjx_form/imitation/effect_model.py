@@ -35,6 +35,10 @@ below max_scale standardised units by a soft cap (`distributions.scale_from_raw`
 demonstrator trained 352k steps explained all transitions off the expert's with one broad
 component (~3.3 sd) and so paid them all about the same: FORM's reward had no slope there and
 FORM failed (benchmarks/NOTES.md, session 44). Under a cap no component can act as such a floor.
+But capped models pay the expert's own fast reaching 100+ nats, and over six reacher_hard draws
+with a 1 sd cap FORM fell (mean 355 against 653 for six uncapped draws of the same
+demonstrations and seeds; three capped imitators stopped far from the target, session 46):
+not a default anywhere.
 
 Angle inputs (`EffectModelConfig.angle_inputs`, with `angle_increments` only; not in the paper):
 the encoder sees each periodic feature of x_t as the cosine and sine of its raw angle

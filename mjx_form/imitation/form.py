@@ -37,8 +37,8 @@ An ensemble of demonstrators (several files of one task and one setting: draws o
 or models of several experts' demonstrations, which the pipeline notes) gives pD as their
 mixture, log pD = logsumexp_k log pD_k - log K: a density (so the reward keeps
 its meaning), at least the best model's density / K wherever one model has a spurious hole.
-Demonstrators of one recipe gave reacher_hard's FORM 0.39-0.85 over four draws, and one trained
-longer 0.01 (benchmarks/NOTES.md, sessions 42-44). A single demonstrator's parameters are kept
+Nine draws of one recipe (200k steps) gave reacher_hard's FORM 389-903 (mean 696, 0.72 of the
+expert), and one trained longer 12 (benchmarks/NOTES.md, sessions 42-46). A single demonstrator's parameters are kept
 as they are; an ensemble's are stacked along a leading axis of size K.
 
 Demonstrators per member (`member_demonstrators`): a population's member i imitates the i-th
