@@ -576,7 +576,9 @@ def _form_variant(record: dict) -> str:
   if model.get("max_scale"):
     regularisers.append(f"scales below {model['max_scale']:g} sd")
   if settings.get("reward", {}).get("demonstrators"):
-    regularisers.append(f"ensemble of {settings['reward']['demonstrators']} demonstrators")
+    mean = settings["reward"].get("ensemble_log_pd") == "mean"  # (else their mixture)
+    regularisers.append(f"ensemble of {settings['reward']['demonstrators']} demonstrators"
+                        + (", mean log pD" if mean else ""))
   if settings.get("reward", {}).get("demonstrator_per_member"):  # (one row per demonstrator)
     regularisers.append(f"demonstrator {settings['reward']['demonstrator_sha256'][:6]} of one "
                         "per member")

@@ -37,6 +37,7 @@ import tasks  # noqa: E402
 from mjx_form import mesh as mesh_lib  # noqa: E402
 from mjx_form.files import checkpoint, experts  # noqa: E402
 from mjx_form.imitation import demonstrator as demonstrator_lib  # noqa: E402
+from mjx_form.imitation import form as form_lib  # noqa: E402
 from mjx_form.imitation import pipeline, settings  # noqa: E402
 from mjx_form.rl import grid, recipes, runner  # noqa: E402
 from mjx_form.rl.learner import LearnerConfig  # noqa: E402
@@ -51,7 +52,7 @@ METHODS = ("form", "expert", "random")
 FORM_ONLY = ("expert", "demos", "demo_episodes", "save_demos", "demonstrator",
              "member_demonstrators", "train_demonstrator", "demonstrator_seed", "beta_ar",
              "effect_l2", "turn_invariant", "angle_increments", "angle_inputs",
-             "effect_max_scale", "reward_scale", "reward_clip")
+             "effect_max_scale", "reward_scale", "reward_clip", "ensemble_log_pd")
 
 DEFAULT_COMPILATION_CACHE = os.path.join(
     os.environ.get("XDG_CACHE_HOME", os.path.expanduser("~/.cache")), "mjx_form", "jax")
@@ -236,6 +237,11 @@ def parse_args(argv=None) -> argparse.Namespace:
                     "tasks/demonstrators/<task>.npz where its settings are this run's, else "
                     "one is trained); given several times, an ensemble: log pD is their "
                     "mixture's (files of one task and one setting)")
+  form.add_argument("--ensemble_log_pd", choices=form_lib.ENSEMBLE_LOG_PD, default=None,
+                    help="with several --demonstrator files (an ensemble): log pD is their "
+                         "mixture's (default) or the mean of their log pD, the mean of their "
+                         "FORM rewards, where one model's broad floor weighs 1/K instead of "
+                         "setting the mixture's (mjx_form/imitation/form.py)")
   form.add_argument("--member_demonstrators", action="store_true",
                     help="the --demonstrator files go one to each member of the population, in "
                          "the members' order (seeds outermost: seed 0 with each --grid value, then "
@@ -341,6 +347,10 @@ def parse_args(argv=None) -> argparse.Namespace:
     if not args.train_demonstrator and (len(args.demonstrator or ()) != members or members < 2):
       parser.error(f"--member_demonstrators: give one --demonstrator per member (the "
                    f"population has {members}), got {len(args.demonstrator or ())}")
+  if args.ensemble_log_pd not in (None, "mixture") and (
+      args.member_demonstrators or (len(args.demonstrator or ()) < 2 and not args.resume)):
+    parser.error(f"--ensemble_log_pd {args.ensemble_log_pd}: an ensemble needs 2 --demonstrator "
+                 "files or more, shared by the members (not --member_demonstrators)")
   if args.demonstrator and args.train_demonstrator:
     parser.error("--demonstrator and --train_demonstrator exclude each other (a run trains "
                  "its demonstrator or uses the ones given)")
@@ -492,8 +502,9 @@ def form_source(args: argparse.Namespace, run_dir: str, results_path: str, print
   return pipeline.prepare(env, config, explicit,
                           artefacts, run_dir, resume=args.resume, physics=args.physics,
                           seed=demonstrator_seed, results_path=results_path,
-                          reward={k: v for k, v in form_run_settings(args).items()
-                                  if k in ("standardise_reward", "reward_clip")},
+                          reward={**{k: v for k, v in form_run_settings(args).items()
+                                     if k in ("standardise_reward", "reward_clip")},
+                                  "ensemble_log_pd": args.ensemble_log_pd or "mixture"},
                           print_fn=print_fn)
 
 

@@ -131,6 +131,39 @@ def test_an_ensemble_of_demonstrators_scores_with_their_mixture():
       FormReward(EFFECT, bad)
 
 
+def test_an_ensemble_can_score_with_the_mean_of_its_log_densities():
+  """`ensemble_log_pd="mean"`: log pD is the mean of the models' own log pD (numpy, float64),
+  below the mixture's wherever they differ (Jensen), and the reward is log pD - log pI; the
+  setting is recorded only where it is not the mixture. Refused: an unknown name, and the mean
+  without an ensemble (one model, or models per member)."""
+  model = em.make_model(EFFECT, D)
+  members = [_demonstrator(0), _demonstrator(3), _demonstrator(5)]
+  mean = FormReward(EFFECT, members, "a+b+c", ensemble_log_pd="mean")
+  mixture = FormReward(EFFECT, members, "a+b+c")
+  assert mean.settings()["ensemble_log_pd"] == "mean" and mean.settings()["demonstrators"] == 3
+  assert "ensemble_log_pd" not in mixture.settings()
+  state = mean.init(jax.random.PRNGKey(1), D, 2)
+  obs = jnp.asarray(np.random.default_rng(2).normal(size=(3, 5, D)), jnp.float32)
+  each = np.stack([np.asarray(em.transition_log_prob(model, d.params, d.normalizer,
+                                                     obs[:, :-1], obs[:, 1:]), np.float64)
+                   for d in members])
+  assert np.ptp(each, axis=0).min() > 0.1  # (the members differ everywhere: the test can fail)
+  log_d, log_i = mean.log_probs(state, obs)
+  np.testing.assert_allclose(log_d, each.mean(axis=0), rtol=1e-5, atol=1e-4)
+  mixed = np.asarray(mixture.log_probs(state, obs)[0])
+  assert np.all(np.asarray(log_d) < mixed)
+  rewards, _ = mean.relabel(state, {"observation": obs, "discount": jnp.ones((3, 4))})
+  np.testing.assert_allclose(rewards, np.asarray(log_d) - np.asarray(log_i), rtol=1e-5,
+                             atol=1e-4)
+  with pytest.raises(ValueError, match="ensemble_log_pd must be one of"):
+    FormReward(EFFECT, members, ensemble_log_pd="product")
+  with pytest.raises(ValueError, match="needs an ensemble of 2 demonstrators or more .*got one"):
+    FormReward(EFFECT, members[0], ensemble_log_pd="mean")
+  with pytest.raises(ValueError, match="got 3 per member"):
+    FormReward(EFFECT, members, ["a", "b", "c"], member_demonstrators=True,
+               ensemble_log_pd="mean")
+
+
 def test_an_ensemble_runs_in_the_compiled_loop_on_two_devices(form_trainer):
   """An ensemble's stacked demonstrators go through the compiled loop with the batch sharded
   over two devices: an ensemble of one model twice trains as that model alone (the same log pD
@@ -509,6 +542,16 @@ def test_form_flags_are_refused_for_other_methods(capsys, monkeypatch, tmp_path)
                             *argv])
     artefacts = cli.form_source(drawn, str(tmp_path), None, print)
     assert artefacts.draw_seeds == seeds and artefacts.train_demonstrator, (argv, artefacts)
+  # --ensemble_log_pd mean: an ensemble shared by the members
+  for argv in (["--demonstrator", "a.npz"], [],
+               ["--member_demonstrators", "--seeds", "0,1", "--demonstrator", "a.npz",
+                "--demonstrator", "b.npz"]):
+    with pytest.raises(SystemExit):
+      cli.parse_args(["--method", "form", "--ensemble_log_pd", "mean", *argv])
+    assert "--ensemble_log_pd mean: an ensemble needs 2 --demonstrator files or more" in (
+        capsys.readouterr().err)
+  assert cli.parse_args(["--method", "form", "--ensemble_log_pd", "mean", "--demonstrator",
+                         "a.npz", "--demonstrator", "b.npz"]).ensemble_log_pd == "mean"
   # --resume reads the kept demonstrators; a demonstrator flag beside it would be ignored
   for flags in (["--demonstrator", "a.npz"], ["--train_demonstrator"],
                 ["--demonstrator_seed", "1"], ["--member_demonstrators"]):
@@ -826,6 +869,11 @@ def test_an_ensemble_of_demonstrator_files_is_checked_kept_and_resumed(tmp_path,
                                 source.demonstrator.normalizer.mean)
   with pytest.raises(Exception, match="already holds a run"):  # nothing overwritten
     prepare(tmp_path / "run", (shipped, former), resume=False)
+  lines = []  # the mean of their log pD, asked for as run.py asks (its `reward` settings)
+  averaged = prepare(tmp_path / "mean", (shipped, former), resume=False,
+                     reward={"ensemble_log_pd": "mean"})
+  assert averaged.ensemble_log_pd == "mean" and averaged.settings()["ensemble_log_pd"] == "mean"
+  assert "an ensemble of 2 demonstrators: log pD is the mean of their log pD" in lines
   # A directory holding only an ensemble's second file is a used one too (a later --resume
   # would read it).
   (tmp_path / "leftover").mkdir()

@@ -200,12 +200,16 @@ def test_check_parses_run_jobs_as_run_does_and_names_a_bad_one(tmp_path, capsys)
       "--demonstrator benchmarks/demonstrators/reacher_hard_expert_64be96_200k_ee291e.npz\n"
       "ft: python scripts/run.py --task reacher_hard --method form --seeds 0,1,2 "
       "--member_demonstrators --train_demonstrator --demonstrator_seed 4\n"
+      "fn: python scripts/run.py --task reacher_hard --method form --demonstrator "
+      "tasks/demonstrators/reacher_hard.npz --demonstrator "
+      "benchmarks/demonstrators/reacher_hard_expert_64be96_200k_ee291e.npz "
+      "--ensemble_log_pd mean\n"
       "ls: ls -la $RES\n")
   assert gpu_jobs.main(["check", str(jobs), "--deadline", "900"]) == 0
   out = [line for line in capsys.readouterr().out.splitlines()  # (not MuJoCo's import notes)
          if line.startswith(("rx:", "fx:", "fc:", "fl:", "fw:", "fd:", "fe:", "fm:", "fp:",
-                             "ft:", "ls:"))]
-  assert len(out) == 11 and out[0].startswith(
+                             "ft:", "fn:", "ls:"))]
+  assert len(out) == 12 and out[0].startswith(
       "rx: reacher_hard expert, seeds 0,1; grid target_update_period=25,100")
   for part in ("512 envs x 256 updates (replay ratio 32)", "T 25", "action penalty True",
                "max seconds 900.0"):  # reacher_hard's recipe, the flags, $LEFT
@@ -223,14 +227,17 @@ def test_check_parses_run_jobs_as_run_does_and_names_a_bad_one(tmp_path, capsys)
   assert ("L2 0.1, width 256; demonstrator given, benchmarks/demonstrators/reacher_hard_plain"
           ".npz") in out[5], out  # its own settings: not turn-invariant
   assert ("turn-invariant; demonstrator given, tasks/demonstrators/reacher_hard.npz + "
-          "benchmarks/demonstrators/reacher_hard_expert_64be96_200k_ee291e.npz") in out[6], out
+          "benchmarks/demonstrators/reacher_hard_expert_64be96_200k_ee291e.npz, their "
+          "mixture;") in out[6], out
   assert ("demonstrator given, tasks/demonstrators/reacher_hard.npz + elsewhere/d.npz (not all "
           "here to check)") in out[7], out
   assert ("turn-invariant; demonstrator one per member, tasks/demonstrators/reacher_hard.npz, "
           "benchmarks/demonstrators/reacher_hard_expert_64be96_200k_ee291e.npz") in out[8], out
   assert ("demonstrator trained (--train_demonstrator), one draw per member, seeds 4-6"
           in out[9]), out
-  assert out[10] == "ls: not a run.py command, not checked: ls -la $RES"
+  assert ("reacher_hard_expert_64be96_200k_ee291e.npz, the mean of their log pD;"
+          in out[10]), out
+  assert out[11] == "ls: not a run.py command, not checked: ls -la $RES"
   for bad, said in (("--task walker_walk --method form --turn_invariant", "unbounded"),
                     ("--task reacher_easy --method form --demonstrator "
                      "tasks/demonstrators/reacher_hard.npz", "reacher_hard"),

@@ -109,8 +109,13 @@ def test_form_table_averages_the_final_policy_over_seeds():
   mixed = [_final_return(s, v, settings=ensemble) for s, v in ((0, 900.0), (1, 850.0))]
   table = report.form_table(mixed, expert_returns={"cheetah_run": 875.0},
                             demonstration_returns={"d1": 1000.0, "d2": 950.0})
-  assert "ensemble of 2 demonstrators" in table
+  assert "ensemble of 2 demonstrators" in table and "mean log pD" not in table
   assert "| 875.0 +- 25.0 | - | 975.0 | 0.90 | 0.89 |" in table, table
+  averaged = [_final_return(s, v, settings={"reward": {**ensemble["reward"],
+                                                            "ensemble_log_pd": "mean"}})
+              for s, v in ((0, 900.0), (1, 850.0))]
+  assert "| raw, T -, ensemble of 2 demonstrators, mean log pD |" in report.form_table(
+      averaged, expert_returns={"cheetah_run": 875.0}, demonstration_returns={})
   table = report.form_table(mixed, expert_returns={"cheetah_run": 875.0},
                             demonstration_returns={"d1": 1000.0})
   assert "| 875.0 +- 25.0 | - | 875.0 | 1.00 | 0.89 |" in table, table

@@ -38,8 +38,15 @@ or models of several experts' demonstrations, which the pipeline notes) gives pD
 mixture, log pD = logsumexp_k log pD_k - log K: a density (so the reward keeps
 its meaning), at least the best model's density / K wherever one model has a spurious hole.
 Nine draws of one recipe (200k steps) gave reacher_hard's FORM 389-903 (mean 696, 0.72 of the
-expert), and one trained longer 12 (benchmarks/NOTES.md, sessions 42-46). A single demonstrator's parameters are kept
-as they are; an ensemble's are stacked along a leading axis of size K.
+expert), and one trained longer 12 (benchmarks/NOTES.md, sessions 42-46).
+With `ensemble_log_pd="mean"` log pD is instead the mean of the models' log pD (not a density:
+their normalised geometric mean would subtract a normaliser of x_t), so the reward is the mean
+of the K FORM rewards log pD_k - log pI, whose expectation is minus the mean of the K
+divergences the paper's derivation gives. A mixture pays a transition at least what the most
+lenient model pays it, less log K: one model's floor, a broad component that pays all behaviour off
+the expert's alike (sessions 44-46), becomes the mixture's. The mean pays each model's floor
+with weight 1/K. A single demonstrator's parameters are kept as they are; an ensemble's are
+stacked along a leading axis of size K.
 
 Demonstrators per member (`member_demonstrators`): a population's member i imitates the i-th
 of P demonstrators (one each, not a mixture), so one program compares demonstrators, e.g. draws
@@ -62,6 +69,9 @@ import jax.numpy as jnp
 
 from mjx_form.imitation import effect_model as em
 from mjx_form.rl import grid, normalizer
+
+
+ENSEMBLE_LOG_PD = ("mixture", "mean")  # how an ensemble's models make log pD
 
 
 class Demonstrator(NamedTuple):
@@ -96,13 +106,16 @@ class FormReward:
   def __init__(self, config: em.EffectModelConfig,
                demonstrator: Demonstrator | Sequence[Demonstrator],
                demonstrator_sha256: str | Sequence[str] = "", standardise_reward: bool = False,
-               reward_clip: float = 0.0, member_demonstrators: bool = False):
+               reward_clip: float = 0.0, member_demonstrators: bool = False,
+               ensemble_log_pd: str = "mixture"):
     """`demonstrator`: one, or a sequence of them (an ensemble where there are 2 or more: their
     mixture); `demonstrator_sha256` identifies the demonstrator file (an ensemble's: its files'
     sorted and joined by '+'; kept with checkpoints, so a run resumes only with the same ones);
     `standardise_reward`, `reward_clip` (in running standard deviations, 0: off): see the
     module docstring. `member_demonstrators`: the sequence gives a population's members one
-    each, in order (2 or more; `demonstrator_sha256` then one checksum per member)."""
+    each, in order (2 or more; `demonstrator_sha256` then one checksum per member).
+    `ensemble_log_pd`: an ensemble's log pD, "mixture" (their mixture's) or "mean" (the mean
+    of their log pD; see the module docstring)."""
     config.check()
     grid.check_value("reward_clip", reward_clip)
     models = [demonstrator] if isinstance(demonstrator, Demonstrator) else list(demonstrator)
@@ -114,6 +127,14 @@ class FormReward:
       raise ValueError("demonstrators per member need 2 or more, and one sha256 each; got "
                        f"{len(models)} and {demonstrator_sha256!r}")
     self.ensemble = len(models) if len(models) > 1 and not self.per_member else 0  # 0: none
+    if ensemble_log_pd not in ENSEMBLE_LOG_PD:
+      raise ValueError(f"ensemble_log_pd must be one of {ENSEMBLE_LOG_PD}, got "
+                       f"{ensemble_log_pd!r}")
+    if ensemble_log_pd != "mixture" and not self.ensemble:
+      raise ValueError(f"ensemble_log_pd {ensemble_log_pd!r} needs an ensemble of 2 "
+                       "demonstrators or more shared by the members, got "
+                       + (f"{len(models)} per member" if self.per_member else "one"))
+    self.ensemble_log_pd = ensemble_log_pd
     demonstrator = stack(models) if len(models) > 1 else models[0]  # (refuses other shapes)
     self.config = config
     self.standardise_reward = bool(standardise_reward)
@@ -183,7 +204,10 @@ class FormReward:
   def settings(self) -> dict:
     if not self.per_member:
       demonstrators = {"demonstrator_sha256": self.demonstrator_sha256,
-                       **({"demonstrators": self.ensemble} if self.ensemble else {})}
+                       **({"demonstrators": self.ensemble} if self.ensemble else {}),
+                       # (only where not the mixture: earlier runs' settings stay as they were)
+                       **({"ensemble_log_pd": self.ensemble_log_pd}
+                          if self.ensemble_log_pd != "mixture" else {})}
     elif self.member_index is None:  # the run's: every member's
       demonstrators = {"member_demonstrators": list(self.demonstrator_sha256)}
     else:  # member i's records: its own, and that the members had their own
@@ -210,7 +234,9 @@ class FormReward:
     x, x_next = observation[:, :-1], observation[:, 1:]
     demo, imitator = state.demonstrator, state.imitator
     log_d_of = lambda d: em.transition_log_prob(self.model, d.params, d.normalizer, x, x_next)
-    if self.ensemble:  # the mixture's density: the mean of the models' densities
+    if self.ensemble and self.ensemble_log_pd == "mean":  # the mean of the models' log pD
+      log_d = jnp.mean(jax.vmap(log_d_of)(demo), axis=0)
+    elif self.ensemble:  # the mixture's density: the mean of the models' densities
       log_d = (jax.nn.logsumexp(jax.vmap(log_d_of)(demo), axis=0)
                - math.log(self.ensemble))
     else:

@@ -2,8 +2,8 @@
 demonstrator effect model -> imitation -> evaluation.
 
 Stages, each of which can also start from a saved artefact:
-  1. demonstrator: `--demonstrator FILE` (given several times: an ensemble, their mixture,
-     mjx_form.imitation.form), else the one shipped in tasks/demonstrators/ (when it
+  1. demonstrator: `--demonstrator FILE` (given several times: an ensemble, their mixture or
+     the mean of their log pD, mjx_form.imitation.form), else the one shipped in tasks/demonstrators/ (when it
      was trained with this run's effect-model settings), else trained here on demonstrations;
   2. demonstrations: `--demos FILE`, else recorded from the expert (`--expert FILE`, else the
      shipped one) on the device. They train the demonstrator where one is trained (1000
@@ -117,7 +117,7 @@ def prepare(env, config: em.EffectModelConfig, explicit: dict, artefacts: Artefa
 
   `config`: the effect-model settings asked for; `explicit`: those of them the user set (a
   ready demonstrator must agree with them); `reward`: the FormReward's reward settings
-  (`standardise_reward`, `reward_clip`: see mjx_form.imitation.form).
+  (`standardise_reward`, `reward_clip`, `ensemble_log_pd`: see mjx_form.imitation.form).
   """
   given = artefacts.demonstrator
   if isinstance(given, str):
@@ -211,7 +211,9 @@ def prepare(env, config: em.EffectModelConfig, explicit: dict, artefacts: Artefa
         f"{path} ({sha[:6]})" for (path, _), sha in zip(ready, sha256)))
     return FormReward(config, demonstrators, sha256, member_demonstrators=True, **reward)
   if len(ready) > 1:
-    print_fn(f"an ensemble of {len(ready)} demonstrators: log pD is their mixture's")
+    print_fn(f"an ensemble of {len(ready)} demonstrators: log pD is "
+             + ("the mean of their log pD" if reward.get("ensemble_log_pd") == "mean"
+                else "their mixture's"))
   return FormReward(config, demonstrators, sha256, **reward)
 
 
