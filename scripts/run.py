@@ -434,6 +434,9 @@ def recipe_hint(args: argparse.Namespace, error: ValueError) -> str:
   if "init_policy" in error.keys:  # the run started from a policy file, or this one does
     return (" (a run that started from a policy resumes with --init_policy and that file; one "
             "that did not, without it)")
+  if "reward.ensemble_log_pd" in error.keys:
+    return (" (a run started with --ensemble_log_pd mean resumes with it; one started without "
+            "it, without it)")
   if args.method == "expert" and recipe_applies(args):
     return (f" ({args.task}'s expert runs take its recipe, mjx_form/rl/recipes.py; a run "
             "started with the paper's settings resumes with --preset paper)")

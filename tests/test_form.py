@@ -552,6 +552,11 @@ def test_form_flags_are_refused_for_other_methods(capsys, monkeypatch, tmp_path)
         capsys.readouterr().err)
   assert cli.parse_args(["--method", "form", "--ensemble_log_pd", "mean", "--demonstrator",
                          "a.npz", "--demonstrator", "b.npz"]).ensemble_log_pd == "mean"
+  # a resume refused for another ensemble_log_pd says how to resume
+  refused = checkpoint.CheckpointError("differs", ("reward.ensemble_log_pd",))
+  assert "started with --ensemble_log_pd mean resumes with it" in cli.recipe_hint(
+      cli.parse_args(["--resume"]), refused)
+  assert cli.recipe_hint(cli.parse_args([]), refused) == ""
   # --resume reads the kept demonstrators; a demonstrator flag beside it would be ignored
   for flags in (["--demonstrator", "a.npz"], ["--train_demonstrator"],
                 ["--demonstrator_seed", "1"], ["--member_demonstrators"]):
