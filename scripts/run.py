@@ -236,7 +236,7 @@ def parse_args(argv=None) -> argparse.Namespace:
                     help="a demonstrator effect model (.npz) to use (default: "
                     "tasks/demonstrators/<task>.npz where its settings are this run's, else "
                     "one is trained); given several times, an ensemble: log pD is their "
-                    "mixture's (files of one task and one setting)")
+                    "mixture's, or see --ensemble_log_pd (files of one task and one setting)")
   form.add_argument("--ensemble_log_pd", choices=form_lib.ENSEMBLE_LOG_PD, default=None,
                     help="with several --demonstrator files (an ensemble): log pD is their "
                          "mixture's (default) or the mean of their log pD, the mean of their "

@@ -542,6 +542,12 @@ def test_form_flags_are_refused_for_other_methods(capsys, monkeypatch, tmp_path)
                             *argv])
     artefacts = cli.form_source(drawn, str(tmp_path), None, print)
     assert artefacts.draw_seeds == seeds and artefacts.train_demonstrator, (argv, artefacts)
+  # --ensemble_log_pd reaches the reward source's settings (the mixture where not given)
+  monkeypatch.setattr(pipeline, "prepare", lambda *args, **kwargs: kwargs["reward"])
+  for argv, asked in (([], "mixture"), (["--ensemble_log_pd", "mean"], "mean")):
+    both = cli.parse_args(["--method", "form", "--demonstrator", "a.npz", "--demonstrator",
+                           "b.npz", *argv])
+    assert cli.form_source(both, str(tmp_path), None, print)["ensemble_log_pd"] == asked
   # --ensemble_log_pd mean: an ensemble shared by the members
   for argv in (["--demonstrator", "a.npz"], [],
                ["--member_demonstrators", "--seeds", "0,1", "--demonstrator", "a.npz",
@@ -552,6 +558,7 @@ def test_form_flags_are_refused_for_other_methods(capsys, monkeypatch, tmp_path)
         capsys.readouterr().err)
   assert cli.parse_args(["--method", "form", "--ensemble_log_pd", "mean", "--demonstrator",
                          "a.npz", "--demonstrator", "b.npz"]).ensemble_log_pd == "mean"
+  assert cli.parse_args(["--resume", "--ensemble_log_pd", "mean"]).ensemble_log_pd == "mean"
   # a resume refused for another ensemble_log_pd says how to resume
   refused = checkpoint.CheckpointError("differs", ("reward.ensemble_log_pd",))
   assert "started with --ensemble_log_pd mean resumes with it" in cli.recipe_hint(

@@ -109,7 +109,7 @@ class FormReward:
                reward_clip: float = 0.0, member_demonstrators: bool = False,
                ensemble_log_pd: str = "mixture"):
     """`demonstrator`: one, or a sequence of them (an ensemble where there are 2 or more: their
-    mixture); `demonstrator_sha256` identifies the demonstrator file (an ensemble's: its files'
+    mixture, or see `ensemble_log_pd`); `demonstrator_sha256` identifies the demonstrator file (an ensemble's: its files'
     sorted and joined by '+'; kept with checkpoints, so a run resumes only with the same ones);
     `standardise_reward`, `reward_clip` (in running standard deviations, 0: off): see the
     module docstring. `member_demonstrators`: the sequence gives a population's members one

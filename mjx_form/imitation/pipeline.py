@@ -3,8 +3,9 @@ demonstrator effect model -> imitation -> evaluation.
 
 Stages, each of which can also start from a saved artefact:
   1. demonstrator: `--demonstrator FILE` (given several times: an ensemble, their mixture or
-     the mean of their log pD, mjx_form.imitation.form), else the one shipped in tasks/demonstrators/ (when it
-     was trained with this run's effect-model settings), else trained here on demonstrations;
+     the mean of their log pD, mjx_form.imitation.form), else the one shipped in
+     tasks/demonstrators/ (when it was trained with this run's effect-model settings), else
+     trained here on demonstrations;
   2. demonstrations: `--demos FILE`, else recorded from the expert (`--expert FILE`, else the
      shipped one) on the device. They train the demonstrator where one is trained (1000
      episodes by default, as the paper); with a ready demonstrator a few (16 by default)
