@@ -25,6 +25,7 @@ from mjx_form.imitation.form import Demonstrator, FormReward
 from mjx_form.rl import normalizer
 from mjx_form.rl.learner import LearnerConfig
 from mjx_form.rl.train import TrainConfig, Trainer
+from mjx_form.sim import env as env_lib
 from tasks import reacher
 
 pytestmark = pytest.mark.xdist_group("form")
@@ -164,6 +165,47 @@ def test_an_ensemble_can_score_with_the_mean_of_its_log_densities():
                ensemble_log_pd="mean")
 
 
+def _evaluation_reference(trainer, state, member: int, demonstrator: Demonstrator):
+  """What `Trainer.evaluate` should give member `member` (seeded by `keys(1)`, its own
+  policy's mean action, one whole episode per environment), computed here on its own: the
+  task returns [n] and the demonstrator's mean log pD per transition of each episode [n]."""
+  n = trainer.config.eval_envs
+  env_state = trainer.auto_reset.reset_from_keys(jax.random.split(trainer.keys(1)[member], n))
+  policy = trainer.member(state.learner.policy, member)
+  norm = trainer.member(state.normalizer, member)
+
+  @jax.jit
+  def episodes(env_state):
+    def step(s, _):
+      action = trainer.networks.policy.apply(policy, normalizer.normalize(norm, s.obs)).mode()
+      after = jax.vmap(trainer.env.step)(s, action)
+      return after, (s.obs, after.obs, after.reward)
+    return jax.lax.scan(step, env_state, None, length=env_lib.EPISODE_LENGTH)[1]
+
+  x, x_next, reward = episodes(env_state)  # [T, n, ...]
+  log_pd = em.transition_log_prob(em.make_model(EFFECT, D), demonstrator.params,
+                                  demonstrator.normalizer, x, x_next)
+  return np.asarray(reward).sum(axis=0), np.asarray(log_pd).mean(axis=0)
+
+
+def test_evaluation_scores_episodes_with_the_demonstrator(form_trainer):
+  """FORM's evaluation also gives each episode's mean log pD per transition (the policy's mean
+  action; no task reward needed): what a rollout of the same episodes scored by the
+  demonstrator gives, next to the same returns; without the source states, returns alone."""
+  state, _ = _iterate(form_trainer, 1)
+  source = form_trainer.scored_source(state)
+  assert source is not None
+  returns, scores = form_trainer.evaluate(state.learner.policy, state.normalizer,
+                                          form_trainer.keys(1), source=source)
+  assert np.asarray(scores).shape == (1, CONFIG.eval_envs)
+  want_returns, want_scores = _evaluation_reference(form_trainer, state, 0, _demonstrator())
+  np.testing.assert_allclose(np.asarray(returns)[0], want_returns, rtol=1e-4, atol=1e-3)
+  np.testing.assert_allclose(np.asarray(scores)[0], want_scores, rtol=1e-4, atol=1e-3)
+  assert np.ptp(want_scores) > 0 or abs(want_scores[0]) > 1.0  # (not a constant of nothing)
+  alone = form_trainer.evaluate(state.learner.policy, state.normalizer, form_trainer.keys(1))
+  np.testing.assert_allclose(np.asarray(alone), np.asarray(returns), rtol=1e-5)
+
+
 def test_an_ensemble_runs_in_the_compiled_loop_on_two_devices(form_trainer):
   """An ensemble's stacked demonstrators go through the compiled loop with the batch sharded
   over two devices: an ensemble of one model twice trains as that model alone (the same log pD
@@ -212,6 +254,14 @@ def test_demonstrators_per_member_give_each_member_its_own(form_trainer):
   _, first = spread.iteration(spread.init(spread.keys()))
   np.testing.assert_allclose(jax.device_get(first["demonstrator_log_prob"]),
                              metrics[0]["demonstrator_log_prob"], rtol=1e-4, atol=1e-3)
+  # Evaluation: member i's episodes scored by its own demonstrator (either layout).
+  for trainer, trained in ((population, state), (spread, spread.init(spread.keys()))):
+    _, scored = trainer.evaluate(trained.learner.policy, trained.normalizer, trainer.keys(1),
+                                 source=trainer.scored_source(trained))
+    for i, d in enumerate(demos):
+      np.testing.assert_allclose(np.asarray(scored)[i],
+                                 _evaluation_reference(trainer, trained, i, d)[1],
+                                 rtol=1e-4, atol=1e-3, err_msg=f"{trainer.layout} member {i}")
   # (the two demonstrators score the same transitions differently, through the members' states)
   obs = jnp.asarray(np.random.default_rng(2).normal(size=(3, 5, D)), jnp.float32)
   scores = [np.asarray(source.log_probs(population.member(state.source, i), obs)[0])
@@ -629,7 +679,12 @@ def test_form_command_line_runs_every_stage(tmp_path, capsys):
   assert [r["kind"] for r in records] == ["learning_curve", "final_return", "final_return"]
   assert all(r["method"] == "form" for r in records)
   assert all(np.isfinite(records[0][k]) for k in ("form_reward", "demonstrator_log_prob",
-                                                  "imitator_batch_log_prob", "eval_return"))
+                                                  "imitator_batch_log_prob", "eval_return",
+                                                  "eval_demonstrator_log_prob"))
+  # the evaluations' log pD (no task reward) in the records, the progress lines and the CSV
+  assert all(np.isfinite(r["eval_demonstrator_log_prob"]) for r in records[1:])
+  assert re.search(r"eval -?[0-9.]+ \(log pD -?[0-9.]+\)", out)
+  assert "eval_demonstrator_log_prob" in (first / "progress.csv").read_text().splitlines()[0]
   assert 0.0 <= records[0]["form_reward_clipped"] < 0.5  # a share of the batch's transitions
   assert records[0]["settings"]["reward"]["demonstrator_sha256"] == shipped.metadata["sha256"]
   # FORM's default run settings (mjx_form/imitation/settings.py): standardised reward clipped

@@ -244,6 +244,11 @@ class FormReward:
     log_i = em.transition_log_prob(self.model, imitator.params, imitator.normalizer, x, x_next)
     return log_d, log_i
 
+  def evaluation_log_prob(self, state: FormState, x: jax.Array, x_next: jax.Array) -> jax.Array:
+    """log pD(x_next | x) of evaluation transitions, x and x_next [N, D] raw: [N]. Their mean
+    over an episode measures the imitation without the task reward."""
+    return self.log_probs(state, jnp.stack([x, x_next], axis=1))[0][:, 0]
+
   def raw_rewards(self, state: FormState, batch: dict) -> tuple[jax.Array, jax.Array]:
     """log pD - log pI of each transition [B, T], and where it is defined (successor stored)."""
     log_d, log_i = self.log_probs(state, batch["observation"])

@@ -20,6 +20,10 @@ A source is an object with:
       the vmapped `init` (which cannot tell the members apart), given what each member has of
       its own (FORM's demonstrators per member)
   as_member(i) -> source (optional): the source as member i's records describe it
+  evaluation_log_prob(state, x, x_next) -> [N] (optional): a score of the evaluation
+      episodes' transitions x -> x_next ([N, D] raw observations, the policy's mean action),
+      e.g. FORM's log pD: a measure of imitation that needs no task reward; reported beside
+      the evaluation return, nothing in training depends on it
 where `batch` is a dict of unrolls: observation [B, T+1, D] (raw, not standardised), action
 [B, T, A], discount [B, T], and reward [B, T] only when needs_task_reward is set.
 """

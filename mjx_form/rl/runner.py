@@ -51,7 +51,8 @@ ADDED_SETTINGS = {"learner.mpo.action_penalty": False, "learner.mpo.epsilon_pena
 
 
 # Columns that not every row has (evaluation rows; devices that report memory).
-_OPTIONAL_COLUMNS = ("eval_return", "eval_return_std", "peak_memory_bytes")
+_OPTIONAL_COLUMNS = ("eval_return", "eval_return_std", "eval_demonstrator_log_prob",
+                     "peak_memory_bytes")
 
 
 class RunError(ValueError):
@@ -266,7 +267,7 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
   elif initial_policy is not None:
     state = trainer.start_from(state, initial_policy.params, initial_policy.normalizer)
     meta = initial_policy.metadata
-    returns = np.asarray(trainer.evaluate(state.learner.policy, state.normalizer, eval_keys))
+    returns, _ = _evaluated(trainer, state, state.learner.policy, state.normalizer, eval_keys)
     print_fn(f"every member starts from {meta['task']}'s policy {meta['sha256'][:12]} "
              f"(exported at {meta.get('env_steps') or 0:,} env steps): it evaluates "
              f"{returns.mean():.1f} on {config.task} ({returns.size} episodes)")
@@ -316,7 +317,8 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
     evaluate = iteration % eval_every == 0 or last
     if evaluate:
       t0 = time.perf_counter()
-      returns = np.asarray(trainer.evaluate(state.learner.policy, state.normalizer, eval_keys))
+      returns, scores = _evaluated(trainer, state, state.learner.policy, state.normalizer,
+                                   eval_keys)
       eval_seconds += time.perf_counter() - t0
     wall = wall_offset + time.perf_counter() - call_start
     peak = results.peak_memory_bytes()
@@ -329,6 +331,8 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
              **{k: _scalar(v[i]) for k, v in metrics.items()}}
       if evaluate:
         row.update(eval_return=float(returns[i].mean()), eval_return_std=float(returns[i].std()))
+        if scores is not None:  # (FORM: log pD of the evaluation episodes, no task reward)
+          row["eval_demonstrator_log_prob"] = float(scores[i].mean())
         if row["eval_return"] > best_returns[i]:
           best_returns[i] = row["eval_return"]
           export_policy(trainer, state, i, best_paths[i], row)
@@ -385,18 +389,34 @@ def _final_evaluation(trainer: Trainer, state, best_paths: list[str], rows: list
   keys = trainer.keys(2)
   for name, policy, norm in (("final", state.learner.policy, state.normalizer),
                              ("best", best_policy, best_norm)):
-    returns = np.asarray(trainer.evaluate(policy, norm, keys, num_envs=episodes))
+    returns, scores = _evaluated(trainer, state, policy, norm, keys, num_envs=episodes)
     for i in range(trainer.members):
       rows[i][f"{name}_policy_return"] = float(returns[i].mean())
       prefix = f"{labels[i]}: " if trainer.members > 1 else ""
+      scored = ({} if scores is None
+                else {"eval_demonstrator_log_prob": float(scores[i].mean())})
       print_fn(f"{prefix}fresh evaluation of the {name} policy over {returns.shape[1]} "
-               f"episodes: {returns[i].mean():.1f} +- {returns[i].std():.1f}")
+               f"episodes: {returns[i].mean():.1f} +- {returns[i].std():.1f}"
+               + (f" (log pD {scores[i].mean():.1f})" if scored else ""))
       if curve is not None:
         curve.write(**_record_base(trainer, i), kind="final_return", policy=name,
                     final_return=float(returns[i].mean()),
-                    final_return_std=float(returns[i].std()), episodes=int(returns.shape[1]),
+                    final_return_std=float(returns[i].std()), **scored,
+                    episodes=int(returns.shape[1]),
                     env_steps=rows[i]["env_steps"], wall_s=rows[i]["wall_s"], finished=finished,
                     settings=_record_settings(trainer, i, total_env_steps))
+
+
+def _evaluated(trainer: Trainer, state, policy, norm, keys, num_envs: int | None = None):
+  """Evaluation returns [P, n] and, where the run's source scores the episodes (FORM: their
+  mean log pD per transition, `Trainer.evaluate`), the scores [P, n], else None."""
+  scored = trainer.scored_source(state)
+  more = {**({} if num_envs is None else {"num_envs": num_envs}),  # (the form of the call
+          **({} if scored is None else {"source": scored})}         # compiled ahead)
+  out = trainer.evaluate(policy, norm, keys, **more)
+  if isinstance(out, tuple):
+    return np.asarray(out[0]), np.asarray(out[1])
+  return np.asarray(out), None
 
 
 def _rate(steps_per_s: float) -> str:
@@ -412,7 +432,9 @@ def _progress_line(row: dict, total_iterations: int, steps_per_iteration: int) -
           f"{row['wall_s']:.0f}s  {_rate(row['steps_per_s'])} steps/s"
           + (f"  ~{left:.0f}s left" if np.isfinite(left) else "")
           + f"  train return {_show(row['train_return'])}"
-          + (f"  eval {row['eval_return']:.1f}" if "eval_return" in row else ""))
+          + (f"  eval {row['eval_return']:.1f}" if "eval_return" in row else "")
+          + (f" (log pD {row['eval_demonstrator_log_prob']:.1f})"
+             if "eval_demonstrator_log_prob" in row else ""))
   if "form_reward" in row:
     clipped = row["form_reward_clipped"]
     line += (f"  form reward {row['form_reward']:.2f} (sd {row['form_reward_std']:.2f}"
@@ -488,7 +510,10 @@ _CURVE_FIELDS = (
     # saw them (form.py: fresh_metrics; fresh below batch: the imitator model lags the policy)
     "form_reward", "form_reward_std", "form_reward_clipped", "demonstrator_log_prob",
     "imitator_batch_log_prob", "imitator_log_prob", "demonstrator_fresh_log_prob",
-    "imitator_fresh_log_prob", "form_reward_fresh")
+    "imitator_fresh_log_prob", "form_reward_fresh",
+    # FORM: the demonstrator's mean log pD of the evaluation episodes' transitions (the policy's
+    # mean action): how well the policy imitates, measured without the task reward
+    "eval_demonstrator_log_prob")
 
 
 def _write_curve_point(writer: results.ResultWriter, trainer: Trainer, member: int, row: dict, *,

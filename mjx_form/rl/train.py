@@ -322,12 +322,19 @@ class Trainer:
     JAX's cache; the later calls (`keys` [P, 2] of the kind that will be passed) reuse them.
     """
     state = self.abstract_state
-    jobs = [(self.init, (keys,)), (self.iteration, (state,)),
-            (self.evaluate, (state.learner.policy, state.normalizer, keys))]
+    scored = self.scored_source(state)  # (passed as the runner passes it: only where scored)
+    jobs = [(self.init, (keys,), {}), (self.iteration, (state,), {}),
+            (self.evaluate, (state.learner.policy, state.normalizer, keys),
+             {} if scored is None else {"source": scored})]
     with concurrent.futures.ThreadPoolExecutor(len(jobs)) as pool:
-      compiled = [f.result() for f in [pool.submit(lambda f=f, a=a: f.lower(*a).compile())
-                                       for f, a in jobs]]
+      compiled = [f.result() for f in [pool.submit(lambda f=f, a=a, k=k: f.lower(*a, **k)
+                                                   .compile()) for f, a, k in jobs]]
     check_memory(compiled[1], self.mesh, f"{self.members} member(s) of {self.config.task}")
+
+  def scored_source(self, state):
+    """What `evaluate` takes as `source` for `state`: its source states where the source scores
+    evaluation episodes (`evaluation_log_prob`), else None."""
+    return state.source if hasattr(self.source, "evaluation_log_prob") else None
 
   def member(self, tree, i: int):
     """Member i's part of a tree with a leading member axis (e.g. `state.learner`)."""
@@ -562,26 +569,35 @@ class Trainer:
   # --- evaluation -------------------------------------------------------------------------
 
   def _evaluate(self, policy_params, norm: normalizer.NormalizerState, keys: jax.Array,
-                num_envs: int | None = None) -> jax.Array:
+                num_envs: int | None = None, source=None):
     """Task returns [P, num_envs] (default eval_envs) of full episodes with each member's
-    policy's mean action; policy_params and norm [P, ...], keys [P, 2] (`keys(1)`)."""
+    policy's mean action; policy_params and norm [P, ...], keys [P, 2] (`keys(1)`). With the
+    members' `source` states (a source with `evaluation_log_prob`, e.g. FORM's), also each
+    episode's mean score of its transitions [P, num_envs]: (returns, scores)."""
     n = num_envs or self.config.eval_envs
     reset_keys = jax.vmap(lambda k: jax.random.split(k, n))(keys).reshape(-1, 2)
     states = self.auto_reset.reset_from_keys(reset_keys)  # (its info keys too: and the
     states = jax.lax.with_sharding_constraint(states, self._batch)  # sharding: one step trace)
+    by_member = lambda x: x.reshape((self.members, n) + x.shape[1:])
 
     def step(carry, _):
-      env_state, total = carry
+      env_state, total, score = carry
       action = self._policies(policy_params, norm, env_state.obs).mode()
       step_all = jax.vmap(self.env.step)
       if self.per_device_env_steps:
         step_all = mesh_lib.per_device(step_all, self._batch)
-      env_state = step_all(env_state, action.reshape((-1, action.shape[-1])))
-      return (env_state, total + env_state.reward), None
+      stepped = step_all(env_state, action.reshape((-1, action.shape[-1])))
+      if source is not None:  # (one episode, no reset: obs -> stepped.obs is a transition)
+        score = score + jax.vmap(self.source.evaluation_log_prob)(
+            source, by_member(env_state.obs), by_member(stepped.obs)).reshape(-1)
+      return (stepped, total + stepped.reward, score), None
 
-    (_, total), _ = jax.lax.scan(step, (states, jnp.zeros(reset_keys.shape[:1])), None,
-                                 length=env_lib.EPISODE_LENGTH)
-    return total.reshape((self.members, n))
+    zeros = jnp.zeros(reset_keys.shape[:1])
+    (_, total, score), _ = jax.lax.scan(step, (states, zeros, zeros), None,
+                                        length=env_lib.EPISODE_LENGTH)
+    if source is None:
+      return by_member(total)
+    return by_member(total), by_member(score) / env_lib.EPISODE_LENGTH
 
 
 def program_bytes(compiled) -> int | None:
