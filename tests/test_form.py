@@ -193,10 +193,10 @@ def test_evaluation_scores_episodes_with_the_demonstrator(form_trainer):
   action; no task reward needed): what a rollout of the same episodes scored by the
   demonstrator gives, next to the same returns; without the source states, returns alone."""
   state, _ = _iterate(form_trainer, 1)
-  source = form_trainer.scored_source(state)
-  assert source is not None
+  inputs = form_trainer.evaluation_inputs(state)
+  assert set(inputs) == {"source"}
   returns, scores = form_trainer.evaluate(state.learner.policy, state.normalizer,
-                                          form_trainer.keys(1), source=source)
+                                          form_trainer.keys(1), **inputs)
   assert np.asarray(scores).shape == (1, CONFIG.eval_envs)
   want_returns, want_scores = _evaluation_reference(form_trainer, state, 0, _demonstrator())
   np.testing.assert_allclose(np.asarray(returns)[0], want_returns, rtol=1e-4, atol=1e-3)
@@ -257,7 +257,7 @@ def test_demonstrators_per_member_give_each_member_its_own(form_trainer):
   # Evaluation: member i's episodes scored by its own demonstrator (either layout).
   for trainer, trained in ((population, state), (spread, spread.init(spread.keys()))):
     _, scored = trainer.evaluate(trained.learner.policy, trained.normalizer, trainer.keys(1),
-                                 source=trainer.scored_source(trained))
+                                 **trainer.evaluation_inputs(trained))
     for i, d in enumerate(demos):
       np.testing.assert_allclose(np.asarray(scored)[i],
                                  _evaluation_reference(trainer, trained, i, d)[1],

@@ -246,7 +246,8 @@ class FormReward:
 
   def evaluation_log_prob(self, state: FormState, x: jax.Array, x_next: jax.Array) -> jax.Array:
     """log pD(x_next | x) of evaluation transitions, x and x_next [N, D] raw: [N]. Their mean
-    over an episode measures the imitation without the task reward."""
+    over an episode measures the imitation without the task reward. (`log_probs`' log pI,
+    unused here, is dropped by the compiler.)"""
     return self.log_probs(state, jnp.stack([x, x_next], axis=1))[0][:, 0]
 
   def raw_rewards(self, state: FormState, batch: dict) -> tuple[jax.Array, jax.Array]:

@@ -51,8 +51,7 @@ ADDED_SETTINGS = {"learner.mpo.action_penalty": False, "learner.mpo.epsilon_pena
 
 
 # Columns that not every row has (evaluation rows; devices that report memory).
-_OPTIONAL_COLUMNS = ("eval_return", "eval_return_std", "eval_demonstrator_log_prob",
-                     "peak_memory_bytes")
+_OPTIONAL_COLUMNS = ("eval_return", "eval_return_std", "peak_memory_bytes")
 
 
 class RunError(ValueError):
@@ -71,8 +70,9 @@ class CsvLog:
   """Appends rows to progress.csv (columns fixed by the first row) and, when tensorboardX is
   installed, the same scalars to TensorBoard event files in the run directory."""
 
-  def __init__(self, directory: str):
+  def __init__(self, directory: str, optional: tuple[str, ...] = _OPTIONAL_COLUMNS):
     self.path = os.path.join(directory, "progress.csv")
+    self._optional = optional  # columns not every row has
     self._columns = None
     if os.path.exists(self.path):
       with open(self.path) as f:
@@ -100,7 +100,7 @@ class CsvLog:
 
   def write(self, row: dict) -> None:
     if self._columns is None:
-      self._columns = list(row) + [c for c in _OPTIONAL_COLUMNS if c not in row]
+      self._columns = list(row) + [c for c in self._optional if c not in row]
       with open(self.path, "w", newline="") as f:
         csv.writer(f).writerow(self._columns)
     with open(self.path, "a", newline="") as f:
@@ -278,7 +278,8 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
   labels = [grid.label(s, o) for s, o in zip(trainer.seeds, trainer.overrides)]
   for d in dirs:
     os.makedirs(d, exist_ok=True)
-  logs = [CsvLog(d) for d in dirs]
+  scored = ("eval_demonstrator_log_prob",) if trainer.evaluation_inputs(state) else ()
+  logs = [CsvLog(d, _OPTIONAL_COLUMNS + scored) for d in dirs]
   wall_offset = max(log.rewind(int(state.iteration)) for log in logs) if resume else 0.0
   curve = results.ResultWriter(results_path) if results_path else None
 
@@ -410,10 +411,8 @@ def _final_evaluation(trainer: Trainer, state, best_paths: list[str], rows: list
 def _evaluated(trainer: Trainer, state, policy, norm, keys, num_envs: int | None = None):
   """Evaluation returns [P, n] and, where the run's source scores the episodes (FORM: their
   mean log pD per transition, `Trainer.evaluate`), the scores [P, n], else None."""
-  scored = trainer.scored_source(state)
-  more = {**({} if num_envs is None else {"num_envs": num_envs}),  # (the form of the call
-          **({} if scored is None else {"source": scored})}         # compiled ahead)
-  out = trainer.evaluate(policy, norm, keys, **more)
+  more = {} if num_envs is None else {"num_envs": num_envs}
+  out = trainer.evaluate(policy, norm, keys, **trainer.evaluation_inputs(state), **more)
   if isinstance(out, tuple):
     return np.asarray(out[0]), np.asarray(out[1])
   return np.asarray(out), None

@@ -322,19 +322,19 @@ class Trainer:
     JAX's cache; the later calls (`keys` [P, 2] of the kind that will be passed) reuse them.
     """
     state = self.abstract_state
-    scored = self.scored_source(state)  # (passed as the runner passes it: only where scored)
     jobs = [(self.init, (keys,), {}), (self.iteration, (state,), {}),
             (self.evaluate, (state.learner.policy, state.normalizer, keys),
-             {} if scored is None else {"source": scored})]
+             self.evaluation_inputs(state))]
     with concurrent.futures.ThreadPoolExecutor(len(jobs)) as pool:
       compiled = [f.result() for f in [pool.submit(lambda f=f, a=a, k=k: f.lower(*a, **k)
                                                    .compile()) for f, a, k in jobs]]
     check_memory(compiled[1], self.mesh, f"{self.members} member(s) of {self.config.task}")
 
-  def scored_source(self, state):
-    """What `evaluate` takes as `source` for `state`: its source states where the source scores
-    evaluation episodes (`evaluation_log_prob`), else None."""
-    return state.source if hasattr(self.source, "evaluation_log_prob") else None
+  def evaluation_inputs(self, state) -> dict:
+    """The keyword arguments `evaluate` takes for `state` (the one call form, compiled ahead
+    and used by the runner): the source states where the source scores evaluation episodes
+    (`evaluation_log_prob`), else none."""
+    return {"source": state.source} if hasattr(self.source, "evaluation_log_prob") else {}
 
   def member(self, tree, i: int):
     """Member i's part of a tree with a leading member axis (e.g. `state.learner`)."""
@@ -587,7 +587,9 @@ class Trainer:
       if self.per_device_env_steps:
         step_all = mesh_lib.per_device(step_all, self._batch)
       stepped = step_all(env_state, action.reshape((-1, action.shape[-1])))
-      if source is not None:  # (one episode, no reset: obs -> stepped.obs is a transition)
+      # (one episode, no reset: obs -> stepped.obs is a transition; after a physics error the
+      # state stands still, its steps scored as x -> x as its rewards are 0)
+      if source is not None:
         score = score + jax.vmap(self.source.evaluation_log_prob)(
             source, by_member(env_state.obs), by_member(stepped.obs)).reshape(-1)
       return (stepped, total + stepped.reward, score), None
