@@ -39,14 +39,15 @@ mixture, log pD = logsumexp_k log pD_k - log K: a density (so the reward keeps
 its meaning), at least the best model's density / K wherever one model has a spurious hole.
 Nine draws of one recipe (200k steps) gave reacher_hard's FORM 389-903 (mean 696, 0.72 of the
 expert), and one trained longer 12 (benchmarks/NOTES.md, sessions 42-46).
+
 With `ensemble_log_pd="mean"` log pD is instead the mean of the models' log pD (not a density:
 their normalised geometric mean would subtract a normaliser of x_t), so the reward is the mean
 of the K FORM rewards log pD_k - log pI, whose expectation is minus the mean of the K
 divergences the paper's derivation gives. A mixture pays a transition at least what the most
-lenient model pays it, less log K: one model's floor, a broad component that pays all behaviour off
-the expert's alike (sessions 44-46), becomes the mixture's. The mean pays each model's floor
-with weight 1/K. A single demonstrator's parameters are kept as they are; an ensemble's are
-stacked along a leading axis of size K.
+lenient model pays it, less log K: one model's floor (a broad component that pays all
+behaviour off the expert's alike, sessions 44-46) becomes the mixture's. The mean pays each
+model's floor with weight 1/K. A single demonstrator's parameters are kept as they are; an
+ensemble's are stacked along a leading axis of size K.
 
 Demonstrators per member (`member_demonstrators`): a population's member i imitates the i-th
 of P demonstrators (one each, not a mixture), so one program compares demonstrators, e.g. draws
@@ -109,10 +110,10 @@ class FormReward:
                reward_clip: float = 0.0, member_demonstrators: bool = False,
                ensemble_log_pd: str = "mixture"):
     """`demonstrator`: one, or a sequence of them (an ensemble where there are 2 or more: their
-    mixture, or see `ensemble_log_pd`); `demonstrator_sha256` identifies the demonstrator file (an ensemble's: its files'
-    sorted and joined by '+'; kept with checkpoints, so a run resumes only with the same ones);
-    `standardise_reward`, `reward_clip` (in running standard deviations, 0: off): see the
-    module docstring. `member_demonstrators`: the sequence gives a population's members one
+    mixture, or see `ensemble_log_pd`); `demonstrator_sha256` identifies the demonstrator file
+    (an ensemble's: its files' sorted and joined by '+'; kept with checkpoints, so a run resumes
+    only with the same ones); `standardise_reward`, `reward_clip` (in running standard
+    deviations, 0: off): see the module docstring. `member_demonstrators`: the sequence gives a population's members one
     each, in order (2 or more; `demonstrator_sha256` then one checksum per member).
     `ensemble_log_pd`: an ensemble's log pD, "mixture" (their mixture's) or "mean" (the mean
     of their log pD; see the module docstring)."""
