@@ -165,45 +165,47 @@ def test_an_ensemble_can_score_with_the_mean_of_its_log_densities():
                ensemble_log_pd="mean")
 
 
-def _evaluation_reference(trainer, state, member: int, demonstrator: Demonstrator):
-  """What `Trainer.evaluate` should give member `member` (seeded by `keys(1)`, its own
-  policy's mean action, one whole episode per environment), computed here on its own: the
-  task returns [n] and the demonstrator's mean log pD per transition of each episode [n]."""
-  n = trainer.config.eval_envs
-  env_state = trainer.auto_reset.reset_from_keys(jax.random.split(trainer.keys(1)[member], n))
-  policy = trainer.member(state.learner.policy, member)
-  norm = trainer.member(state.normalizer, member)
+def _evaluation_reference(trainer, state, demonstrators: list[Demonstrator]):
+  """What `Trainer.evaluate` should give (member i seeded by `keys(1)[i]`, its own policy's
+  mean action, one whole episode per environment), computed here on its own: the task returns
+  [P, n] and member i's demonstrator's mean log pD per transition of each episode [P, n]."""
+  p, n = trainer.members, trainer.config.eval_envs
+  keys = jax.vmap(lambda k: jax.random.split(k, n))(trainer.keys(1)).reshape(-1, 2)
+  apply = jax.vmap(lambda params, norm, obs: trainer.networks.policy.apply(
+      params, normalizer.normalize(norm, obs)).mode())
 
   @jax.jit
-  def episodes(env_state):
+  def episodes(env_state, policy, norm):
     def step(s, _):
-      action = trainer.networks.policy.apply(policy, normalizer.normalize(norm, s.obs)).mode()
+      action = apply(policy, norm, s.obs.reshape(p, n, -1)).reshape(p * n, -1)
       after = jax.vmap(trainer.env.step)(s, action)
       return after, (s.obs, after.obs, after.reward)
     return jax.lax.scan(step, env_state, None, length=env_lib.EPISODE_LENGTH)[1]
 
-  x, x_next, reward = episodes(env_state)  # [T, n, ...]
-  log_pd = em.transition_log_prob(em.make_model(EFFECT, D), demonstrator.params,
-                                  demonstrator.normalizer, x, x_next)
-  return np.asarray(reward).sum(axis=0), np.asarray(log_pd).mean(axis=0)
+  x, x_next, reward = jax.device_get(episodes(trainer.auto_reset.reset_from_keys(keys),
+                                              state.learner.policy, state.normalizer))
+  by_member = lambda v: np.moveaxis(v.reshape(v.shape[0], p, n, *v.shape[2:]), 0, 2)
+  x, x_next, reward = by_member(x), by_member(x_next), by_member(reward)  # [P, n, T, ...]
+  model = em.make_model(EFFECT, D)
+  log_pd = [np.asarray(em.transition_log_prob(model, d.params, d.normalizer, x[i], x_next[i]))
+            for i, d in enumerate(demonstrators)]
+  return reward.sum(axis=-1), np.mean(log_pd, axis=-1)
 
 
 def test_evaluation_scores_episodes_with_the_demonstrator(form_trainer):
   """FORM's evaluation also gives each episode's mean log pD per transition (the policy's mean
   action; no task reward needed): what a rollout of the same episodes scored by the
-  demonstrator gives, next to the same returns; without the source states, returns alone."""
+  demonstrator gives, next to the same returns."""
   state, _ = _iterate(form_trainer, 1)
   inputs = form_trainer.evaluation_inputs(state)
   assert set(inputs) == {"source"}
   returns, scores = form_trainer.evaluate(state.learner.policy, state.normalizer,
                                           form_trainer.keys(1), **inputs)
   assert np.asarray(scores).shape == (1, CONFIG.eval_envs)
-  want_returns, want_scores = _evaluation_reference(form_trainer, state, 0, _demonstrator())
-  np.testing.assert_allclose(np.asarray(returns)[0], want_returns, rtol=1e-4, atol=1e-3)
-  np.testing.assert_allclose(np.asarray(scores)[0], want_scores, rtol=1e-4, atol=1e-3)
-  assert np.ptp(want_scores) > 0 or abs(want_scores[0]) > 1.0  # (not a constant of nothing)
-  alone = form_trainer.evaluate(state.learner.policy, state.normalizer, form_trainer.keys(1))
-  np.testing.assert_allclose(np.asarray(alone), np.asarray(returns), rtol=1e-5)
+  want_returns, want_scores = _evaluation_reference(form_trainer, state, [_demonstrator()])
+  np.testing.assert_allclose(np.asarray(returns), want_returns, rtol=1e-4, atol=1e-3)
+  np.testing.assert_allclose(np.asarray(scores), want_scores, rtol=1e-4, atol=1e-3)
+  assert np.ptp(want_scores) > 0 or abs(want_scores[0, 0]) > 1.0  # (not a constant of nothing)
 
 
 def test_an_ensemble_runs_in_the_compiled_loop_on_two_devices(form_trainer):
@@ -254,14 +256,14 @@ def test_demonstrators_per_member_give_each_member_its_own(form_trainer):
   _, first = spread.iteration(spread.init(spread.keys()))
   np.testing.assert_allclose(jax.device_get(first["demonstrator_log_prob"]),
                              metrics[0]["demonstrator_log_prob"], rtol=1e-4, atol=1e-3)
-  # Evaluation: member i's episodes scored by its own demonstrator (either layout).
-  for trainer, trained in ((population, state), (spread, spread.init(spread.keys()))):
-    _, scored = trainer.evaluate(trained.learner.policy, trained.normalizer, trainer.keys(1),
-                                 **trainer.evaluation_inputs(trained))
-    for i, d in enumerate(demos):
-      np.testing.assert_allclose(np.asarray(scored)[i],
-                                 _evaluation_reference(trainer, trained, i, d)[1],
-                                 rtol=1e-4, atol=1e-3, err_msg=f"{trainer.layout} member {i}")
+  # Evaluation: member i's episodes scored by its own demonstrator; the other layout's
+  # evaluation of the same state scores the same.
+  scored = [np.asarray(t.evaluate(state.learner.policy, state.normalizer, t.keys(1),
+                                  **t.evaluation_inputs(state))[1]) for t in (population, spread)]
+  np.testing.assert_allclose(scored[0], _evaluation_reference(population, state, demos)[1],
+                             rtol=1e-4, atol=1e-3)
+  np.testing.assert_allclose(scored[1], scored[0], rtol=1e-4, atol=1e-3)
+  assert np.abs(scored[0][0] - scored[0][1]).min() > 0.1  # (the members' episodes differ)
   # (the two demonstrators score the same transitions differently, through the members' states)
   obs = jnp.asarray(np.random.default_rng(2).normal(size=(3, 5, D)), jnp.float32)
   scores = [np.asarray(source.log_probs(population.member(state.source, i), obs)[0])
