@@ -211,11 +211,12 @@ def prepare(env, config: em.EffectModelConfig, explicit: dict, artefacts: Artefa
     print_fn("demonstrators per member, in the members' order: " + ", ".join(
         f"{path} ({sha[:6]})" for (path, _), sha in zip(ready, sha256)))
     return FormReward(config, demonstrators, sha256, member_demonstrators=True, **reward)
-  if len(ready) > 1:
-    print_fn(f"an ensemble of {len(ready)} demonstrators: log pD is "
-             + ("the mean of their log pD" if reward.get("ensemble_log_pd") == "mean"
+  source = FormReward(config, demonstrators, sha256, **reward)
+  if source.ensemble:  # (what the source made of the files and `reward`)
+    print_fn(f"an ensemble of {source.ensemble} demonstrators: log pD is "
+             + ("the mean of their log pD" if source.ensemble_log_pd == "mean"
                 else "their mixture's"))
-  return FormReward(config, demonstrators, sha256, **reward)
+  return source
 
 
 def _check_kept(run_dir: str, ready: list[tuple[str, effect_models.EffectModelFile]],
