@@ -161,7 +161,8 @@ def _form_models(run, args) -> str:
     where = (f"one per member, {', '.join(args.demonstrator)}" if args.member_demonstrators
              else f"given, {' + '.join(args.demonstrator)}")
     if len(args.demonstrator) > 1 and not args.member_demonstrators:
-      where += (", the mean of their log pD" if args.ensemble_log_pd == "mean"
+      where += (", as each member's --grid ensemble_log_pd says" if "ensemble_log_pd" in args.grid
+                else ", the mean of their log pD" if args.ensemble_log_pd == "mean"
                 else ", their mixture")
   elif args.train_demonstrator:
     where = "trained (--train_demonstrator)"

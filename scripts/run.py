@@ -125,7 +125,7 @@ def parse_args(argv=None) -> argparse.Namespace:
                            "population is every combination of the seeds and the values, each "
                            "member in <run_dir>/seed<s>_<name><value>/; the values replace "
                            "--NAME. Settings that may differ: " + ", ".join(grid.NAMES)
-                           + " (standardise_reward: 0/1, reward_clip: --method form)")
+                           + " (standardise_reward: 0/1, reward_clip, ensemble_log_pd: --method form)")
   parser.add_argument("--list", action="store_true", help="print the task names and exit")
   parser.add_argument("--method", default="form", choices=METHODS,
                       help="form: imitation from observations (default); expert: MPO on the "
@@ -347,10 +347,14 @@ def parse_args(argv=None) -> argparse.Namespace:
     if not args.train_demonstrator and (len(args.demonstrator or ()) != members or members < 2):
       parser.error(f"--member_demonstrators: give one --demonstrator per member (the "
                    f"population has {members}), got {len(args.demonstrator or ())}")
-  if args.ensemble_log_pd not in (None, "mixture") and (
-      args.member_demonstrators or (len(args.demonstrator or ()) < 2 and not args.resume)):
-    parser.error(f"--ensemble_log_pd {args.ensemble_log_pd}: an ensemble needs 2 --demonstrator "
-                 "files or more, shared by the members (not --member_demonstrators)")
+  averaged = ([f"--ensemble_log_pd {args.ensemble_log_pd}"]
+              if args.ensemble_log_pd not in (None, "mixture") else []) + (
+      ["--grid ensemble_log_pd"] if set(args.grid.get("ensemble_log_pd", ())) - {"mixture"}
+      else [])
+  if averaged and (args.member_demonstrators
+                   or (len(args.demonstrator or ()) < 2 and not args.resume)):
+    parser.error(f"{' and '.join(averaged)}: an ensemble needs 2 --demonstrator files or more, "
+                 "shared by the members (not --member_demonstrators)")
   if args.demonstrator and args.train_demonstrator:
     parser.error("--demonstrator and --train_demonstrator exclude each other (a run trains "
                  "its demonstrator or uses the ones given)")

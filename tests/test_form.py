@@ -21,7 +21,7 @@ from mjx_form import mesh as mesh_lib
 from mjx_form.files import checkpoint, demos, effect_models, experts, results
 from mjx_form.imitation import effect_model as em
 from mjx_form.imitation import settings
-from mjx_form.imitation.form import Demonstrator, FormReward
+from mjx_form.imitation.form import ENSEMBLE_LOG_PD, Demonstrator, FormReward
 from mjx_form.rl import normalizer
 from mjx_form.rl.learner import LearnerConfig
 from mjx_form.rl.train import TrainConfig, Trainer
@@ -163,12 +163,36 @@ def test_an_ensemble_can_score_with_the_mean_of_its_log_densities():
   with pytest.raises(ValueError, match="got 3 per member"):
     FormReward(EFFECT, members, ["a", "b", "c"], member_demonstrators=True,
                ensemble_log_pd="mean")
+  # Population members may differ in it (`--grid ensemble_log_pd=...`): traced per member as its
+  # index in ENSEMBLE_LOG_PD, each member gets what its own source gives; as a Python value the
+  # member's source records it.
+  index = jnp.array([ENSEMBLE_LOG_PD.index(v) for v in ("mixture", "mean")], jnp.int32)
+  traced = np.asarray(jax.vmap(lambda v: mixture.specialise({"ensemble_log_pd": v}).log_probs(
+      state, obs)[0])(index))
+  np.testing.assert_allclose(traced[0], mixed, rtol=1e-6, atol=1e-6)
+  np.testing.assert_allclose(traced[1], np.asarray(log_d), rtol=1e-6, atol=1e-6)
+  assert mixture.specialise({"ensemble_log_pd": "mean"}).settings()["ensemble_log_pd"] == "mean"
+  assert "ensemble_log_pd" not in mean.specialise({"ensemble_log_pd": "mixture"}).settings()
+  for source, value, message in ((mixture, "product", "must be one of"),
+                                 (FormReward(EFFECT, members[0]), "mean", "got one")):
+    with pytest.raises(ValueError, match=message):
+      source.specialise({"ensemble_log_pd": value})
 
 
 def _evaluation_reference(trainer, state, demonstrators: list[Demonstrator]):
   """What `Trainer.evaluate` should give (member i seeded by `keys(1)[i]`, its own policy's
   mean action, one whole episode per environment), computed here on its own: the task returns
   [P, n] and member i's demonstrator's mean log pD per transition of each episode [P, n]."""
+  x, x_next, reward = _evaluation_episodes(trainer, state)
+  model = em.make_model(EFFECT, D)
+  log_pd = [np.asarray(em.transition_log_prob(model, d.params, d.normalizer, x[i], x_next[i]))
+            for i, d in enumerate(demonstrators)]
+  return reward.sum(axis=-1), np.mean(log_pd, axis=-1)
+
+
+def _evaluation_episodes(trainer, state):
+  """The episodes `Trainer.evaluate` should roll out, rolled out here on their own: x, x_next
+  [P, n, T, D] and rewards [P, n, T]."""
   p, n = trainer.members, trainer.config.eval_envs
   keys = jax.vmap(lambda k: jax.random.split(k, n))(trainer.keys(1)).reshape(-1, 2)
   apply = jax.vmap(lambda params, norm, obs: trainer.networks.policy.apply(
@@ -185,11 +209,7 @@ def _evaluation_reference(trainer, state, demonstrators: list[Demonstrator]):
   x, x_next, reward = jax.device_get(episodes(trainer.auto_reset.reset_from_keys(keys),
                                               state.learner.policy, state.normalizer))
   by_member = lambda v: np.moveaxis(v.reshape(v.shape[0], p, n, *v.shape[2:]), 0, 2)
-  x, x_next, reward = by_member(x), by_member(x_next), by_member(reward)  # [P, n, T, ...]
-  model = em.make_model(EFFECT, D)
-  log_pd = [np.asarray(em.transition_log_prob(model, d.params, d.normalizer, x[i], x_next[i]))
-            for i, d in enumerate(demonstrators)]
-  return reward.sum(axis=-1), np.mean(log_pd, axis=-1)
+  return by_member(x), by_member(x_next), by_member(reward)  # [P, n, T, ...]
 
 
 def test_evaluation_scores_episodes_with_the_demonstrator(form_trainer):
@@ -198,7 +218,7 @@ def test_evaluation_scores_episodes_with_the_demonstrator(form_trainer):
   demonstrator gives, next to the same returns."""
   state, _ = _iterate(form_trainer, 1)
   inputs = form_trainer.evaluation_inputs(state)
-  assert set(inputs) == {"source"}
+  assert set(inputs) == {"source", "source_settings"} and inputs["source_settings"] == {}
   returns, scores = form_trainer.evaluate(state.learner.policy, state.normalizer,
                                           form_trainer.keys(1), **inputs)
   assert np.asarray(scores).shape == (1, CONFIG.eval_envs)
@@ -222,6 +242,38 @@ def test_an_ensemble_runs_in_the_compiled_loop_on_two_devices(form_trainer):
   kept = jax.device_get(state.source.demonstrator)  # [P, K, ...]
   np.testing.assert_array_equal(kept.normalizer.mean[0], np.stack(
       [np.asarray(_demonstrator().normalizer.mean)] * 2))
+
+
+def test_members_may_differ_in_how_an_ensemble_makes_log_pd():
+  """A population over the two devices whose members differ only in `ensemble_log_pd` (seed 0
+  each, `--grid ensemble_log_pd=mixture,mean`): their first iteration's transitions are the
+  same, scored lower by the mean (Jensen); evaluating the initial policies (the same episodes)
+  scores each member's episodes with its own log pD (numpy reference from each model's)."""
+  members = [_demonstrator(0), _demonstrator(3)]
+  population = Trainer(CONFIG, mesh_lib.make_mesh(), FormReward(EFFECT, members, "a+b"),
+                       seeds=(0, 0), overrides=({"ensemble_log_pd": "mixture"},
+                                                {"ensemble_log_pd": "mean"}))
+  assert "ensemble_log_pd" not in population.member_source(0).settings()
+  assert population.member_source(1).settings()["ensemble_log_pd"] == "mean"
+  start = population.init(population.keys())
+  np.testing.assert_array_equal(start.settings["ensemble_log_pd"], [0, 1])
+  _, scores = population.evaluate(start.learner.policy, start.normalizer, population.keys(1),
+                                  **population.evaluation_inputs(start))
+  x, x_next, _ = _evaluation_episodes(population, start)
+  _, m = population.iteration(start)  # (`start` donated)
+  fresh = np.asarray(m["demonstrator_fresh_log_prob"])  # [P]: the same transitions
+  assert fresh[1] < fresh[0] - 0.1, fresh
+  np.testing.assert_array_equal(x[0], x[1])  # (the same episodes)
+  model = em.make_model(EFFECT, D)
+  each = np.stack([np.asarray(em.transition_log_prob(model, d.params, d.normalizer, x[0],
+                                                     x_next[0]), np.float64)
+                   for d in members])  # [K, n, T]
+  want = [(np.logaddexp.reduce(each, axis=0) - np.log(2)).mean(-1), each.mean(0).mean(-1)]
+  np.testing.assert_allclose(np.asarray(scores), want, rtol=1e-4, atol=1e-3)
+  assert np.abs(want[0] - want[1]).min() > 0.1  # (the two differ: the test can fail)
+  with pytest.raises(ValueError, match="needs an ensemble"):
+    Trainer(CONFIG, mesh_lib.make_mesh(), FormReward(EFFECT, members[0]), seeds=(0, 0),
+            overrides=({}, {"ensemble_log_pd": "mean"}))
 
 
 def test_demonstrators_per_member_give_each_member_its_own(form_trainer):
@@ -611,6 +663,26 @@ def test_form_flags_are_refused_for_other_methods(capsys, monkeypatch, tmp_path)
   assert cli.parse_args(["--method", "form", "--ensemble_log_pd", "mean", "--demonstrator",
                          "a.npz", "--demonstrator", "b.npz"]).ensemble_log_pd == "mean"
   assert cli.parse_args(["--resume", "--ensemble_log_pd", "mean"]).ensemble_log_pd == "mean"
+  # ... and so does a grid in which some member takes the mean (one of the mixture alone is the
+  # default, allowed anywhere)
+  for argv in (["--demonstrator", "a.npz"], ["--member_demonstrators", "--seeds", "0,1",
+                                              "--demonstrator", "a.npz", "--demonstrator",
+                                              "b.npz", "--demonstrator", "c.npz",
+                                              "--demonstrator", "d.npz"]):
+    with pytest.raises(SystemExit):
+      cli.parse_args(["--method", "form", "--grid", "ensemble_log_pd=mixture,mean", *argv])
+    assert "--grid ensemble_log_pd: an ensemble needs 2 --demonstrator files or more" in (
+        capsys.readouterr().err)
+  assert cli.parse_args(["--method", "form", "--grid", "ensemble_log_pd=mixture", "--seeds",
+                         "0,1"]).grid == {"ensemble_log_pd": ("mixture",)}
+  gridded = cli.parse_args(["--method", "form", "--grid", "ensemble_log_pd=mixture,mean",
+                            "--demonstrator", "a.npz", "--demonstrator", "b.npz"])
+  assert gridded.grid == {"ensemble_log_pd": ("mixture", "mean")}
+  assert cli.population_size(gridded) == 2
+  with pytest.raises(SystemExit):
+    cli.parse_args(["--method", "form", "--grid", "ensemble_log_pd=mixture,product"])
+  assert "ensemble_log_pd must be one of mixture, mean, got 'product'" in (
+      capsys.readouterr().err)
   # a resume refused for another ensemble_log_pd says how to resume
   refused = checkpoint.CheckpointError("differs", ("reward.ensemble_log_pd",))
   assert "started with --ensemble_log_pd mean resumes with it" in cli.recipe_hint(

@@ -81,3 +81,20 @@ def test_a_member_learner_config_takes_its_values_nested_or_traced():
   assert arrays["learning_rate"].dtype == jnp.float32 and arrays["learning_rate"].shape == (2,)
   assert grid.arrays([{"clip_critic_actions": True}, {"clip_critic_actions": False}],
                      ["clip_critic_actions"])["clip_critic_actions"].dtype == jnp.bool_
+
+
+def test_a_setting_with_named_values_travels_as_their_index():
+  """FORM's ensemble_log_pd: parsed and checked by name, a member's value in the [P] arrays is
+  its index in CHOICES (what the source compares a traced value with)."""
+  from mjx_form.imitation import form
+  assert grid.CHOICES["ensemble_log_pd"] == form.ENSEMBLE_LOG_PD == ("mixture", "mean")
+  assert grid.parse_value("ensemble_log_pd", "mean") == "mean"
+  with pytest.raises(ValueError, match="must be one of mixture, mean, got 'Mean'"):
+    grid.parse_value("ensemble_log_pd", "Mean")
+  values = [{"ensemble_log_pd": "mean"}, {"ensemble_log_pd": "mixture"},
+            {"ensemble_log_pd": "mean"}]
+  index = grid.arrays(values, ["ensemble_log_pd"])["ensemble_log_pd"]
+  assert index.dtype == jnp.int32 and index.tolist() == [1, 0, 1]
+  assert grid.split({"ensemble_log_pd": "mean"}) == ({}, {}, {"ensemble_log_pd": "mean"})
+  assert grid.dirname(0, {"ensemble_log_pd": "mean"}) == "seed0_ensemble_log_pdmean"
+  assert grid.label(2, {"ensemble_log_pd": "mean"}) == "seed 2, ensemble_log_pd mean"

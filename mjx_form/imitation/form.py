@@ -46,8 +46,10 @@ of the K FORM rewards log pD_k - log pI, whose expectation is minus the mean of 
 divergences the paper's derivation gives. A mixture pays a transition at least what the most
 lenient model pays it, less log K: one model's floor (a broad component that pays all
 behaviour off the expert's alike, sessions 44-46) becomes the mixture's. The mean pays each
-model's floor with weight 1/K. A single demonstrator's parameters are kept as they are; an
-ensemble's are stacked along a leading axis of size K.
+model's floor with weight 1/K. A population's members may differ in it (`--grid
+ensemble_log_pd=mixture,mean`: one program compares both on the same models and seeds). A
+single demonstrator's parameters are kept as they are; an ensemble's are stacked along a
+leading axis of size K.
 
 Demonstrators per member (`member_demonstrators`): a population's member i imitates the i-th
 of P demonstrators (one each, not a mixture), so one program compares demonstrators, e.g. draws
@@ -72,7 +74,7 @@ from mjx_form.imitation import effect_model as em
 from mjx_form.rl import grid, normalizer
 
 
-ENSEMBLE_LOG_PD = ("mixture", "mean")  # how an ensemble's models make log pD
+ENSEMBLE_LOG_PD = grid.CHOICES["ensemble_log_pd"]  # how an ensemble's models make log pD
 
 
 class Demonstrator(NamedTuple):
@@ -102,7 +104,7 @@ class FormReward:
   name = "form"
   needs_task_reward = False
   # may differ between a population's members
-  variable_settings = ("standardise_reward", "reward_clip")
+  variable_settings = ("standardise_reward", "reward_clip", "ensemble_log_pd")
 
   def __init__(self, config: em.EffectModelConfig,
                demonstrator: Demonstrator | Sequence[Demonstrator],
@@ -128,14 +130,8 @@ class FormReward:
       raise ValueError("demonstrators per member need 2 or more, and one sha256 each; got "
                        f"{len(models)} and {demonstrator_sha256!r}")
     self.ensemble = len(models) if len(models) > 1 and not self.per_member else 0  # 0: none
-    if ensemble_log_pd not in ENSEMBLE_LOG_PD:
-      raise ValueError(f"ensemble_log_pd must be one of {ENSEMBLE_LOG_PD}, got "
-                       f"{ensemble_log_pd!r}")
-    if ensemble_log_pd != "mixture" and not self.ensemble:
-      raise ValueError(f"ensemble_log_pd {ensemble_log_pd!r} needs an ensemble of 2 "
-                       "demonstrators or more shared by the members, got "
-                       + (f"{len(models)} per member" if self.per_member else "one"))
-    self.ensemble_log_pd = ensemble_log_pd
+    self._check_ensemble_log_pd(ensemble_log_pd, len(models))
+    self.ensemble_log_pd = ensemble_log_pd  # (a population member's: maybe its traced index)
     demonstrator = stack(models) if len(models) > 1 else models[0]  # (refuses other shapes)
     self.config = config
     self.standardise_reward = bool(standardise_reward)
@@ -153,10 +149,21 @@ class FormReward:
     unknown = set(values) - set(self.variable_settings)
     if unknown:
       raise ValueError(f"FORM settings {sorted(unknown)} cannot differ between members")
+    if isinstance(values.get("ensemble_log_pd"), str):  # (a traced one is an index, checked)
+      self._check_ensemble_log_pd(values["ensemble_log_pd"],
+                                  self.per_member or self.ensemble or 1)
     source = copy.copy(self)
     for name, value in values.items():
       setattr(source, name, value)
     return source
+
+  def _check_ensemble_log_pd(self, value: str, models: int) -> None:
+    if value not in ENSEMBLE_LOG_PD:
+      raise ValueError(f"ensemble_log_pd must be one of {ENSEMBLE_LOG_PD}, got {value!r}")
+    if value != "mixture" and not self.ensemble:
+      raise ValueError(f"ensemble_log_pd {value!r} needs an ensemble of 2 demonstrators or "
+                       "more shared by the members, got "
+                       + (f"{models} per member" if self.per_member else "one"))
 
   def as_member(self, i: int) -> "FormReward":
     """The source as member i of a population describes it (with demonstrators per member:
@@ -235,15 +242,20 @@ class FormReward:
     x, x_next = observation[:, :-1], observation[:, 1:]
     demo, imitator = state.demonstrator, state.imitator
     log_d_of = lambda d: em.transition_log_prob(self.model, d.params, d.normalizer, x, x_next)
-    if self.ensemble and self.ensemble_log_pd == "mean":  # the mean of the models' log pD
-      log_d = jnp.mean(jax.vmap(log_d_of)(demo), axis=0)
-    elif self.ensemble:  # the mixture's density: the mean of the models' densities
-      log_d = (jax.nn.logsumexp(jax.vmap(log_d_of)(demo), axis=0)
-               - math.log(self.ensemble))
-    else:
-      log_d = log_d_of(demo)
+    log_d = self._ensemble_log_prob(jax.vmap(log_d_of)(demo)) if self.ensemble else log_d_of(demo)
     log_i = em.transition_log_prob(self.model, imitator.params, imitator.normalizer, x, x_next)
     return log_d, log_i
+
+  def _ensemble_log_prob(self, each: jax.Array) -> jax.Array:
+    """An ensemble's log pD from its models' own, each [K, ...]: their mixture's (the mean of
+    their densities) or the mean of their log pD, as `ensemble_log_pd` says (a population
+    member's traced index into ENSEMBLE_LOG_PD: both computed, its own kept)."""
+    mixture = jax.nn.logsumexp(each, axis=0) - math.log(self.ensemble)
+    mean = jnp.mean(each, axis=0)
+    how = self.ensemble_log_pd
+    if isinstance(how, str):
+      return mean if how == "mean" else mixture
+    return jnp.where(how == ENSEMBLE_LOG_PD.index("mean"), mean, mixture)
 
   def evaluation_log_prob(self, state: FormState, x: jax.Array, x_next: jax.Array) -> jax.Array:
     """log pD(x_next | x) of evaluation transitions, x and x_next [N, D] raw: [N]. Their mean

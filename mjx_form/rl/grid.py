@@ -6,7 +6,8 @@ Members share everything that fixes the program's shapes and structure: the task
 reward source and its models (FORM's effect-model settings too: the demonstrator is trained
 offline with them, one file for the population). The settings below are numbers inside the
 learner update, the actors' draw or the reward source's step, so each member may have its own:
-they travel as [P] arrays, and inside the vmapped update (or draw) each member's config holds
+they travel as [P] arrays (a setting with named values, FORM's `ensemble_log_pd`, as the index
+of its value in CHOICES), and inside the vmapped update (or draw) each member's config holds
 its value where a single run's holds a constant (`learner_config`), so a member computes what a
 single run with its settings computes. (The actors' noise correlation is one: a member at 0
 draws exactly what a single run's independent draw gives, while the population keeps a noise
@@ -50,8 +51,12 @@ LEARNER = {
 # that does not wrap: normalizer.wrap leaves its features as they are).
 ACTOR = {"action_noise_correlation": float, "wrap_angles": bool, "angle_features": bool}
 # name -> type: settings a reward source lists in its `variable_settings` (FORM's
-# standardise_reward and reward_clip); the source's `specialise(values)` gives a member's source.
-SOURCE = {"standardise_reward": bool, "reward_clip": float}
+# standardise_reward, reward_clip and ensemble_log_pd); the source's `specialise(values)` gives a
+# member's source.
+SOURCE = {"standardise_reward": bool, "reward_clip": float, "ensemble_log_pd": str}
+# name -> the values of a setting of type str; a member's value travels as its index here
+# (traced: the source compares it with `CHOICES[name].index(value)`).
+CHOICES = {"ensemble_log_pd": ("mixture", "mean")}  # how an ensemble's models make log pD
 NAMES = (*LEARNER, *ACTOR, *SOURCE)
 
 
@@ -72,6 +77,9 @@ def parse_value(name: str, text: str):
     raise ValueError(f"--grid: {name!r} cannot differ between members (it can: "
                      f"{', '.join(NAMES)})")
   kind = _kind(name)
+  if kind is str:
+    check_value(name, text)
+    return text
   if kind is bool:
     if text.lower() not in ("0", "1", "true", "false"):
       raise ValueError(f"--grid {name}: expected 0/1 or true/false, got {text!r}")
@@ -86,6 +94,8 @@ def parse_value(name: str, text: str):
 
 def check_value(name: str, value) -> None:
   """Refuses a value its setting cannot take (ValueError naming both)."""
+  if name in CHOICES and value not in CHOICES[name]:
+    raise ValueError(f"{name} must be one of {', '.join(CHOICES[name])}, got {value!r}")
   if name == "discount" and not 0.0 < value <= 1.0:
     raise ValueError(f"discount must be in (0, 1], got {value}")
   if name == "retrace_lambda" and not 0.0 <= value <= 1.0:
@@ -143,10 +153,14 @@ def _replace(obj, path: tuple[str, ...], value):
 
 
 def arrays(values: list[dict], names) -> dict[str, Any]:
-  """The members' values of `names` as [P] arrays (int32 for integer settings, float32 else)."""
+  """The members' values of `names` as [P] arrays (int32 for integer settings and for the index
+  of a str setting's value in its CHOICES, bool, float32 else)."""
   out = {}
   for name in names:
     kind = _kind(name)
+    if kind is str:
+      out[name] = jnp.asarray([CHOICES[name].index(v[name]) for v in values], jnp.int32)
+      continue
     dtype = jnp.int32 if kind is int else jnp.bool_ if kind is bool else jnp.float32
     out[name] = jnp.asarray([v[name] for v in values], dtype)
   return out

@@ -234,6 +234,9 @@ class Trainer:
     for overrides in self.overrides:
       for name, value in overrides.items():
         grid.check_value(name, value)
+      # (the source refuses values it cannot take, e.g. FORM's mean of an ensemble's log pD
+      # without an ensemble)
+      self._source_with(grid.split(overrides)[2])
     # Each member's value of every setting some member overrides (TrainState.settings).
     self._settings = [{**{n: self._default(n) for n in names}, **o} for o in self.overrides]
     self._setting_names = names
@@ -292,7 +295,7 @@ class Trainer:
       return value
     if name in grid.ACTOR:
       return getattr(self.config, name)
-    return self.source.settings()[name]
+    return getattr(self.source, name)  # (its settings() may leave out a default value)
 
   def member_config(self, i: int) -> TrainConfig:
     """Member i's settings (its seed and overrides applied; the source's are `member_source`)."""
@@ -333,8 +336,10 @@ class Trainer:
   def evaluation_inputs(self, state) -> dict:
     """The keyword arguments `evaluate` takes for `state` (the one call form, compiled ahead
     and used by the runner): the source states where the source scores evaluation episodes
-    (`evaluation_log_prob`), else none."""
-    return {"source": state.source} if hasattr(self.source, "evaluation_log_prob") else {}
+    (`evaluation_log_prob`), with the members' own values of its settings, else none."""
+    if not hasattr(self.source, "evaluation_log_prob"):
+      return {}
+    return {"source": state.source, "source_settings": grid.split(state.settings)[2]}
 
   def member(self, tree, i: int):
     """Member i's part of a tree with a leading member axis (e.g. `state.learner`)."""
@@ -569,11 +574,12 @@ class Trainer:
   # --- evaluation -------------------------------------------------------------------------
 
   def _evaluate(self, policy_params, norm: normalizer.NormalizerState, keys: jax.Array,
-                num_envs: int | None = None, source=None):
+                num_envs: int | None = None, source=None, source_settings=None):
     """Task returns [P, num_envs] (default eval_envs) of full episodes with each member's
     policy's mean action; policy_params and norm [P, ...], keys [P, 2] (`keys(1)`). With the
-    members' `source` states (a source with `evaluation_log_prob`, e.g. FORM's), also each
-    episode's mean score of its transitions [P, num_envs]: (returns, scores)."""
+    members' `source` states (a source with `evaluation_log_prob`, e.g. FORM's) and their own
+    values of its settings (`source_settings`, [P] each), also each episode's mean score of its
+    transitions [P, num_envs], each member's by its own source: (returns, scores)."""
     n = num_envs or self.config.eval_envs
     reset_keys = jax.vmap(lambda k: jax.random.split(k, n))(keys).reshape(-1, 2)
     states = self.auto_reset.reset_from_keys(reset_keys)  # (its info keys too: and the
@@ -590,8 +596,10 @@ class Trainer:
       # (one episode, no reset: obs -> stepped.obs is a transition; after a physics error the
       # state stands still, its steps scored as x -> x as its rewards are 0)
       if source is not None:
-        score = score + jax.vmap(self.source.evaluation_log_prob)(
-            source, by_member(env_state.obs), by_member(stepped.obs)).reshape(-1)
+        score = score + jax.vmap(
+            lambda s, x, x_next, v: self._source_with(v).evaluation_log_prob(s, x, x_next))(
+                source, by_member(env_state.obs), by_member(stepped.obs),
+                source_settings or {}).reshape(-1)
       return (stepped, total + stepped.reward, score), None
 
     zeros = jnp.zeros(reset_keys.shape[:1])
