@@ -512,7 +512,7 @@ def form_source(args: argparse.Namespace, run_dir: str, results_path: str, print
                           reward={**{k: v for k, v in form_run_settings(args).items()
                                      if k in ("standardise_reward", "reward_clip")},
                                   "ensemble_log_pd": args.ensemble_log_pd or "mixture"},
-                          print_fn=print_fn)
+                          varied=tuple(args.grid), print_fn=print_fn)
 
 
 def random_rollout(args: argparse.Namespace, mesh) -> dict:

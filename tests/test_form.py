@@ -1015,6 +1015,9 @@ def test_an_ensemble_of_demonstrator_files_is_checked_kept_and_resumed(tmp_path,
                      reward={"ensemble_log_pd": "mean"})
   assert averaged.ensemble_log_pd == "mean" and averaged.settings()["ensemble_log_pd"] == "mean"
   assert "an ensemble of 2 demonstrators: log pD is the mean of their log pD" in lines
+  prepare(tmp_path / "both", (shipped, former), resume=False, varied=("ensemble_log_pd",))
+  assert ("an ensemble of 2 demonstrators: log pD is their mixture's or the mean of their log "
+          "pD, as each member's --grid ensemble_log_pd says") in lines
   # A directory holding only an ensemble's second file is a used one too (a later --resume
   # would read it).
   (tmp_path / "leftover").mkdir()

@@ -112,13 +112,14 @@ def load_demonstrator(path: str, env) -> effect_models.EffectModelFile:
 
 def prepare(env, config: em.EffectModelConfig, explicit: dict, artefacts: Artefacts,
             run_dir: str, *, resume: bool, physics: str, seed: int, results_path: str | None,
-            reward: dict | None = None,
+            reward: dict | None = None, varied: tuple[str, ...] = (),
             print_fn: Callable[[str], None] = print) -> FormReward:
   """Stages 1-2: the FORM reward source of this run, its demonstrator kept in `run_dir`.
 
   `config`: the effect-model settings asked for; `explicit`: those of them the user set (a
   ready demonstrator must agree with them); `reward`: the FormReward's reward settings
-  (`standardise_reward`, `reward_clip`, `ensemble_log_pd`: see mjx_form.imitation.form).
+  (`standardise_reward`, `reward_clip`, `ensemble_log_pd`: see mjx_form.imitation.form);
+  `varied`: those a population's members set for themselves (`--grid`; only named here).
   """
   given = artefacts.demonstrator
   if isinstance(given, str):
@@ -214,7 +215,9 @@ def prepare(env, config: em.EffectModelConfig, explicit: dict, artefacts: Artefa
   source = FormReward(config, demonstrators, sha256, **reward)
   if source.ensemble:  # (what the source made of the files and `reward`)
     print_fn(f"an ensemble of {source.ensemble} demonstrators: log pD is "
-             + ("the mean of their log pD" if source.ensemble_log_pd == "mean"
+             + ("their mixture's or the mean of their log pD, as each member's --grid "
+                "ensemble_log_pd says" if "ensemble_log_pd" in varied
+                else "the mean of their log pD" if source.ensemble_log_pd == "mean"
                 else "their mixture's"))
   return source
 
