@@ -4,8 +4,9 @@ final_return` records, as the run writes them itself with `--final_eval_envs`.
 
 For a run that ended without them (its machine taken back before its end, or stopped by
 `--max_seconds` before runs evaluated there too): each member's `policy.npz` and
-`best_policy.npz` are evaluated over `--episodes` fresh episodes (policy mean action, as the
-run's own evaluation), here, e.g. on the CPU. Each record copies the member's learning-curve
+`best_policy.npz` (and `best_log_pd_policy.npz` where the run kept one) are evaluated over
+`--episodes` fresh episodes (policy mean action, as the run's own evaluation), here, e.g. on
+the CPU. Each record copies the member's learning-curve
 record where its final policy was exported, the run's end (task, method, seed, settings, the
 training device, env steps, wall clock), adds the returns, `policy_env_steps` (where the
 policy was exported: the best one's is earlier), `finished` (whether the run reached its env
@@ -115,8 +116,10 @@ def main(argv=None) -> int:
     for d, own_settings in zip(dirs, overrides):
       reward_overrides = grid.split(own_settings)[2]
       end = None  # the final policy's record: where the run ended, both records are placed
-      for name in ("final", "best"):
-        path = os.path.join(d, f"{'best_' if name == 'best' else ''}policy.npz")
+      for name, file in (("final", "policy.npz"), *((n, f) for n, _, f in runner.BEST)):
+        path = os.path.join(d, file)
+        if name != "final" and not os.path.exists(path):  # (FORM runs since 2026-11-28 keep
+          continue                                        # best_log_pd_policy.npz; others not)
         returns, meta = evaluate(path, env, args.episodes, args.chunk, args.seed)
         own = member_record(records, meta, path, reward_overrides)  # the policy's point
         end = end or own

@@ -880,7 +880,10 @@ def form_table(records: list[dict], expert_returns: dict[str, float] | None = No
            "training, or where the run's time budget stopped it (`stopped` beside its env "
            "steps; `--final_eval_envs` episodes per seed, policy mean action), mean +- "
            "standard deviation over seeds (each seed: its mean over the episodes); best: the "
-           "same for the policy of each run's best periodic evaluation. Expert: the mean return "
+           "same for the policy of each run's best periodic evaluation by the task return; by "
+           "log pD: by the demonstrator's log pD per transition of the evaluation's episodes, a "
+           "choice made without the task reward (`best_log_pd_policy.npz`, runs since 2026-11-28; "
+           "`-` before). Expert: the mean return "
            "of the demonstrations the run's demonstrator was trained on (1000 episodes of the "
            "shipped expert), else the shipped expert's return at export; fraction = FORM / "
            "expert; the paper's fraction is its FORM return over its expert's. Reward: `raw` = "
@@ -892,15 +895,16 @@ def form_table(records: list[dict], expert_returns: dict[str, float] | None = No
                "; configurations: how many the task has" if best_per_task else "") + ":",
            "",
            "| task | device | physics | envs | reward, T, effect models | seeds | episodes / seed | env steps "
-           "| wall clock (mean) | FORM return | best policy | expert | fraction | paper's "
-           "fraction |" + (" configurations |" if best_per_task else ""),
-           "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"
+           "| wall clock (mean) | FORM return | best policy | by log pD | expert | fraction | "
+           "paper's fraction |" + (" configurations |" if best_per_task else ""),
+           "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"
            + ("---|" if best_per_task else "")]
   for key in sorted(groups, key=lambda k: (_order(k[0]), k[2], k[3], str(k))):
     task, physics, num_envs, env_steps, _, device, variant, _ = key
     final, best = groups[key]["final"], groups[key].get("best", [])
     mean, std = _mean_std([r["final_return"] for r in final])
-    best_text = (f"{_mean_std([r['final_return'] for r in best])[0]:.1f}" if best else "-")
+    best_texts = [f"{_mean_std([r['final_return'] for r in chosen])[0]:.1f}" if chosen else "-"
+                  for chosen in (best, groups[key].get("best_log_pd", []))]
     wall = _mean_std([r["wall_s"] for r in final])[0]
     episodes = sorted({r["episodes"] for r in final})
     shas = {r.get("settings", {}).get("reward", {}).get("demonstrator_sha256") for r in final}
@@ -914,7 +918,7 @@ def form_table(records: list[dict], expert_returns: dict[str, float] | None = No
              if task in PAPER_FORM and task in PAPER_EXPERT else "-")
     lines.append(f"| {task} | `{device}` | {physics} | {num_envs} | {variant} | {len(final)} | "
                  f"{'/'.join(str(e) for e in episodes)} | {env_steps / 1e6:.1f}M{stopped} | "
-                 f"{_duration(wall)} | {mean:.1f}{spread} | {best_text} | "
+                 f"{_duration(wall)} | {mean:.1f}{spread} | {' | '.join(best_texts)} | "
                  f"{'-' if expert is None else f'{expert:.1f}'} | {fraction} | {paper} |"
                  + (f" {configurations[task]} |" if best_per_task else ""))
   return "\n".join(lines)

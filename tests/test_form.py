@@ -18,7 +18,7 @@ from test_readme_commands import run_commands
 import tasks
 from mjx_form import cpu
 from mjx_form import mesh as mesh_lib
-from mjx_form.files import checkpoint, demos, effect_models, experts, results
+from mjx_form.files import checkpoint, demos, effect_models, experts, policy_io, results
 from mjx_form.imitation import effect_model as em
 from mjx_form.imitation import settings
 from mjx_form.imitation.form import ENSEMBLE_LOG_PD, Demonstrator, FormReward
@@ -750,7 +750,7 @@ def test_form_command_line_runs_every_stage(tmp_path, capsys):
   assert (first / "demonstrator.npz").read_bytes() == open(
       tasks.bundled_demonstrator("reacher_easy"), "rb").read()
   records = results.read_records(str(curve))
-  assert [r["kind"] for r in records] == ["learning_curve", "final_return", "final_return"]
+  assert [r["kind"] for r in records] == ["learning_curve"] + ["final_return"] * 3
   assert all(r["method"] == "form" for r in records)
   assert all(np.isfinite(records[0][k]) for k in ("form_reward", "demonstrator_log_prob",
                                                   "imitator_batch_log_prob", "eval_return",
@@ -767,13 +767,23 @@ def test_form_command_line_runs_every_stage(tmp_path, capsys):
   assert records[0]["settings"]["reward"]["reward_clip"] == 3.0
   assert records[0]["settings"]["learner"]["target_update_period"] == 25
   assert records[0]["learner_preset"] == "custom"
-  assert [r["policy"] for r in records[1:]] == ["final", "best"]
+  assert [r["policy"] for r in records[1:]] == ["final", "best", "best_log_pd"]
   assert records[1]["episodes"] == final_episodes and np.isfinite(records[1]["final_return"])
+  assert "fresh evaluation of the best policy by log pD over" in out
   # Resume: the kept demonstrator is used; the run continues from its checkpoint.
   assert cli.main(_readme_args(first, "--env_steps", str(2 * readme.env_steps), "--resume",
-                               "--final_eval_envs", "0")) == 0
+                               "--final_eval_envs", "0", "--results", str(curve))) == 0
   assert "resumed from iteration 1" in capsys.readouterr().out
   assert checkpoint.latest_step(str(first / "checkpoints")) == 2
+  # The best policies over both processes' evaluations: by their task return, and by their
+  # log pD (no task reward), each with the value that chose it.
+  curve_points = [r for r in results.read_records(str(curve)) if r["kind"] == "learning_curve"]
+  assert len(curve_points) == 2
+  for file, key in (("best_policy.npz", "eval_return"),
+                    ("best_log_pd_policy.npz", "eval_demonstrator_log_prob")):
+    kept = policy_io.load_policy(first / file)[1]
+    best = max(curve_points, key=lambda r: r[key])
+    assert (kept[key], kept["env_steps"]) == (best[key], best["env_steps"]), file
 
   # Stages from saved artefacts: the first run's demonstrations train a demonstrator, kept in
   # the run directory.
@@ -797,9 +807,9 @@ def test_form_command_line_runs_every_stage(tmp_path, capsys):
   assert meta["demonstrations"]["episodes"] == k and meta["demonstrations"]["file"] == "demos.npz"
   assert meta["demonstrations"]["expert"]["policy_file"] == "reacher_easy.npz"
   assert demos.load_demonstrations(saved, task="reacher_easy").actions.shape == (k, 1000, 2)
-  records = results.read_records(str(curve))[3:]
+  records = results.read_records(str(curve))[5:]
   kinds = [r["kind"] for r in records]
-  assert kinds == ["effect_model", "learning_curve", "final_return", "final_return"]
+  assert kinds == ["effect_model", "learning_curve"] + ["final_return"] * 3
   assert len(records[0]["heldout_log_likelihood"]) == 5 and records[0]["steps"] == 20
   assert records[0]["settings"]["max_seconds"] == 500.0  # about half of --max_seconds
   assert records[0]["stopped_by"] == "max_steps"
@@ -844,7 +854,7 @@ def test_form_command_line_runs_every_stage(tmp_path, capsys):
   np.testing.assert_allclose(kept.metadata["config"]["period"], period)
   assert "trained with other settings" in capsys.readouterr().out
   assert records[1]["learner_preset"] == "custom"
-  assert [r["policy"] for r in records[2:]] == ["final", "best"]
+  assert [r["policy"] for r in records[2:]] == ["final", "best", "best_log_pd"]
   assert records[2]["episodes"] == final_episodes and np.isfinite(records[2]["final_return"])
 
   # Refusals: exit code 2, the file and the mismatch named, nothing written. (A run given a

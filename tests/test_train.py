@@ -705,7 +705,7 @@ def test_angle_features_reach_the_networks_the_loop_and_the_policy_files(tmp_pat
     runner.check_initial_policy(plain, expert)
   paths = [str(tmp_path / f"member{i}.npz") for i in range(2)]  # the fresh final evaluation
   rows = [{"env_steps": 0, "wall_s": 0.0} for _ in paths]
-  runner._final_evaluation(mixed, state, paths, rows, CONFIG.eval_envs, None, 0,
+  runner._final_evaluation(mixed, state, {"best": paths}, rows, CONFIG.eval_envs, None, 0,
                            ["seed 0", "seed 1"], print_fn=lambda *_: None)
   for row in rows:  # the files hold the state's own policies: the same returns
     np.testing.assert_allclose(row["best_policy_return"], row["final_policy_return"], rtol=1e-5)

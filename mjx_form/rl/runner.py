@@ -22,6 +22,9 @@ Run directory layout:
   policy.npz          the final policy (+ observation normaliser), see mjx_form.files.policy_io
   best_policy.npz     the policy of the run's best evaluation so far (same format), written at
                       each evaluation that beats it: a run whose evaluations dip late keeps it
+  best_log_pd_policy.npz  (FORM) the policy of the evaluation whose episodes the demonstrator
+                      scores highest (their mean log pD per transition): the best an imitator
+                      can choose without the task reward
 """
 
 from __future__ import annotations
@@ -202,12 +205,12 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
 
   `seeds`: run a population, one member per seed, in one compiled program (default:
   `config.seed` alone); `overrides`: each member's own settings (mjx_form.rl.grid). Each member
-  writes progress.csv, policy.npz and best_policy.npz to its own directory (`member_dirs`) and
-  its own records (its seed and settings in them); one checkpoint in `directory` holds every
-  member.
+  writes progress.csv, policy.npz and best_policy.npz (FORM: also best_log_pd_policy.npz) to
+  its own directory (`member_dirs`) and its own records (its seed and settings in them); one
+  checkpoint in `directory` holds every member.
   `reward_source`: where the learner's rewards come from (default: the task reward, by
   `config.reward_source`); its `settings()` are part of the run's checked configuration.
-  `final_eval_envs`: once training is finished, the final and the best policy are evaluated
+  `final_eval_envs`: once training is finished, the final and the best policies are evaluated
   afresh on this many episodes and written as `kind: final_return` records (0: not); a run
   stopped by `max_seconds` gets them too, where it stopped (`finished: false` in them: a
   time-budgeted run's result), and again at its end if resumed.
@@ -283,8 +286,10 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
   wall_offset = max(log.rewind(int(state.iteration)) for log in logs) if resume else 0.0
   curve = results.ResultWriter(results_path) if results_path else None
 
-  best_paths = [os.path.join(d, "best_policy.npz") for d in dirs]
-  best_returns = [_best_return(path) if resume else -np.inf for path in best_paths]
+  kept = [b for b in BEST if b[1] == "eval_return" or b[1] in scored]  # (name, key, file)
+  best_paths = {name: [os.path.join(d, file) for d in dirs] for name, _, file in kept}
+  best_values = {name: [_best_value(path, key) if resume else -np.inf
+                        for path in best_paths[name]] for name, key, _ in kept}
   total_iterations = iterations_for(config, total_env_steps)
   steps_per_iteration = config.env_steps_per_iteration
   population = (f"a population of {trainer.members} ({'; '.join(labels)}), "
@@ -334,9 +339,10 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
         row.update(eval_return=float(returns[i].mean()), eval_return_std=float(returns[i].std()))
         if scores is not None:  # (FORM: log pD of the evaluation episodes, no task reward)
           row["eval_demonstrator_log_prob"] = float(scores[i].mean())
-        if row["eval_return"] > best_returns[i]:
-          best_returns[i] = row["eval_return"]
-          export_policy(trainer, state, i, best_paths[i], row)
+        for name, key, _ in kept:
+          if row[key] > best_values[name][i]:
+            best_values[name][i] = row[key]
+            export_policy(trainer, state, i, best_paths[name][i], row)
       # Wall clock of the run so far (compilation and evaluation included); eval_s is the part
       # spent in evaluation in this process.
       row.update(wall_s=wall, eval_s=eval_seconds)
@@ -369,34 +375,26 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
   return rows
 
 
-def _final_evaluation(trainer: Trainer, state, best_paths: list[str], rows: list[dict],
-                      episodes: int, curve, total_env_steps: int, labels: list[str],
-                      print_fn, finished: bool = True) -> None:
-  """Every member's final and best policy on `episodes` fresh episodes: kind final_return
-  (`finished`: False where `max_seconds` stopped the run before `total_env_steps`)."""
-  bests = [experts.load_expert(path, trainer.env) for path in best_paths]
-  best_policy = jax.tree.map(lambda *x: jnp.stack(x), *[b.params for b in bests])
-  norms = [b.normalizer for b in bests]
-  if state.normalizer.period is not None:  # members that wrap beside ones that do not (zeros)
-    norms = [n if n.period is not None else n._replace(
-        period=jnp.zeros((normalizer.input_size(n),), n.mean.dtype)) for n in norms]
-  best_norm = jax.tree.map(lambda *x: jnp.stack(x), *norms)
-  # Placed as the state's own policy and normaliser are, so that the best policy's evaluation
-  # is the final one's program (read from the files they would lie on one device: another
-  # input sharding, and the evaluation traced and compiled a second time).
-  best_policy, best_norm = jax.device_put(
-      (best_policy, best_norm), (trainer.state_sharding.learner.policy,
-                                 trainer.state_sharding.normalizer))
+def _final_evaluation(trainer: Trainer, state, best_paths: dict[str, list[str]],
+                      rows: list[dict], episodes: int, curve, total_env_steps: int,
+                      labels: list[str], print_fn, finished: bool = True) -> None:
+  """Every member's final policy and each of its best ones (`best_paths`: {BEST name: each
+  member's file}) on `episodes` fresh episodes: kind final_return (`finished`: False where
+  `max_seconds` stopped the run before `total_env_steps`)."""
   keys = trainer.keys(2)
-  for name, policy, norm in (("final", state.learner.policy, state.normalizer),
-                             ("best", best_policy, best_norm)):
+  policies = [("final", state.learner.policy, state.normalizer)]
+  policies += [(name, *_stacked(trainer, state, paths)) for name, paths in best_paths.items()
+               # (none where no evaluation chose one: a run resumed at its end that started
+               # before the file existed, a log pD that was never finite)
+               if all(os.path.exists(p) for p in paths)]
+  for name, policy, norm in policies:
     returns, scores = _evaluated(trainer, state, policy, norm, keys, num_envs=episodes)
     for i in range(trainer.members):
       rows[i][f"{name}_policy_return"] = float(returns[i].mean())
       prefix = f"{labels[i]}: " if trainer.members > 1 else ""
       scored = ({} if scores is None
                 else {"eval_demonstrator_log_prob": float(scores[i].mean())})
-      print_fn(f"{prefix}fresh evaluation of the {name} policy over {returns.shape[1]} "
+      print_fn(f"{prefix}fresh evaluation of the {_POLICY_WORDS[name]} over {returns.shape[1]} "
                f"episodes: {returns[i].mean():.1f} +- {returns[i].std():.1f}"
                + (f" (log pD {scores[i].mean():.1f})" if scored else ""))
       if curve is not None:
@@ -406,6 +404,23 @@ def _final_evaluation(trainer: Trainer, state, best_paths: list[str], rows: list
                     episodes=int(returns.shape[1]),
                     env_steps=rows[i]["env_steps"], wall_s=rows[i]["wall_s"], finished=finished,
                     settings=_record_settings(trainer, i, total_env_steps))
+
+
+def _stacked(trainer: Trainer, state, paths: list[str]):
+  """The members' policies and normalisers in `paths` (one file each), stacked [P, ...] and
+  placed as `state`'s own."""
+  bests = [experts.load_expert(path, trainer.env) for path in paths]
+  best_policy = jax.tree.map(lambda *x: jnp.stack(x), *[b.params for b in bests])
+  norms = [b.normalizer for b in bests]
+  if state.normalizer.period is not None:  # members that wrap beside ones that do not (zeros)
+    norms = [n if n.period is not None else n._replace(
+        period=jnp.zeros((normalizer.input_size(n),), n.mean.dtype)) for n in norms]
+  best_norm = jax.tree.map(lambda *x: jnp.stack(x), *norms)
+  # Placed as the state's own policy and normaliser are, so that the best policy's evaluation
+  # is the final one's program (read from the files they would lie on one device: another
+  # input sharding, and the evaluation traced and compiled a second time).
+  return jax.device_put((best_policy, best_norm), (trainer.state_sharding.learner.policy,
+                                                   trainer.state_sharding.normalizer))
 
 
 def _evaluated(trainer: Trainer, state, policy, norm, keys, num_envs: int | None = None):
@@ -446,16 +461,27 @@ def _progress_line(row: dict, total_iterations: int, steps_per_iteration: int) -
                  f"{row['mean_out_of_bounds']:.2f}")
 
 
+# The policies a run keeps beside its final one: (name in its final_return records, the
+# evaluation's value that chooses it, file). "best" by the task return; "best_log_pd" (runs
+# whose source scores the evaluation episodes, FORM) by the demonstrator's mean log pD of them:
+# the choice an imitator can make without the task reward.
+BEST = (("best", "eval_return", "best_policy.npz"),
+        ("best_log_pd", "eval_demonstrator_log_prob", "best_log_pd_policy.npz"))
+# How progress lines name the policies of the final evaluation.
+_POLICY_WORDS = {"final": "final policy", "best": "best policy",
+                 "best_log_pd": "best policy by log pD"}
+
 # How a population lies on several devices, as the run's first line says it.
 _LAYOUT_WORDS = {"members": "whole members per device",
                  "environments": "each member's environments over all of them"}
 
 
-def _best_return(path: str) -> float:
-  """The evaluation return of the best policy a run exported so far (-inf if none)."""
+def _best_value(path: str, key: str) -> float:
+  """The evaluation's `key` (a BEST entry's) of the policy a run exported to `path` so far
+  (-inf if none)."""
   if not os.path.exists(path):
     return -np.inf
-  return float(policy_io.load_policy(path)[1]["eval_return"])
+  return float(policy_io.load_policy(path)[1][key])
 
 
 def _checkpointed(state, with_replay: bool):
@@ -548,5 +574,7 @@ def export_policy(trainer: Trainer, state, member: int, path: str, row: dict) ->
               "network_width": cfg.network_width, "policy_head": cfg.policy_head,
               "physics": cfg.physics,
               "env_steps": row.get("env_steps"), "eval_return": row.get("eval_return"),
+              **({"eval_demonstrator_log_prob": row["eval_demonstrator_log_prob"]}
+                 if "eval_demonstrator_log_prob" in row else {}),
               "train_config": cfg.to_dict()}
   policy_io.save_policy(path, arrays, metadata, overwrite=True)
