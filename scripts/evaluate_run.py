@@ -65,10 +65,12 @@ def member_record(records: list[dict], policy_meta: dict, path: str,
   reward settings (`reward_overrides`, a population's grid of them) too; the last such record
   where a resumed run wrote one twice."""
   config = policy_meta.get("train_config") or {}
+  # (a setting with named values is left out of records at its default, the first of them)
+  recorded = lambda reward, k: reward.get(k, grid.CHOICES.get(k, (None,))[0])
   matches = [r for r in records if r.get("kind") == "learning_curve"
              and r.get("env_steps") == policy_meta.get("env_steps")
              and all(r.get("settings", {}).get(k) == v for k, v in config.items())
-             and all((r.get("settings", {}).get("reward") or {}).get(k) == v
+             and all(recorded(r.get("settings", {}).get("reward") or {}, k) == v
                      for k, v in reward_overrides.items())]
   if not matches:
     raise RunFilesError(f"{path}: no learning-curve records of the curve file match this "
@@ -115,7 +117,7 @@ def main(argv=None) -> int:
     out = []
     for d, own_settings in zip(dirs, overrides):
       reward_overrides = grid.split(own_settings)[2]
-      end = None  # the final policy's record: where the run ended, both records are placed
+      end = None  # the final policy's record: where the run ended, every record is placed
       for name, file in (("final", "policy.npz"), *((n, f) for n, _, f in runner.BEST)):
         path = os.path.join(d, file)
         if name != "final" and not os.path.exists(path):  # (FORM runs since 2026-11-28 keep

@@ -253,7 +253,10 @@ def _member(record: dict) -> str:
   return json.dumps([settings.get("learner"), reward.get("standardise_reward"),
                      reward.get("reward_clip", 0.0), settings.get("action_noise_correlation", 0.0),
                      settings.get("wrap_angles", False), settings.get("init_policy"),
-                     *([True] if settings.get("angle_features") else [])],
+                     *([True] if settings.get("angle_features") else []),
+                     # (records leave out the default, the mixture)
+                     *([mean] if (mean := reward.get("ensemble_log_pd", "mixture")) != "mixture"
+                       else [])],
                     sort_keys=True)
 
 

@@ -260,9 +260,13 @@ def test_members_may_differ_in_how_an_ensemble_makes_log_pd():
   _, scores = population.evaluate(start.learner.policy, start.normalizer, population.keys(1),
                                   **population.evaluation_inputs(start))
   x, x_next, _ = _evaluation_episodes(population, start)
-  _, m = population.iteration(start)  # (`start` donated)
-  fresh = np.asarray(m["demonstrator_fresh_log_prob"])  # [P]: the same transitions
-  assert fresh[1] < fresh[0] - 0.1, fresh
+  after, m = population.iteration(start)  # (`start` donated)
+  # [P]: the same transitions (collected, and the learner's batches), each member's own log pD
+  # in the fresh metrics, the rewards and the reward statistics its imitator step folds in
+  for name in ("demonstrator_fresh_log_prob", "demonstrator_log_prob"):
+    assert m[name][1] < m[name][0] - 0.1, (name, m[name])
+  reward_mean = np.asarray(after.source.reward.mean)[:, 0]
+  assert reward_mean[1] < reward_mean[0] - 0.1, reward_mean
   np.testing.assert_array_equal(x[0], x[1])  # (the same episodes)
   model = em.make_model(EFFECT, D)
   each = np.stack([np.asarray(em.transition_log_prob(model, d.params, d.normalizer, x[0],
@@ -274,6 +278,24 @@ def test_members_may_differ_in_how_an_ensemble_makes_log_pd():
   with pytest.raises(ValueError, match="needs an ensemble"):
     Trainer(CONFIG, mesh_lib.make_mesh(), FormReward(EFFECT, members[0]), seeds=(0, 0),
             overrides=({}, {"ensemble_log_pd": "mean"}))
+
+
+def test_evaluate_run_tells_a_mixture_member_from_a_mean_member():
+  """scripts/evaluate_run.py matches a member's policy to its records by its own reward
+  settings: records leave out the mixture (the default), so a mixture member of `--grid
+  ensemble_log_pd=mixture,mean` matches the record without the key, never the mean member's."""
+  evaluate_run = load_script("evaluate_run")
+  base = {"kind": "learning_curve", "env_steps": 40, "seed": 0}
+  mixture = dict(base, settings={"seed": 0, "reward": {"reward_clip": 3.0}}, eval_return=1.0)
+  mean = dict(base, settings={"seed": 0, "reward": {"reward_clip": 3.0,
+                                                     "ensemble_log_pd": "mean"}}, eval_return=2.0)
+  meta = {"train_config": {"seed": 0}, "env_steps": 40}
+  for own, want in (("mixture", mixture), ("mean", mean)):
+    for records in ([mixture, mean], [mean, mixture]):
+      assert evaluate_run.member_record(records, meta, "p.npz",
+                                        {"ensemble_log_pd": own}) is want, own
+  with pytest.raises(evaluate_run.RunFilesError, match="no learning-curve records"):
+    evaluate_run.member_record([mean], meta, "p.npz", {"ensemble_log_pd": "mixture"})
 
 
 def test_demonstrators_per_member_give_each_member_its_own(form_trainer):
@@ -784,6 +806,14 @@ def test_form_command_line_runs_every_stage(tmp_path, capsys):
     kept = policy_io.load_policy(first / file)[1]
     best = max(curve_points, key=lambda r: r[key])
     assert (kept[key], kept["env_steps"]) == (best[key], best["env_steps"]), file
+    # what a resume starts from: the kept value; none kept: -inf, except a run that kept a best
+    # policy by the return and not this one (started before it existed): +inf, it keeps none
+    from mjx_form.rl import runner
+    assert runner._resumed_best(str(first / file), key, str(first / "best_policy.npz")) == kept[key]
+    assert runner._resumed_best(str(tmp_path / file), key, str(tmp_path / "best_policy.npz")) == (
+        -np.inf)
+  assert runner._resumed_best(str(tmp_path / "best_log_pd_policy.npz"),
+                              "eval_demonstrator_log_prob", str(first / "best_policy.npz")) == np.inf
 
   # Stages from saved artefacts: the first run's demonstrations train a demonstrator, kept in
   # the run directory.

@@ -312,7 +312,13 @@ def test_final_evaluation_of_members_that_differ_in_the_wrap(population, tmp_pat
   for i, path in enumerate(paths):
     runner.export_policy(population, state, i, path, {"env_steps": 0})
   rows = [{"env_steps": 0, "wall_s": 0.0} for _ in paths]
-  runner._final_evaluation(population, state, {"best": paths}, rows, CONFIG.eval_envs, None, 0,
-                           ["seed 0", "seed 1"], print_fn=lambda *_: None)
+  lines = []  # (a kind of best policy that a member lacks is left out, and the run says so)
+  runner._final_evaluation(population, state,
+                           {"best": paths, "best_log_pd": [paths[0], str(tmp_path / "none.npz")]},
+                           rows, CONFIG.eval_envs, None, 0, ["seed 0", "seed 1"],
+                           print_fn=lines.append)
   for row in rows:  # the best policies are the state's own: the same returns as the final ones
     np.testing.assert_allclose(row["best_policy_return"], row["final_policy_return"], rtol=1e-5)
+    assert "best_log_pd_policy_return" not in row
+  assert ("no none.npz for seed 1: the best policy by log pD is not evaluated afresh"
+          in lines), lines

@@ -585,7 +585,8 @@ def test_expert_runs_tell_members_apart_by_every_grid_setting():
               dict(settings, action_noise_correlation=0.9),
               dict(settings, learner={"target_update_period": 100}),
               dict(settings, reward={"standardise_reward": True}),
-              dict(settings, reward={"reward_clip": 3.0})]
+              dict(settings, reward={"reward_clip": 3.0}),
+              dict(settings, reward={"ensemble_log_pd": "mean"})]
   records = [dict(base, settings=v, env_steps=s) for v in variants for s in (1, 2)]
   runs = report._expert_runs(records)
   assert len(runs) == len(variants)

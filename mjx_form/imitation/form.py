@@ -130,7 +130,7 @@ class FormReward:
       raise ValueError("demonstrators per member need 2 or more, and one sha256 each; got "
                        f"{len(models)} and {demonstrator_sha256!r}")
     self.ensemble = len(models) if len(models) > 1 and not self.per_member else 0  # 0: none
-    self._check_ensemble_log_pd(ensemble_log_pd, len(models))
+    self._check_ensemble_log_pd(ensemble_log_pd)
     self.ensemble_log_pd = ensemble_log_pd  # (a population member's: maybe its traced index)
     demonstrator = stack(models) if len(models) > 1 else models[0]  # (refuses other shapes)
     self.config = config
@@ -150,20 +150,19 @@ class FormReward:
     if unknown:
       raise ValueError(f"FORM settings {sorted(unknown)} cannot differ between members")
     if isinstance(values.get("ensemble_log_pd"), str):  # (a traced one is an index, checked)
-      self._check_ensemble_log_pd(values["ensemble_log_pd"],
-                                  self.per_member or self.ensemble or 1)
+      self._check_ensemble_log_pd(values["ensemble_log_pd"])
     source = copy.copy(self)
     for name, value in values.items():
       setattr(source, name, value)
     return source
 
-  def _check_ensemble_log_pd(self, value: str, models: int) -> None:
+  def _check_ensemble_log_pd(self, value: str) -> None:
     if value not in ENSEMBLE_LOG_PD:
       raise ValueError(f"ensemble_log_pd must be one of {ENSEMBLE_LOG_PD}, got {value!r}")
     if value != "mixture" and not self.ensemble:
       raise ValueError(f"ensemble_log_pd {value!r} needs an ensemble of 2 demonstrators or "
                        "more shared by the members, got "
-                       + (f"{models} per member" if self.per_member else "one"))
+                       + (f"{self.per_member} per member" if self.per_member else "one"))
 
   def as_member(self, i: int) -> "FormReward":
     """The source as member i of a population describes it (with demonstrators per member:

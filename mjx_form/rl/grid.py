@@ -54,8 +54,9 @@ ACTOR = {"action_noise_correlation": float, "wrap_angles": bool, "angle_features
 # standardise_reward, reward_clip and ensemble_log_pd); the source's `specialise(values)` gives a
 # member's source.
 SOURCE = {"standardise_reward": bool, "reward_clip": float, "ensemble_log_pd": str}
-# name -> the values of a setting of type str; a member's value travels as its index here
-# (traced: the source compares it with `CHOICES[name].index(value)`).
+# name -> the values of a setting of type str, its default first (which a source's settings()
+# may leave out of records); a member's value travels as its index here (traced: the source
+# compares it with `CHOICES[name].index(value)`).
 CHOICES = {"ensemble_log_pd": ("mixture", "mean")}  # how an ensemble's models make log pD
 NAMES = (*LEARNER, *ACTOR, *SOURCE)
 
@@ -154,7 +155,7 @@ def _replace(obj, path: tuple[str, ...], value):
 
 def arrays(values: list[dict], names) -> dict[str, Any]:
   """The members' values of `names` as [P] arrays (int32 for integer settings and for the index
-  of a str setting's value in its CHOICES, bool, float32 else)."""
+  of a str setting's value in its CHOICES, bool for bool settings, float32 else)."""
   out = {}
   for name in names:
     kind = _kind(name)

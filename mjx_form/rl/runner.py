@@ -288,8 +288,9 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
 
   kept = [b for b in BEST if b[1] == "eval_return" or b[1] in scored]  # (name, key, file)
   best_paths = {name: [os.path.join(d, file) for d in dirs] for name, _, file in kept}
-  best_values = {name: [_best_value(path, key) if resume else -np.inf
-                        for path in best_paths[name]] for name, key, _ in kept}
+  best_values = {name: [_resumed_best(path, key, first) if resume else -np.inf
+                        for path, first in zip(best_paths[name], best_paths["best"])]
+                 for name, key, _ in kept}
   total_iterations = iterations_for(config, total_env_steps)
   steps_per_iteration = config.env_steps_per_iteration
   population = (f"a population of {trainer.members} ({'; '.join(labels)}), "
@@ -383,10 +384,16 @@ def _final_evaluation(trainer: Trainer, state, best_paths: dict[str, list[str]],
   `max_seconds` stopped the run before `total_env_steps`)."""
   keys = trainer.keys(2)
   policies = [("final", state.learner.policy, state.normalizer)]
-  policies += [(name, *_stacked(trainer, state, paths)) for name, paths in best_paths.items()
-               # (none where no evaluation chose one: a run resumed at its end that started
-               # before the file existed, a log pD that was never finite)
-               if all(os.path.exists(p) for p in paths)]
+  for name, paths in best_paths.items():
+    # (a member may have none: its run started before the file existed, or its evaluations'
+    # log pD was never finite)
+    missing = [(label, p) for label, p in zip(labels, paths) if not os.path.exists(p)]
+    if missing:
+      print_fn(f"no {os.path.basename(missing[0][1])} for "
+               f"{', '.join(label for label, _ in missing)}: the {_POLICY_WORDS[name]} is not "
+               "evaluated afresh")
+    else:
+      policies.append((name, *_stacked(trainer, state, paths)))
   for name, policy, norm in policies:
     returns, scores = _evaluated(trainer, state, policy, norm, keys, num_envs=episodes)
     for i in range(trainer.members):
@@ -476,12 +483,14 @@ _LAYOUT_WORDS = {"members": "whole members per device",
                  "environments": "each member's environments over all of them"}
 
 
-def _best_value(path: str, key: str) -> float:
-  """The evaluation's `key` (a BEST entry's) of the policy a run exported to `path` so far
-  (-inf if none)."""
-  if not os.path.exists(path):
-    return -np.inf
-  return float(policy_io.load_policy(path)[1][key])
+def _resumed_best(path: str, key: str, best_path: str) -> float:
+  """The evaluation's `key` (a BEST entry's) of the policy a resumed run exported to `path` so
+  far: -inf if none, unless the run kept a best policy by the return (`best_path`) and not this
+  one, i.e. it started before this file existed: then +inf, so that it keeps none (its
+  evaluations before the resume would not count)."""
+  if os.path.exists(path):
+    return float(policy_io.load_policy(path)[1][key])
+  return np.inf if path != best_path and os.path.exists(best_path) else -np.inf
 
 
 def _checkpointed(state, with_replay: bool):
