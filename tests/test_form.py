@@ -247,8 +247,9 @@ def test_an_ensemble_runs_in_the_compiled_loop_on_two_devices(form_trainer):
 def test_members_may_differ_in_how_an_ensemble_makes_log_pd():
   """A population over the two devices whose members differ only in `ensemble_log_pd` (seed 0
   each, `--grid ensemble_log_pd=mixture,mean`): their first iteration's transitions are the
-  same, scored lower by the mean (Jensen); evaluating the initial policies (the same episodes)
-  scores each member's episodes with its own log pD (numpy reference from each model's)."""
+  same, scored lower by the mean (Jensen) in every place a member's log pD enters; evaluating
+  the initial policies (the same episodes) scores each member's with its own, the mean lower in
+  every episode. (Each way's arithmetic against numpy: the two tests above.)"""
   members = [_demonstrator(0), _demonstrator(3)]
   population = Trainer(CONFIG, mesh_lib.make_mesh(), FormReward(EFFECT, members, "a+b"),
                        seeds=(0, 0), overrides=({"ensemble_log_pd": "mixture"},
@@ -257,9 +258,11 @@ def test_members_may_differ_in_how_an_ensemble_makes_log_pd():
   assert population.member_source(1).settings()["ensemble_log_pd"] == "mean"
   start = population.init(population.keys())
   np.testing.assert_array_equal(start.settings["ensemble_log_pd"], [0, 1])
-  _, scores = population.evaluate(start.learner.policy, start.normalizer, population.keys(1),
-                                  **population.evaluation_inputs(start))
-  x, x_next, _ = _evaluation_episodes(population, start)
+  returns, scores = jax.device_get(population.evaluate(
+      start.learner.policy, start.normalizer, population.keys(1),
+      **population.evaluation_inputs(start)))
+  np.testing.assert_array_equal(returns[0], returns[1])  # (the same episodes)
+  assert np.all(scores[1] < scores[0] - 0.1), scores
   after, m = population.iteration(start)  # (`start` donated)
   # [P]: the same transitions (collected, and the learner's batches), each member's own log pD
   # in the fresh metrics, the rewards and the reward statistics its imitator step folds in
@@ -267,14 +270,6 @@ def test_members_may_differ_in_how_an_ensemble_makes_log_pd():
     assert m[name][1] < m[name][0] - 0.1, (name, m[name])
   reward_mean = np.asarray(after.source.reward.mean)[:, 0]
   assert reward_mean[1] < reward_mean[0] - 0.1, reward_mean
-  np.testing.assert_array_equal(x[0], x[1])  # (the same episodes)
-  model = em.make_model(EFFECT, D)
-  each = np.stack([np.asarray(em.transition_log_prob(model, d.params, d.normalizer, x[0],
-                                                     x_next[0]), np.float64)
-                   for d in members])  # [K, n, T]
-  want = [(np.logaddexp.reduce(each, axis=0) - np.log(2)).mean(-1), each.mean(0).mean(-1)]
-  np.testing.assert_allclose(np.asarray(scores), want, rtol=1e-4, atol=1e-3)
-  assert np.abs(want[0] - want[1]).min() > 0.1  # (the two differ: the test can fail)
   with pytest.raises(ValueError, match="needs an ensemble"):
     Trainer(CONFIG, mesh_lib.make_mesh(), FormReward(EFFECT, members[0]), seeds=(0, 0),
             overrides=({}, {"ensemble_log_pd": "mean"}))
