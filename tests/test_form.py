@@ -786,7 +786,11 @@ def test_form_command_line_runs_every_stage(tmp_path, capsys):
   assert records[0]["learner_preset"] == "custom"
   assert [r["policy"] for r in records[1:]] == ["final", "best", "best_log_pd"]
   assert records[1]["episodes"] == final_episodes and np.isfinite(records[1]["final_return"])
-  assert "fresh evaluation of the best policy by log pD over" in out
+  # One evaluation, at the end: both best policies are the final one (the same arrays), whose
+  # fresh evaluation they repeat rather than run again.
+  assert [r.get("same_policy_as") for r in records[1:]] == [None, "final", "final"]
+  assert len({(r["final_return"], r["eval_demonstrator_log_prob"]) for r in records[1:]}) == 1
+  assert "the best policy by log pD is every member's final policy (the same arrays)" in out
   # Resume: the kept demonstrator is used; the run continues from its checkpoint.
   assert cli.main(_readme_args(first, "--env_steps", str(2 * readme.env_steps), "--resume",
                                "--final_eval_envs", "0", "--results", str(curve))) == 0

@@ -303,7 +303,7 @@ def test_evaluate_run_scores_a_stopped_population_afterwards(tmp_path, capsys):
     assert r["policy_sha256"] == policy_io.load_policy(member / name)[1]["sha256"]
 
 
-def test_final_evaluation_of_members_that_differ_in_the_wrap(population, tmp_path):
+def test_final_evaluation_of_members_that_differ_in_the_wrap(population, tmp_path, monkeypatch):
   """The fresh evaluation of the best policies stacks the members' files: member 0's has no
   period (it does not wrap), member 1's has one."""
   from mjx_form.rl import runner
@@ -322,3 +322,29 @@ def test_final_evaluation_of_members_that_differ_in_the_wrap(population, tmp_pat
     assert "best_log_pd_policy_return" not in row
   assert ("no none.npz for seed 1: the best policy by log pD is not evaluated afresh"
           in lines), lines
+  # A best policy whose files hold every member's final arrays repeats the final evaluation
+  # (said, and recorded as such); one member's other arrays make it run.
+  arrays, meta = policy_io.load_policy(paths[1])
+  arrays["policy"] = jax.tree.map(lambda x: x + 0.01, arrays["policy"])
+  other = str(tmp_path / "other.npz")
+  policy_io.save_policy(other, arrays, {k: v for k, v in meta.items()
+                                        if k not in ("sha256", "format", "version")})
+  runs, evaluate = [], population.evaluate
+  monkeypatch.setattr(population, "evaluate",
+                      lambda *a, **k: runs.append(1) or evaluate(*a, **k))
+  curve = results.ResultWriter(str(tmp_path / "finals.jsonl"))
+  lines.clear()
+  runner._final_evaluation(population, state, {"best": paths, "best_log_pd": [paths[0], other]},
+                           rows, CONFIG.eval_envs, curve, 0, ["seed 0", "seed 1"],
+                           print_fn=lines.append, final_paths=paths)
+  assert len(runs) == 2  # the final policy, and the best by log pD (member 1's differs)
+  assert "the best policy is every member's final policy (the same arrays): its fresh " \
+         "evaluation is that one's" in lines
+  records = results.read_records(str(tmp_path / "finals.jsonl"))
+  assert [(r["policy"], r.get("same_policy_as")) for r in records] == [
+      ("final", None), ("final", None), ("best", "final"), ("best", "final"),
+      ("best_log_pd", None), ("best_log_pd", None)]
+  for row in rows:
+    assert row["best_policy_return"] == row["final_policy_return"]
+  np.testing.assert_allclose(rows[0]["best_log_pd_policy_return"],
+                             rows[0]["final_policy_return"], rtol=1e-5)
