@@ -200,7 +200,9 @@ def test_population_from_the_command_line_writes_each_member(tmp_path, capsys):
   assert f"a population of 2 (seed 0, {own}; seed 1, {own})" in out
   assert "2 cpu device(s) (whole members per device)" in out
   assert f"seed 1, {own}: iter 1/2" in out
-  assert f"seed 1, {own}: fresh evaluation of the best" in out
+  # (the best policy is evaluated afresh, or is the final one's arrays and says so)
+  assert re.search(rf"seed 1, {re.escape(own)}: (fresh evaluation of the best policy over|the "
+                   r"best policy holds the final policy's arrays)", out)
   stored = json.load(open(run_dir / "config.json"))
   assert stored["seeds"] == [0, 1] and stored["overrides"] == [
       {"action_noise_correlation": 0.9, "action_penalty": True, "learning_rate": 1e-3,
@@ -305,46 +307,61 @@ def test_evaluate_run_scores_a_stopped_population_afterwards(tmp_path, capsys):
 
 def test_final_evaluation_of_members_that_differ_in_the_wrap(population, tmp_path, monkeypatch):
   """The fresh evaluation of the best policies stacks the members' files: member 0's has no
-  period (it does not wrap), member 1's has one."""
+  period (it does not wrap), member 1's has one. A best policy whose files hold every member's
+  arrays of a policy evaluated before (the final one, or an earlier best) is not evaluated
+  again; one member's other arrays make it run."""
   from mjx_form.rl import runner
   state = population.init(population.keys())
   paths = [str(tmp_path / f"best{i}.npz") for i in range(2)]
   for i, path in enumerate(paths):
     runner.export_policy(population, state, i, path, {"env_steps": 0})
   rows = [{"env_steps": 0, "wall_s": 0.0} for _ in paths]
+  runs, evaluate = [], population.evaluate
+  monkeypatch.setattr(population, "evaluate",
+                      lambda *a, **k: runs.append(1) or evaluate(*a, **k))
   lines = []  # (a kind of best policy that a member lacks is left out, and the run says so)
   runner._final_evaluation(population, state,
                            {"best": paths, "best_log_pd": [paths[0], str(tmp_path / "none.npz")]},
                            rows, CONFIG.eval_envs, None, 0, ["seed 0", "seed 1"],
                            print_fn=lines.append)
+  assert len(runs) == 2  # (no final files given: the best policy is evaluated afresh)
   for row in rows:  # the best policies are the state's own: the same returns as the final ones
     np.testing.assert_allclose(row["best_policy_return"], row["final_policy_return"], rtol=1e-5)
     assert "best_log_pd_policy_return" not in row
   assert ("no none.npz for seed 1: the best policy by log pD is not evaluated afresh"
           in lines), lines
-  # A best policy whose files hold every member's final arrays repeats the final evaluation
-  # (said, and recorded as such); one member's other arrays make it run.
-  arrays, meta = policy_io.load_policy(paths[1])
+  arrays, meta = policy_io.load_policy(paths[1])  # member 1's policy, changed
   arrays["policy"] = jax.tree.map(lambda x: x + 0.01, arrays["policy"])
   other = str(tmp_path / "other.npz")
   policy_io.save_policy(other, arrays, {k: v for k, v in meta.items()
                                         if k not in ("sha256", "format", "version")})
-  runs, evaluate = [], population.evaluate
-  monkeypatch.setattr(population, "evaluate",
-                      lambda *a, **k: runs.append(1) or evaluate(*a, **k))
-  curve = results.ResultWriter(str(tmp_path / "finals.jsonl"))
-  lines.clear()
-  runner._final_evaluation(population, state, {"best": paths, "best_log_pd": [paths[0], other]},
-                           rows, CONFIG.eval_envs, curve, 0, ["seed 0", "seed 1"],
-                           print_fn=lines.append, final_paths=paths)
-  assert len(runs) == 2  # the final policy, and the best by log pD (member 1's differs)
-  assert "the best policy is every member's final policy (the same arrays): its fresh " \
-         "evaluation is that one's" in lines
-  records = results.read_records(str(tmp_path / "finals.jsonl"))
-  assert [(r["policy"], r.get("same_policy_as")) for r in records] == [
-      ("final", None), ("final", None), ("best", "final"), ("best", "final"),
-      ("best_log_pd", None), ("best_log_pd", None)]
-  for row in rows:
-    assert row["best_policy_return"] == row["final_policy_return"]
+  sha = lambda path: policy_io.load_policy(path)[1]["sha256"]
+  # The final files as the best policy and a best by log pD that differs in member 1: two
+  # evaluations. That one as both: two as well, the best by log pD repeating the best's.
+  for bests, same in (({"best": paths, "best_log_pd": [paths[0], other]}, ("final", None)),
+                      ({"best": [paths[0], other], "best_log_pd": [paths[0], other]},
+                       (None, "best"))):
+    runs.clear()
+    lines.clear()
+    finals = tmp_path / f"finals_{same[0]}.jsonl"
+    runner._final_evaluation(population, state, bests, rows, CONFIG.eval_envs,
+                             results.ResultWriter(str(finals)), 0, ["seed 0", "seed 1"],
+                             print_fn=lines.append, final_paths=paths)
+    assert len(runs) == 2, bests
+    records = results.read_records(str(finals))
+    assert [(r["policy"], r.get("same_policy_as")) for r in records] == [
+        ("final", None), ("final", None), ("best", same[0]), ("best", same[0]),
+        ("best_log_pd", same[1]), ("best_log_pd", same[1])], bests
+    assert [r["policy_sha256"] for r in records] == [
+        sha(p) for p in paths + bests["best"] + bests["best_log_pd"]]
+    reused = [r for r in records if "same_policy_as" in r]
+    for r in reused:  # (its numbers are those of the policy it repeats, member by member)
+      twin = next(t for t in records if t["policy"] == r["same_policy_as"]
+                  and t["seed"] == r["seed"])
+      assert (r["final_return"], r["final_return_std"]) == (twin["final_return"],
+                                                            twin["final_return_std"])
+    assert len([line for line in lines if "not evaluated again" in line]) == len(reused) == 2
+  assert lines[-1].startswith("seed 1: the best policy by log pD holds the best policy's "
+                              f"arrays: {rows[1]['best_policy_return']:.1f} +- "), lines
   np.testing.assert_allclose(rows[0]["best_log_pd_policy_return"],
                              rows[0]["final_policy_return"], rtol=1e-5)

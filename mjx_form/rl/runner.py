@@ -383,16 +383,16 @@ def _final_evaluation(trainer: Trainer, state, best_paths: dict[str, list[str]],
                       rows: list[dict], episodes: int, curve, total_env_steps: int,
                       labels: list[str], print_fn, finished: bool = True,
                       final_paths: list[str] | None = None) -> None:
-  """Every member's final policy (exported to `final_paths`, where given) and each of its best ones (`best_paths`: {BEST name: each
-  member's file}) on `episodes` fresh episodes: kind final_return (`finished`: False where
-  `max_seconds` stopped the run before `total_env_steps`). A best policy whose files hold, for
-  every member, the arrays of one evaluated before (often: the best by log pD is the best by
-  return) is not run again: its records repeat that evaluation's, which the same episodes
-  (`keys`) would give, and say so (`same_policy_as`)."""
+  """Every member's final policy (the state's; exported to `final_paths`, where given) and each
+  of its best ones (`best_paths`: {BEST name: each member's file}) on `episodes` fresh
+  episodes: kind final_return (`finished`: False where `max_seconds` stopped the run before
+  `total_env_steps`). A best policy whose files hold, for every member, the arrays of one
+  evaluated before (often: the best by log pD is the best by return) is not evaluated again:
+  its records repeat that evaluation's, what evaluating it again on the same episodes (`keys`)
+  gives to float precision, and say so (`same_policy_as`)."""
   keys = trainer.keys(2)
-  shas_of = lambda paths: tuple(policy_io.load_policy(p)[1]["sha256"] for p in paths)
-  policies = [("final", (state.learner.policy, state.normalizer),
-               shas_of(final_paths) if final_paths else None)]
+  sha256 = lambda paths: tuple(policy_io.load_policy(p)[1]["sha256"] for p in paths)
+  policies = [("final", None, sha256(final_paths) if final_paths else None)]  # (name, files, shas)
   for name, paths in best_paths.items():
     # (a member may have none: its run started before the file existed, or its evaluations'
     # log pD was never finite)
@@ -402,34 +402,35 @@ def _final_evaluation(trainer: Trainer, state, best_paths: dict[str, list[str]],
                f"{', '.join(label for label, _ in missing)}: the {_POLICY_WORDS[name]} is not "
                "evaluated afresh")
     else:
-      policies.append((name, paths, shas_of(paths)))
-  done = {}  # each member's policy sha256s -> (name, returns [P, n], scores [P, n] or None)
-  for name, policy, shas in policies:
+      policies.append((name, paths, sha256(paths)))
+  done = {}  # each member's sha256s -> (name, returns [P, n], scores [P, n] or None)
+  for name, paths, shas in policies:
     same = done.get(shas) if shas is not None else None
     if same is not None:
       first, returns, scores = same
-      print_fn(f"the {_POLICY_WORDS[name]} is every member's {_POLICY_WORDS[first]} (the same "
-               "arrays): its fresh evaluation is that one's")
     else:
-      policy, norm = _stacked(trainer, state, policy) if name != "final" else policy
+      policy, norm = (_stacked(trainer, state, paths) if paths is not None
+                      else (state.learner.policy, state.normalizer))
       returns, scores = _evaluated(trainer, state, policy, norm, keys, num_envs=episodes)
       if shas is not None:
         done[shas] = (name, returns, scores)
     for i in range(trainer.members):
       rows[i][f"{name}_policy_return"] = float(returns[i].mean())
-      prefix = f"{labels[i]}: " if trainer.members > 1 else ""
       scored = ({} if scores is None
                 else {"eval_demonstrator_log_prob": float(scores[i].mean())})
-      if same is None:
-        print_fn(f"{prefix}fresh evaluation of the {_POLICY_WORDS[name]} over "
-                 f"{returns.shape[1]} episodes: {returns[i].mean():.1f} +- "
-                 f"{returns[i].std():.1f}"
-                 + (f" (log pD {scores[i].mean():.1f})" if scored else ""))
+      result = (f"{returns[i].mean():.1f} +- {returns[i].std():.1f}"
+                + (f" (log pD {scores[i].mean():.1f})" if scored else ""))
+      print_fn((f"{labels[i]}: " if trainer.members > 1 else "")
+               + (f"fresh evaluation of the {_POLICY_WORDS[name]} over {returns.shape[1]} "
+                  f"episodes: {result}" if same is None else
+                  f"the {_POLICY_WORDS[name]} holds the {_POLICY_WORDS[first]}'s arrays: "
+                  f"{result}, not evaluated again"))
       if curve is not None:
         curve.write(**_record_base(trainer, i), kind="final_return", policy=name,
                     final_return=float(returns[i].mean()),
                     final_return_std=float(returns[i].std()), **scored,
                     episodes=int(returns.shape[1]),
+                    **({"policy_sha256": shas[i]} if shas is not None else {}),
                     **({"same_policy_as": same[0]} if same is not None else {}),
                     env_steps=rows[i]["env_steps"], wall_s=rows[i]["wall_s"], finished=finished,
                     settings=_record_settings(trainer, i, total_env_steps))
