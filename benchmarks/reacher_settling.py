@@ -142,8 +142,8 @@ def main(argv=None) -> int:
                    behaviour=name, episodes=args.episodes, task_return=float(b_returns.mean()),
                    cells=cells, **common_fields)
   for name, agent in agents:
-    target, returns, late_distance, late_speed = targets_and_returns(env, agent,
-                                                                     args.target_episodes)
+    target, returns, late_distance, late_speed, shoulder = targets_and_returns(
+        env, agent, args.target_episodes)
     # The task draws target = radius * (sin a, cos a) (tasks/reacher.py): a = arctan2(x, y).
     radius, angle = np.linalg.norm(target, axis=-1), np.arctan2(target[:, 0], target[:, 1])
     failed = returns < 100.0
@@ -167,6 +167,15 @@ def main(argv=None) -> int:
                    share_under_100_by_radius_quartile=by_radius,
                    share_under_100_by_angle_quadrant=by_angle, second_half_medians=late,
                    **common_fields)
+    paths = paths_by_quadrant(angle, returns, shoulder)
+    print("    the shoulder's path by target quadrant (under 100 / raw angle leaves [-pi, pi] / "
+          "median path, rad): " + "; ".join(
+              "-" if q["episodes"] == 0 else f"{q['share_under_100']:.0%} / "
+              f"{q['share_leaving_pi']:.0%} / {q['median_path_rad']:.1f}" for q in paths))
+    if writer:
+      writer.write(kind="reacher_settling", probe="paths_by_target_quadrant", behaviour=name,
+                   episodes=args.target_episodes, task_return=float(returns.mean()),
+                   quadrants=paths, **common_fields)
   same_starts = jax.random.PRNGKey(11)  # one key: the same resets (targets, arm) for all
   expert_run = scored_rollout(env, expert, score, same_starts, args.episodes)
   runs = {name: expert_run if name == "expert" else scored_rollout(env, agent, score,
@@ -390,18 +399,39 @@ def failure_shares(failed, radius, angle):
   return edges, shares(quartile), shares(quadrant)
 
 
+def paths_by_quadrant(angle, returns, shoulder) -> list[dict]:
+  """Per quadrant of the target angle [K] (in [-pi, pi], as `failure_shares`): its episodes,
+  their share under 100 (returns [K]), the share whose raw shoulder angle (after every step,
+  [T, K]) leaves [-pi, pi] (it crossed the seam of the range it starts in), and the median
+  length of the shoulder's path, sum |theta_{t+1} - theta_t| (rad; a spinning arm's grows with
+  every turn)."""
+  quadrant = np.clip(np.floor((angle + np.pi) / (np.pi / 2)).astype(int), 0, 3)
+  leaves = (np.abs(shoulder) > np.pi).any(axis=0)
+  path = np.abs(np.diff(shoulder, axis=0)).sum(axis=0)
+  out = []
+  for q in range(4):
+    m = quadrant == q
+    out.append({"episodes": int(m.sum()),
+                **({"share_under_100": float((returns[m] < 100.0).mean()),
+                    "share_leaving_pi": float(leaves[m].mean()),
+                    "median_path_rad": float(np.median(path[m]))} if m.any() else {})})
+  return out
+
+
 def targets_and_returns(env, agent, episodes: int, seed: int = 7):
-  """The target positions [K, 2], returns [K], and median fingertip distance (m) and joint
-  speed (rad/s) over the second half [K] of `episodes` episodes of `agent`'s mean action."""
+  """The target positions [K, 2], returns [K], median fingertip distance (m) and joint speed
+  (rad/s) over the second half [K], and the raw shoulder angle after every step [T, K] of
+  `episodes` episodes of `agent`'s mean action."""
   probe = lambda nxt: (nxt.task["target"], nxt.reward,
                        jnp.linalg.norm(nxt.obs_parts["to_target"], axis=-1),
-                       jnp.linalg.norm(nxt.obs_parts["velocity"], axis=-1))
-  target, rewards, distance, speed = common.mean_action_rollout(
+                       jnp.linalg.norm(nxt.obs_parts["velocity"], axis=-1),
+                       nxt.obs_parts["position"][..., 0])
+  target, rewards, distance, speed, shoulder = common.mean_action_rollout(
       env, agent, jax.random.PRNGKey(seed), episodes, probe)
   half = env_lib.EPISODE_LENGTH // 2  # the second half of each episode: where it ended up
   return tuple(np.asarray(x) for x in (  # (an episode's target stays where its reset put it)
       target[0], rewards.sum(0), jnp.median(distance[half:], axis=0),
-      jnp.median(speed[half:], axis=0)))
+      jnp.median(speed[half:], axis=0), shoulder))
 
 
 if __name__ == "__main__":

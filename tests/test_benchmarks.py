@@ -513,6 +513,26 @@ def test_reacher_settling_moves_only_the_target_and_splits_failures_by_its_place
   assert by_angle == [None, None, 0.4, None]
 
 
+def test_reacher_settling_follows_the_shoulder_by_target_quadrant():
+  """benchmarks/reacher_settling.py: per target quadrant, the share of episodes under 100, of
+  those whose raw shoulder leaves [-pi, pi], and the median length of the shoulder's path."""
+  bench = load_script("reacher_settling", folder="benchmarks")
+  angle = np.array([-3.0, -2.0, -1.0, 0.5, 1.0, np.pi])  # quadrants 0, 0, 1, 2, 2, 3
+  returns = np.array([50.0, 900.0, 20.0, 950.0, 960.0, 99.0])
+  shoulder = np.zeros((4, 6))
+  shoulder[:, 0] = [3.0, 3.2, 3.4, 9.0]  # leaves [-pi, pi]; path 0.2 + 0.2 + 5.6 = 6
+  shoulder[:, 1] = [-3.0, -2.0, -3.0, -2.0]  # stays; path 3
+  shoulder[:, 2] = [0.0, -3.5, -3.0, -3.0]  # leaves; path 4
+  shoulder[:, 5] = [1.0, 1.5, 1.0, 1.0]  # path 1
+  paths = bench.paths_by_quadrant(angle, returns, shoulder)
+  assert [q["episodes"] for q in paths] == [2, 1, 2, 1]
+  assert [q["share_under_100"] for q in paths] == [0.5, 1.0, 0.0, 1.0]
+  assert [q["share_leaving_pi"] for q in paths] == [0.5, 1.0, 0.0, 0.0]
+  np.testing.assert_allclose([q["median_path_rad"] for q in paths], [4.5, 4.0, 0.0, 1.0])
+  assert bench.paths_by_quadrant(np.full(2, 0.1), returns[:2], shoulder[:, :2])[0] == {
+      "episodes": 0}
+
+
 def test_reacher_settling_summarises_failed_episodes_apart_from_successful_ones():
   """benchmarks/reacher_settling.py: episode_groups splits episodes by return and summarises
   each group's second half (distance, speed, shaking, log pD) beside the expert's."""
