@@ -5,8 +5,9 @@
       --expert) is recorded on the device, the demonstrator effect model comes from
       tasks/demonstrators/ (or --demonstrator, or is trained on the demonstrations), and MPO
       (Retrace) learns from the FORM reward only, in one compiled loop. Writes progress.csv,
-      checkpoints, demonstrator.npz, policy.npz, best_policy.npz (by the task return) and
-      best_log_pd_policy.npz (by the demonstrator's log pD, no task reward) to --run_dir.
+      checkpoints, demonstrator.npz, policy.npz, best_policy.npz (by the task return),
+      best_log_pd_policy.npz (by the demonstrator's log pD, no task reward) and imitator.npz
+      (the imitator model beside policy.npz) to --run_dir.
   --method expert: the same learner on the task reward (to train experts).
   --method random: uniform random actions in N auto-resetting environments of one task,
       sharded over all devices; reports control steps per second (compile time apart).
@@ -611,7 +612,9 @@ def main(argv=None) -> int:
             + f"{row['env_steps']:,} env steps; policy in {os.path.join(directory, 'policy.npz')}"
             f", the best evaluation's in {os.path.join(directory, 'best_policy.npz')}"
             + (", by log pD in best_log_pd_policy.npz"
-               if os.path.exists(os.path.join(directory, "best_log_pd_policy.npz")) else ""))
+               if os.path.exists(os.path.join(directory, "best_log_pd_policy.npz")) else "")
+            + (", the imitator model in imitator.npz"
+               if os.path.exists(os.path.join(directory, "imitator.npz")) else ""))
     return 0
   try:
     mesh_lib.check_batch_size(args.num_envs, mesh)

@@ -349,6 +349,39 @@ def test_demonstrators_per_member_give_each_member_its_own(form_trainer):
       FormReward(EFFECT, models, shas, member_demonstrators=True)
 
 
+def test_the_imitator_model_is_exported_as_an_effect_model_file_and_refused_as_a_demonstrator(
+    tmp_path):
+  """FormReward.export writes the imitator model as it stands (after its online steps): read
+  back, it gives the same log pI; a run refuses the file as a demonstrator, naming it."""
+  source = FormReward(EFFECT, _demonstrator())
+  state = source.init(jax.random.PRNGKey(0), D, 2)
+  rng = np.random.default_rng(1)
+  batch = {"observation": jnp.asarray(rng.normal(size=(3, 8, D)), jnp.float32),
+           "discount": jnp.ones((3, 7))}
+  for i in range(3):
+    state, _ = source.update(state, batch, jax.random.PRNGKey(i))
+  env = tasks.make("reacher_easy")
+  layout = [[k, v] for k, v in env.observation_layout.items()]
+  path = tmp_path / "imitator.npz"
+  source.export(state, str(path), {"task": "reacher_easy", "observation_size": D,
+                                   "observation_layout": layout,
+                                   "imitator": {"env_steps": 1234}})
+  file = effect_models.load_effect_model(path, task="reacher_easy")
+  assert file.metadata["imitator"] == {"env_steps": 1234, "updates": 3}
+  assert file.metadata["training"]["steps"] == 3 and file.metadata["config"] == EFFECT.to_dict()
+  norm = normalizer.NormalizerState(jnp.asarray(file.mean), jnp.asarray(file.var),
+                                    jnp.asarray(1, jnp.int32))
+  x, x_next = batch["observation"][:, :-1], batch["observation"][:, 1:]
+  from_file = em.transition_log_prob(source.model, file.params, norm, x, x_next)
+  np.testing.assert_allclose(from_file, source.log_probs(state, batch["observation"])[1],
+                             rtol=1e-6, atol=1e-5)
+  fresh = source.init(jax.random.PRNGKey(0), D, 2)  # the steps changed the model
+  assert not np.allclose(from_file, source.log_probs(fresh, batch["observation"])[1])
+  from mjx_form.imitation import pipeline
+  with pytest.raises(effect_models.EffectModelFileError, match="an imitator model"):
+    pipeline.load_demonstrator(str(path), env)
+
+
 def test_standardised_reward_uses_the_running_statistics_of_the_raw_reward():
   """With standardise_reward the learner gets (r - m) / s, m and s the bias-corrected EMA
   (decay 0.99 per batch) of the raw reward over the valid transitions of the batches so far,
@@ -794,6 +827,12 @@ def test_form_command_line_runs_every_stage(tmp_path, capsys):
                    r"[0-9.]+ \(log pD -?[0-9.]+\), not evaluated again", out)
   shas = {r["policy_sha256"] for r in records[1:]}
   assert shas == {policy_io.load_policy(first / "policy.npz")[1]["sha256"]}
+  # The imitator model at the run's end, beside the policy (one update per learner step).
+  imitator = effect_models.load_effect_model(first / "imitator.npz", task="reacher_easy")
+  assert imitator.metadata["imitator"]["updates"] == readme.updates_per_iteration * (
+      records[0]["iteration"])
+  assert imitator.metadata["imitator"]["env_steps"] == records[0]["env_steps"]
+  assert imitator.metadata["config"] == shipped.metadata["config"]
   # Resume: the kept demonstrator is used; the run continues from its checkpoint.
   assert cli.main(_readme_args(first, "--env_steps", str(2 * readme.env_steps), "--resume",
                                "--final_eval_envs", "0", "--results", str(curve))) == 0
@@ -906,6 +945,7 @@ def test_form_command_line_runs_every_stage(tmp_path, capsys):
   refusals = [
       (["--demonstrator", str(other_task), *checked_on], "the demonstrator is for cheetah_run"),
       (["--demonstrator", str(truncated), *checked_on], "truncated"),
+      (["--demonstrator", str(first / "imitator.npz"), *checked_on], "an imitator model"),
       (["--demonstrator", str(run_dir / "demonstrator.npz"), "--beta_ar", "0.5", *checked_on],
        "trained with beta_ar="),
       (["--demonstrator", str(run_dir / "demonstrator.npz"), "--turn_invariant", *checked_on],

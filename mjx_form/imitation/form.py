@@ -70,6 +70,7 @@ from typing import Any, NamedTuple, Sequence
 import jax
 import jax.numpy as jnp
 
+from mjx_form.files import effect_models
 from mjx_form.imitation import effect_model as em
 from mjx_form.rl import grid, normalizer
 
@@ -207,6 +208,23 @@ class FormReward:
     reward = normalizer.update(state.reward, folded[..., None], self.config.normalizer_decay,
                                mask=valid)
     return state._replace(reward=reward), metrics
+
+  def export(self, state: FormState, path: str, info: dict) -> None:
+    """Writes one member's imitator model (`state`: that member's, no member axis) as an
+    effect-model file (mjx_form.files.effect_models), so that what a run's reward subtracted
+    at its end can be read after the run, whose checkpoints may not come back from the GPU.
+    `info`: task, observation_size, observation_layout and `imitator` (what the run says of
+    the behaviour it modelled: the run's env steps, its policy file); the file's `imitator`
+    entry makes a run refuse it as a demonstrator (mjx_form.imitation.pipeline)."""
+    imitator = jax.device_get(state.imitator)
+    steps = int(imitator.steps)
+    metadata = {**{k: v for k, v in info.items() if k != "imitator"}, "distractors": None,
+                "config": self.config.to_dict(),
+                "training": {"steps": steps, "online": True},
+                "demonstrations": {"episodes": None, "source": "the run's own replay"},
+                "imitator": {**info.get("imitator", {}), "updates": steps}}
+    effect_models.save_effect_model(path, imitator.params, imitator.normalizer.mean,
+                                    imitator.normalizer.var, metadata, overwrite=True)
 
   def settings(self) -> dict:
     if not self.per_member:

@@ -104,10 +104,15 @@ def demonstrations(env, artefacts: Artefacts, episodes: int, physics: str, seed:
 
 def load_demonstrator(path: str, env) -> effect_models.EffectModelFile:
   """The demonstrator file at `path`, refused (naming it) unless it is of `env`'s task and
-  observation layout, without distractors."""
-  return effect_models.load_effect_model(path, task=env.name,
+  observation layout, without distractors, and a demonstrator (not a run's imitator model)."""
+  file = effect_models.load_effect_model(path, task=env.name,
                                          observation_layout=env.observation_layout,
                                          distractors=None)
+  if "imitator" in file.metadata:
+    raise effect_models.EffectModelFileError(
+        f"{path}: an imitator model (a FORM run's {runner.IMITATOR_FILE}, trained on the run's own "
+        "behaviour), not a demonstrator")
+  return file
 
 
 def prepare(env, config: em.EffectModelConfig, explicit: dict, artefacts: Artefacts,
