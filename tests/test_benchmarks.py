@@ -749,3 +749,64 @@ def test_locomotion_speed_factors_are_hopper_hops_reward():
   row = bench.summary(env, reward, speed, posture, move, product)
   assert row["max_factor_error"] <= 1e-5 and row["target_speed"] == 2.0
   assert row["posture_factor_mean"] > 0.9 and row["speed_factor_mean"] < 0.5
+
+
+def test_form_reward_of_behaviour_settles_where_the_runs_reward_statistics_do():
+  """benchmarks/form_reward_of_behaviour.py: the reward statistics' fixed point is where a run's
+  EMA statistics, folding in rewards clipped by FormReward.clip_tail, settle; the learner's
+  reward is clipped to c sd and standardised with them."""
+  bench = load_script("form_reward_of_behaviour", folder="benchmarks")
+  rng = np.random.default_rng(0)
+  reference = rng.standard_t(3, size=200_000) * 4.0 + 2.0  # heavy tails: clipping matters
+  mean, sd = bench.reward_statistics(reference, 0.0)
+  np.testing.assert_allclose([mean, sd], [reference.mean(), reference.std()])
+  from mjx_form.imitation import effect_model as em
+  from mjx_form.imitation import form
+  from mjx_form.rl import normalizer
+  config = em.EffectModelConfig(width=8)
+  params = em.make_model(config, 2).init(jax.random.PRNGKey(0), jnp.zeros((1, 2)))
+  source = form.FormReward(config, form.Demonstrator(params, normalizer.init(2)), reward_clip=2.0)
+  stats = normalizer.init(1)
+  for i in range(3000):  # the run's folding, batch by batch (decay 0.99)
+    batch = jnp.asarray(rng.standard_t(3, size=512) * 4.0 + 2.0, jnp.float32)
+    folded = source.clip_tail(stats, batch) if i else batch
+    stats = normalizer.update(stats, folded[:, None], 0.99)
+  mean, sd = bench.reward_statistics(reference, 2.0)
+  np.testing.assert_allclose([mean, sd], [float(stats.mean[0]), float(np.sqrt(stats.var[0]))],
+                             rtol=0.03, atol=0.03)
+  assert sd < 0.8 * reference.std()  # the fixed point differs from the plain statistics
+  given = bench.learner_rewards(np.array([mean, mean + 10 * sd, mean - sd]), mean, sd, 2.0, True)
+  np.testing.assert_allclose(given, [0.0, 2.0, -1.0], atol=1e-12)
+  np.testing.assert_allclose(bench.learner_rewards(np.array([5.0]), 1.0, 2.0, 0.0, False), [5.0])
+
+
+def test_form_reward_of_behaviour_reads_a_runs_imitator_model(tmp_path):
+  """benchmarks/form_reward_of_behaviour.py: a run's exported imitator.npz is read back as the
+  imitator state it was (same log pI); a demonstrator file or other settings are refused."""
+  bench = load_script("form_reward_of_behaviour", folder="benchmarks")
+  import tasks
+  from mjx_form.imitation import effect_model as em
+  from mjx_form.imitation import form
+  from mjx_form.rl import normalizer
+  env = tasks.make("reacher_easy")
+  d = env.observation_size
+  config = em.EffectModelConfig(width=8)
+  params = em.make_model(config, d).init(jax.random.PRNGKey(0), jnp.zeros((1, d)))
+  source = form.FormReward(config, form.Demonstrator(params, normalizer.init(d)))
+  state = source.init(jax.random.PRNGKey(1), d, env.action_size)
+  obs = jnp.asarray(np.random.default_rng(0).normal(size=(2, 6, d)), jnp.float32)
+  state, _ = source.update(state, {"observation": obs, "discount": jnp.ones((2, 5))},
+                           jax.random.PRNGKey(2))
+  path = str(tmp_path / "imitator.npz")
+  layout = [[k, v] for k, v in env.observation_layout.items()]
+  source.export(state, path, {"task": env.name, "observation_size": d,
+                              "observation_layout": layout, "imitator": {"env_steps": 10}})
+  kept = bench.kept_imitator(path, env, config)
+  assert int(kept.steps) == 1
+  np.testing.assert_allclose(source.log_probs(state._replace(imitator=kept), obs)[1],
+                             source.log_probs(state, obs)[1], rtol=1e-6, atol=1e-5)
+  with pytest.raises(ValueError, match="not an imitator model"):
+    bench.kept_imitator(path, env, em.EffectModelConfig(width=16))
+  with pytest.raises(ValueError, match="not an imitator model"):
+    bench.kept_imitator(tasks.bundled_demonstrator("reacher_easy"), env,
+                        em.EffectModelConfig(width=8))

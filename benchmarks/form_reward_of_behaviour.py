@@ -1,0 +1,251 @@
+#!/usr/bin/env python3
+"""Does FORM's reward, at a run's end, prefer the expert's behaviour to the imitator's own?
+
+A FORM run's learner maximises log pD - log pI, with pI the imitator model of its own recent
+behaviour. Where an imitator fails the task, either that reward prefers what the imitator does
+(the reward is wrong there), or it prefers the expert's behaviour and the learner does not find
+it (optimisation, exploration). pI is the run's own where it kept one (a member's imitator.npz,
+written with its final policy since session 49); else this fits one as the run does, on the
+policy's own behaviour: `--episodes` episodes of the policy sampling its actions as its actors
+do, and an effect model of the run's settings trained on them (`--imitator_steps` steps of
+`--imitator_batch` windows, the best held-out state kept, as a demonstrator's; on the CPU this
+fits far less well than a run's model). Then, on `--eval_episodes` new starts, the policy (its
+mean action, as evaluated) and the task's expert are scored with the run's reward: log pD (the
+demonstrators kept in its run directory: one, their mixture, or member `--member`'s own) minus
+log pI, clipped and standardised as the learner gets it (the fixed point of the run's running
+statistics on the raw rewards of the policy's sampled episodes standing in for them). The FORM
+return of an episode is the sum of that reward. For reacher, also per quadrant of the target's
+angle a = arctan2(x, y) ([-pi,-pi/2) / [-pi/2,0) / [0,pi/2) / [pi/2,pi), as reacher_settling.py).
+Appends a `kind: form_reward_of_behaviour` record per policy.
+
+  python benchmarks/form_reward_of_behaviour.py --run_dir runs/rh --member 0 \\
+      --results benchmarks/results/<date>_form_reward_of_behaviour_cpu.jsonl
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+
+sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+
+import common  # noqa: E402
+from mjx_form.cpu import configure_cpu_xla  # noqa: E402  (before JAX starts)
+
+configure_cpu_xla()
+
+import jax  # noqa: E402
+import jax.numpy as jnp  # noqa: E402
+import numpy as np  # noqa: E402
+
+import tasks  # noqa: E402
+from mjx_form.files import effect_models, experts, results  # noqa: E402
+from mjx_form.imitation import demonstrator as demonstrator_lib  # noqa: E402
+from mjx_form.imitation import effect_model as em  # noqa: E402
+from mjx_form.imitation import form, pipeline  # noqa: E402
+from mjx_form.rl import normalizer, runner  # noqa: E402
+from reacher_settling import angle_quadrant  # noqa: E402
+
+
+def main(argv=None) -> int:
+  parser = argparse.ArgumentParser(description=__doc__,
+                                   formatter_class=argparse.RawDescriptionHelpFormatter)
+  parser.add_argument("--run_dir", required=True, help="a FORM run's directory (config.json "
+                      "and its demonstrators)")
+  parser.add_argument("--member", type=int, action="append", default=None,
+                      help="the population member (seed index) to score; repeatable "
+                      "(default: every seed<i> folder)")
+  parser.add_argument("--policy_file", default="policy.npz",
+                      help="which of the member's policies (default: the final one)")
+  parser.add_argument("--episodes", type=int, default=256, help="sampled episodes the imitator "
+                      "model trains on")
+  parser.add_argument("--imitator_steps", type=int, default=4_000)
+  parser.add_argument("--imitator_batch", type=int, default=16, help="windows of 100 "
+                      "transitions per step (a run's: 64; a CPU step of 64 takes ~0.2 s)")
+  parser.add_argument("--eval_episodes", type=int, default=256)
+  parser.add_argument("--seed", type=int, default=0)
+  parser.add_argument("--results", default=None)
+  args = parser.parse_args(argv)
+  try:
+    return run(args)
+  except (pipeline.PipelineError, ValueError, OSError) as e:
+    print(f"error: {e}", file=sys.stderr)
+    return 2
+
+
+def run_settings(run_dir: str) -> dict:
+  """The run's config.json, refused unless it is a FORM run's."""
+  with open(os.path.join(run_dir, "config.json")) as f:
+    config = json.load(f)
+  if config.get("reward_source") != "form":
+    raise ValueError(f"{run_dir}: not a FORM run (reward_source {config.get('reward_source')})")
+  return config
+
+
+def run_reward(run_dir: str, config: dict, env, member: int) -> form.FormReward:
+  """The member's FORM reward source with the run's kept demonstrators and reward settings."""
+  ready = [(p, pipeline.load_demonstrator(p, env)) for p in pipeline.kept_paths(run_dir)]
+  if not ready:
+    raise ValueError(f"{run_dir}: keeps no demonstrator.npz")
+  settings = config["reward"]
+  if settings.get("member_demonstrators"):
+    ec, models, _ = pipeline.members_of(ready, None)
+    models = [models[member]]
+  else:
+    ec, models, _ = pipeline.ensemble(ready, None)
+  return form.FormReward(ec, models, standardise_reward=settings.get("standardise_reward", False),
+                         reward_clip=settings.get("reward_clip", 0.0),
+                         ensemble_log_pd=settings.get("ensemble_log_pd", "mixture"))
+
+
+def kept_imitator(path: str, env, config) -> em.EffectModelState:
+  """A run's exported imitator model (its imitator.npz) as an effect-model state, refused
+  unless it is an imitator model of `env`'s task with the run's effect-model settings."""
+  file = effect_models.load_effect_model(path, task=env.name,
+                                         observation_layout=env.observation_layout)
+  if "imitator" not in file.metadata or file.metadata["config"] != config.to_dict():
+    raise ValueError(f"{path}: not an imitator model of this run's settings ({config.to_dict()})")
+  norm = normalizer.NormalizerState(jnp.asarray(file.mean), jnp.asarray(file.var),
+                                    jnp.asarray(1, jnp.int32))
+  return em.EffectModelState(jax.tree.map(jnp.asarray, file.params), None, norm,
+                             jnp.asarray(file.metadata["imitator"]["updates"]))
+
+
+def reward_statistics(reference: np.ndarray, clip: float) -> tuple[float, float]:
+  """The mean and sd a run's running reward statistics settle at on raw rewards distributed as
+  `reference`: where the run clips (`clip` sd > 0) it folds in rewards winsorised at `clip` sd
+  around its own statistics, whose fixed point this iterates to."""
+  mean, sd = float(np.mean(reference)), float(np.std(reference))
+  for _ in range(100 if clip > 0 else 0):
+    folded = np.clip(reference, mean - clip * sd, mean + clip * sd)
+    mean, sd = float(np.mean(folded)), float(np.std(folded))
+  return mean, sd
+
+
+def learner_rewards(raw: np.ndarray, mean: float, sd: float, clip: float, standardise: bool
+                    ) -> np.ndarray:
+  """What the learner gets for `raw` rewards under statistics (mean, sd): clipped to `clip` sd
+  around the mean (0: not clipped), then standardised where the run standardises."""
+  if clip > 0:
+    raw = np.clip(raw, mean - clip * sd, mean + clip * sd)
+  return (raw - mean) / sd if standardise else raw
+
+
+def mean_action_episodes(env, agent, key, episodes: int):
+  """Observations [K, T+1, D] and task returns [K] of `agent`'s mean action from the starts of
+  `key`, and the target positions [K, 2] where the task has one (else None)."""
+  probe = lambda nxt: (nxt.obs, nxt.reward, nxt.task.get("target", jnp.zeros(2)))
+  obs, rewards, target = common.mean_action_rollout(env, agent, key, episodes, probe)
+  first = jax.device_get(jax.vmap(env.reset)(jax.random.split(key, episodes)).obs)
+  obs = np.concatenate([np.asarray(first)[None], np.asarray(obs)])  # [T+1, K, D]
+  has_target = "target" in jax.eval_shape(env.reset, key).task
+  return np.swapaxes(obs, 0, 1), np.asarray(rewards).sum(0), (
+      np.asarray(target[0]) if has_target else None)
+
+
+def summary(groups: np.ndarray | None, **per_episode: np.ndarray) -> dict:
+  """Means of per-episode values, overall and per group (where there are groups)."""
+  out = {"all": {k: float(np.mean(v)) for k, v in per_episode.items()}}
+  if groups is not None:
+    out["by_target_quadrant"] = [
+        {"episodes": int(np.sum(groups == q)),
+         **{k: float(np.mean(v[groups == q])) for k, v in per_episode.items()}}
+        for q in range(4)]
+  return out
+
+
+def score_member(args, config: dict, member: int) -> dict:
+  env = tasks.make(config["task"], physics=config["physics"])
+  source = run_reward(args.run_dir, config, env, member)
+  path = os.path.join(args.run_dir, f"seed{member}", args.policy_file)
+  agent = experts.load_expert(path, env)
+  expert = experts.load_expert(tasks.bundled_expert(env.name), env)
+  start = time.perf_counter()
+  key_train, key_eval = jax.random.split(jax.random.PRNGKey(args.seed))
+  sampled, _, sampled_returns = experts.record(
+      env, agent, key_train, args.episodes, stochastic=True,
+      noise_correlation=config.get("action_noise_correlation", 0.0))
+  kept = os.path.join(args.run_dir, f"seed{member}", runner.IMITATOR_FILE)
+  if args.policy_file == "policy.npz" and os.path.exists(kept):  # the run's own, at its end
+    state = kept_imitator(kept, env, source.config)
+    fit = {"file": kept, "updates": int(state.steps)}
+    print(f"seed{member}: the run's imitator model ({fit['updates']} updates)", flush=True)
+  else:
+    training = demonstrator_lib.DemonstratorTraining(
+        max_steps=args.imitator_steps, batch_size=args.imitator_batch,
+        eval_every=max(1, min(2_000, args.imitator_steps // 8)), seed=args.seed)
+    state, report = demonstrator_lib.train(sampled, source.config, training,
+                                           print_fn=lambda line: None)
+    fit = {"steps": report["steps"], "best_step": report["best_step"],
+           "heldout_log_likelihood": [round(float(x), 3) for x in
+                                      report["heldout_log_likelihood"]]}
+    print(f"seed{member}: imitator model on {args.episodes} sampled episodes (return "
+          f"{np.mean(sampled_returns):.1f}): held-out offset-1 "
+          f"{fit['heldout_log_likelihood'][0]:.2f} at {fit['best_step']} steps, "
+          f"{time.perf_counter() - start:.0f}s", flush=True)
+  fs = source.init(jax.random.PRNGKey(0), env.observation_size, env.action_size)
+  fs = fs._replace(imitator=state)
+  log_probs = jax.jit(lambda obs: source.log_probs(fs, obs))
+
+  def raw(obs):  # [K, T+1, D] -> log pD, log pI [K, T]
+    parts = [jax.device_get(log_probs(jnp.asarray(obs[i:i + 32])))
+             for i in range(0, obs.shape[0], 32)]
+    return tuple(np.concatenate([p[j] for p in parts]) for j in range(2))
+
+  ref_d, ref_i = raw(sampled)
+  clip, standardise = source.reward_clip, source.standardise_reward
+  mean, sd = reward_statistics((ref_d - ref_i).ravel(), clip)
+  out = {"member": member, "policy": path, "sampled_return": float(np.mean(sampled_returns)),
+         "imitator_model": fit, "reward_mean": mean, "reward_sd": sd}
+  groups = None
+  for who, behaviour in (("policy", agent), ("expert", expert)):
+    obs, returns, target = mean_action_episodes(env, behaviour, key_eval, args.eval_episodes)
+    log_d, log_i = raw(obs)
+    given = learner_rewards(log_d - log_i, mean, sd, clip, standardise)
+    if target is not None:
+      groups = angle_quadrant(np.arctan2(target[:, 0], target[:, 1]))  # (the same starts for both)
+    out[who] = {"task_return": returns, "form_return": given.sum(1),
+                "log_pd": log_d.mean(1), "log_pi": log_i.mean(1)}
+  wins = out["expert"]["form_return"] > out["policy"]["form_return"]
+  per_episode = {f"{who}_{k}": v for who in ("policy", "expert")
+                 for k, v in out.pop(who).items()}
+  out.update(summary(groups, **per_episode, expert_form_return_higher=wins.astype(float)))
+  out["seconds"] = round(time.perf_counter() - start, 1)
+  return out
+
+
+def run(args) -> int:
+  config = run_settings(args.run_dir)
+  members = args.member if args.member is not None else [
+      i for i in range(len(config.get("seeds") or [config["seed"]]))
+      if os.path.isdir(os.path.join(args.run_dir, f"seed{i}"))]
+  writer = results.ResultWriter(args.results) if args.results else None
+  for member in members:
+    out = score_member(args, config, member)
+    a = out["all"]
+    print(f"seed{member}: task return policy {a['policy_task_return']:.1f} expert "
+          f"{a['expert_task_return']:.1f}; FORM return policy {a['policy_form_return']:.1f} "
+          f"expert {a['expert_form_return']:.1f} (expert higher on "
+          f"{a['expert_form_return_higher']:.0%} of starts); log pD {a['policy_log_pd']:.1f} / "
+          f"{a['expert_log_pd']:.1f}, log pI {a['policy_log_pi']:.1f} / {a['expert_log_pi']:.1f}")
+    for q, g in enumerate(out.get("by_target_quadrant", [])):
+      print(f"  quadrant {q} ({g['episodes']} starts): task {g['policy_task_return']:.0f} / "
+            f"{g['expert_task_return']:.0f}, FORM {g['policy_form_return']:.0f} / "
+            f"{g['expert_form_return']:.0f} (expert higher {g['expert_form_return_higher']:.0%})"
+            f", log pD {g['policy_log_pd']:.1f} / {g['expert_log_pd']:.1f}, log pI "
+            f"{g['policy_log_pi']:.1f} / {g['expert_log_pi']:.1f}", flush=True)
+    if writer:
+      writer.write(kind="form_reward_of_behaviour", task=config["task"], method="form",
+                   run_dir=args.run_dir, episodes=args.episodes,
+                   imitator_steps=args.imitator_steps,
+                   imitator_batch=args.imitator_batch, eval_episodes=args.eval_episodes,
+                   seed=args.seed, **out)
+  return 0
+
+
+if __name__ == "__main__":
+  sys.exit(main())
