@@ -1,5 +1,5 @@
 """What the benchmarks share: result records (JSON Lines under benchmarks/results/), timing,
-and where observations turn past a raw angle's [-pi, pi)."""
+where observations turn past a raw angle's [-pi, pi), and reacher's target quadrants."""
 
 from __future__ import annotations
 
@@ -7,6 +7,8 @@ import datetime
 import os
 import sys
 import time
+
+import numpy as np
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 RESULTS_DIR = os.path.join(ROOT, "benchmarks", "results")
@@ -87,6 +89,12 @@ def turned_past(observations, period):
   periodic = period > 0
   raw, half = observations[..., periodic], period[periodic] / 2  # [..., P], [P]
   return ((raw < -half) | (raw >= half)).any(axis=-1)
+
+
+def angle_quadrant(angle):
+  """The quadrant 0..3 of each angle in [-pi, pi]: [-pi, -pi/2), [-pi/2, 0), [0, pi/2),
+  [pi/2, pi] (pi itself in the last)."""
+  return np.clip(np.floor((angle + np.pi) / (np.pi / 2)).astype(int), 0, 3)
 
 
 def best_time(fn, repeats: int) -> float:

@@ -5,17 +5,19 @@ A FORM run's learner maximises log pD - log pI, with pI the imitator model of it
 behaviour. Where an imitator fails the task, either that reward prefers what the imitator does
 (the reward is wrong there), or it prefers the expert's behaviour and the learner does not find
 it (optimisation, exploration). pI is the run's own where it kept one (a member's imitator.npz,
-written with its final policy since session 49); else this fits one as the run does, on the
-policy's own behaviour: `--episodes` episodes of the policy sampling its actions as its actors
-do, and an effect model of the run's settings trained on them (`--imitator_steps` steps of
-`--imitator_batch` windows, the best held-out state kept, as a demonstrator's; on the CPU this
-fits far less well than a run's model). Then, on `--eval_episodes` new starts, the policy (its
-mean action, as evaluated) and the task's expert are scored with the run's reward: log pD (the
-demonstrators kept in its run directory: one, their mixture, or member `--member`'s own) minus
-log pI, clipped and standardised as the learner gets it (the fixed point of the run's running
-statistics on the raw rewards of the policy's sampled episodes standing in for them). The FORM
-return of an episode is the sum of that reward. For reacher, also per quadrant of the target's
-angle a = arctan2(x, y) ([-pi,-pi/2) / [-pi/2,0) / [0,pi/2) / [pi/2,pi), as reacher_settling.py).
+written with its final policy since session 49, with the run's reward statistics); else this
+fits one as the run does, on the policy's own behaviour: `--episodes` episodes of the policy
+sampling its actions as its actors do, and an effect model of the run's settings trained on
+them (`--imitator_steps` steps of `--imitator_batch` windows, the best held-out state kept, as
+a demonstrator's; on the CPU this fits far less well than a run's model). Then, on
+`--eval_episodes` new starts, the policy (its mean action, as evaluated) and the task's expert
+are scored with the member's reward: log pD (the demonstrators kept in its run directory: one,
+their mixture, or the member's own) minus log pI, clipped and standardised as its learner gets
+it (the member's own grid settings included), with the run's statistics where its imitator
+file keeps them, else their fixed point on the raw rewards of the policy's sampled episodes
+(`reward_statistics`). The FORM return of an episode is the sum of that reward. For reacher,
+also per quadrant of the target's angle a = arctan2(x, y) ([-pi,-pi/2) / [-pi/2,0) / [0,pi/2)
+/ [pi/2,pi), as reacher_settling.py).
 Appends a `kind: form_reward_of_behaviour` record per policy.
 
   python benchmarks/form_reward_of_behaviour.py --run_dir runs/rh --member 0 \\
@@ -47,8 +49,7 @@ from mjx_form.files import effect_models, experts, results  # noqa: E402
 from mjx_form.imitation import demonstrator as demonstrator_lib  # noqa: E402
 from mjx_form.imitation import effect_model as em  # noqa: E402
 from mjx_form.imitation import form, pipeline  # noqa: E402
-from mjx_form.rl import normalizer, runner  # noqa: E402
-from reacher_settling import angle_quadrant  # noqa: E402
+from mjx_form.rl import grid, normalizer, runner  # noqa: E402
 
 
 def main(argv=None) -> int:
@@ -57,8 +58,8 @@ def main(argv=None) -> int:
   parser.add_argument("--run_dir", required=True, help="a FORM run's directory (config.json "
                       "and its demonstrators)")
   parser.add_argument("--member", type=int, action="append", default=None,
-                      help="the population member (seed index) to score; repeatable "
-                      "(default: every seed<i> folder)")
+                      help="the member to score, by its place in the run (0: a single "
+                      "run's, or a population's first); repeatable (default: every member)")
   parser.add_argument("--policy_file", default="policy.npz",
                       help="which of the member's policies (default: the final one)")
   parser.add_argument("--episodes", type=int, default=256, help="sampled episodes the imitator "
@@ -86,8 +87,17 @@ def run_settings(run_dir: str) -> dict:
   return config
 
 
-def run_reward(run_dir: str, config: dict, env, member: int) -> form.FormReward:
-  """The member's FORM reward source with the run's kept demonstrators and reward settings."""
+def members(run_dir: str, config: dict) -> list[tuple[str, dict]]:
+  """Each member's directory and own settings (a grid's overrides, {} else), in the run's order
+  (mjx_form.rl.runner.member_dirs)."""
+  seeds = tuple(config.get("seeds") or [config["seed"]])
+  overrides = tuple(config.get("overrides") or [{} for _ in seeds])
+  return list(zip(runner.member_dirs(run_dir, seeds, overrides), overrides))
+
+
+def run_reward(run_dir: str, config: dict, env, member: int, own: dict) -> form.FormReward:
+  """Member `member`'s FORM reward source: the run's kept demonstrators (its own where each
+  member had one) and reward settings, with the member's own (`own`, a grid's overrides)."""
   ready = [(p, pipeline.load_demonstrator(p, env)) for p in pipeline.kept_paths(run_dir)]
   if not ready:
     raise ValueError(f"{run_dir}: keeps no demonstrator.npz")
@@ -97,22 +107,26 @@ def run_reward(run_dir: str, config: dict, env, member: int) -> form.FormReward:
     models = [models[member]]
   else:
     ec, models, _ = pipeline.ensemble(ready, None)
-  return form.FormReward(ec, models, standardise_reward=settings.get("standardise_reward", False),
-                         reward_clip=settings.get("reward_clip", 0.0),
-                         ensemble_log_pd=settings.get("ensemble_log_pd", "mixture"))
+  source = form.FormReward(ec, models,
+                           standardise_reward=settings.get("standardise_reward", False),
+                           reward_clip=settings.get("reward_clip", 0.0),
+                           ensemble_log_pd=settings.get("ensemble_log_pd", "mixture"))
+  return source.specialise(grid.split(own)[2])
 
 
-def kept_imitator(path: str, env, config) -> em.EffectModelState:
-  """A run's exported imitator model (its imitator.npz) as an effect-model state, refused
-  unless it is an imitator model of `env`'s task with the run's effect-model settings."""
+def kept_imitator(path: str, env, config) -> tuple[em.EffectModelState, dict]:
+  """A run's exported imitator model (its imitator.npz) as an effect-model state, and its
+  `imitator` metadata (the run's reward statistics at its end among them); refused unless it
+  is an imitator model of `env`'s task with the run's effect-model settings."""
   file = effect_models.load_effect_model(path, task=env.name,
                                          observation_layout=env.observation_layout)
   if "imitator" not in file.metadata or file.metadata["config"] != config.to_dict():
     raise ValueError(f"{path}: not an imitator model of this run's settings ({config.to_dict()})")
   norm = normalizer.NormalizerState(jnp.asarray(file.mean), jnp.asarray(file.var),
                                     jnp.asarray(1, jnp.int32))
-  return em.EffectModelState(jax.tree.map(jnp.asarray, file.params), None, norm,
-                             jnp.asarray(file.metadata["imitator"]["updates"]))
+  steps = jnp.asarray(file.metadata["training"]["steps"])
+  return (em.EffectModelState(jax.tree.map(jnp.asarray, file.params), None, norm, steps),
+          file.metadata["imitator"])
 
 
 def reward_statistics(reference: np.ndarray, clip: float) -> tuple[float, float]:
@@ -158,32 +172,37 @@ def summary(groups: np.ndarray | None, **per_episode: np.ndarray) -> dict:
   return out
 
 
-def score_member(args, config: dict, member: int) -> dict:
+def score_member(args, config: dict, member: int, directory: str, own: dict) -> dict:
   env = tasks.make(config["task"], physics=config["physics"])
-  source = run_reward(args.run_dir, config, env, member)
-  path = os.path.join(args.run_dir, f"seed{member}", args.policy_file)
+  source = run_reward(args.run_dir, config, env, member, own)
+  path = os.path.join(directory, args.policy_file)
   agent = experts.load_expert(path, env)
   expert = experts.load_expert(tasks.bundled_expert(env.name), env)
+  name = os.path.basename(directory)
   start = time.perf_counter()
   key_train, key_eval = jax.random.split(jax.random.PRNGKey(args.seed))
+  actors = {**{k: config.get(k) for k in grid.ACTOR}, **grid.split(own)[1]}
   sampled, _, sampled_returns = experts.record(
       env, agent, key_train, args.episodes, stochastic=True,
-      noise_correlation=config.get("action_noise_correlation", 0.0))
-  kept = os.path.join(args.run_dir, f"seed{member}", runner.IMITATOR_FILE)
+      noise_correlation=actors.get("action_noise_correlation") or 0.0)
+  kept = os.path.join(directory, source.export_file)
+  stats = None
   if args.policy_file == "policy.npz" and os.path.exists(kept):  # the run's own, at its end
-    state = kept_imitator(kept, env, source.config)
-    fit = {"file": kept, "updates": int(state.steps)}
-    print(f"seed{member}: the run's imitator model ({fit['updates']} updates)", flush=True)
+    state, info = kept_imitator(kept, env, source.config)
+    stats = info["reward_mean"], info["reward_sd"]
+    fit = {"file": kept, "steps": int(state.steps)}
+    print(f"{name}: the run's imitator model ({fit['steps']} updates)", flush=True)
   else:
     training = demonstrator_lib.DemonstratorTraining(
         max_steps=args.imitator_steps, batch_size=args.imitator_batch,
         eval_every=max(1, min(2_000, args.imitator_steps // 8)), seed=args.seed)
     state, report = demonstrator_lib.train(sampled, source.config, training,
                                            print_fn=lambda line: None)
-    fit = {"steps": report["steps"], "best_step": report["best_step"],
+    fit = {"max_steps": args.imitator_steps, "batch_size": args.imitator_batch,
+           "steps": report["steps"], "best_step": report["best_step"],
            "heldout_log_likelihood": [round(float(x), 3) for x in
                                       report["heldout_log_likelihood"]]}
-    print(f"seed{member}: imitator model on {args.episodes} sampled episodes (return "
+    print(f"{name}: imitator model on {args.episodes} sampled episodes (return "
           f"{np.mean(sampled_returns):.1f}): held-out offset-1 "
           f"{fit['heldout_log_likelihood'][0]:.2f} at {fit['best_step']} steps, "
           f"{time.perf_counter() - start:.0f}s", flush=True)
@@ -198,16 +217,19 @@ def score_member(args, config: dict, member: int) -> dict:
 
   ref_d, ref_i = raw(sampled)
   clip, standardise = source.reward_clip, source.standardise_reward
-  mean, sd = reward_statistics((ref_d - ref_i).ravel(), clip)
-  out = {"member": member, "policy": path, "sampled_return": float(np.mean(sampled_returns)),
-         "imitator_model": fit, "reward_mean": mean, "reward_sd": sd}
+  if stats is None:  # (the run's own where its imitator file keeps them)
+    stats = reward_statistics((ref_d - ref_i).ravel(), clip)
+  mean, sd = stats
+  out = {"member": member, "policy_file": path, "own_settings": own,
+         "sampled_return": float(np.mean(sampled_returns)), "imitator_model": fit,
+         "reward_mean": mean, "reward_sd": sd}
   groups = None
   for who, behaviour in (("policy", agent), ("expert", expert)):
     obs, returns, target = mean_action_episodes(env, behaviour, key_eval, args.eval_episodes)
     log_d, log_i = raw(obs)
     given = learner_rewards(log_d - log_i, mean, sd, clip, standardise)
-    if target is not None:
-      groups = angle_quadrant(np.arctan2(target[:, 0], target[:, 1]))  # (the same starts for both)
+    if target is not None:  # (the same starts for both)
+      groups = common.angle_quadrant(np.arctan2(target[:, 0], target[:, 1]))
     out[who] = {"task_return": returns, "form_return": given.sum(1),
                 "log_pd": log_d.mean(1), "log_pi": log_i.mean(1)}
   wins = out["expert"]["form_return"] > out["policy"]["form_return"]
@@ -220,14 +242,18 @@ def score_member(args, config: dict, member: int) -> dict:
 
 def run(args) -> int:
   config = run_settings(args.run_dir)
-  members = args.member if args.member is not None else [
-      i for i in range(len(config.get("seeds") or [config["seed"]]))
-      if os.path.isdir(os.path.join(args.run_dir, f"seed{i}"))]
+  dirs = members(args.run_dir, config)
+  chosen = args.member if args.member is not None else range(len(dirs))
+  for member in chosen:
+    if not 0 <= member < len(dirs) or not os.path.isdir(dirs[member][0]):
+      raise ValueError(f"--member {member}: the run has members 0-{len(dirs) - 1}"
+                       + (f"; {dirs[member][0]} is missing" if 0 <= member < len(dirs) else ""))
   writer = results.ResultWriter(args.results) if args.results else None
-  for member in members:
-    out = score_member(args, config, member)
+  for member in chosen:
+    directory, own = dirs[member]
+    out = score_member(args, config, member, directory, own)
     a = out["all"]
-    print(f"seed{member}: task return policy {a['policy_task_return']:.1f} expert "
+    print(f"{os.path.basename(directory)}: task return policy {a['policy_task_return']:.1f} expert "
           f"{a['expert_task_return']:.1f}; FORM return policy {a['policy_form_return']:.1f} "
           f"expert {a['expert_form_return']:.1f} (expert higher on "
           f"{a['expert_form_return_higher']:.0%} of starts); log pD {a['policy_log_pd']:.1f} / "
@@ -241,9 +267,7 @@ def run(args) -> int:
     if writer:
       writer.write(kind="form_reward_of_behaviour", task=config["task"], method="form",
                    run_dir=args.run_dir, episodes=args.episodes,
-                   imitator_steps=args.imitator_steps,
-                   imitator_batch=args.imitator_batch, eval_episodes=args.eval_episodes,
-                   seed=args.seed, **out)
+                   eval_episodes=args.eval_episodes, seed=args.seed, **out)
   return 0
 
 

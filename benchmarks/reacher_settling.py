@@ -385,19 +385,13 @@ def move_target(prev, nxt, to_target: slice, shift):
   return prev, nxt
 
 
-def angle_quadrant(angle):
-  """The quadrant 0..3 of each angle in [-pi, pi]: [-pi, -pi/2), [-pi/2, 0), [0, pi/2),
-  [pi/2, pi] (pi itself in the last)."""
-  return np.clip(np.floor((angle + np.pi) / (np.pi / 2)).astype(int), 0, 3)
-
-
 def failure_shares(failed, radius, angle):
   """The quartile edges of radius [K], the share of `failed` [K] episodes in each radius
   quartile (each episode in one: bins closed on the right) and in each quadrant of angle (in
   [-pi, pi]); None for an empty bin."""
   edges = np.quantile(radius, [0, 0.25, 0.5, 0.75, 1])
   quartile = np.digitize(radius, edges[1:-1], right=True)  # 0..3
-  quadrant = angle_quadrant(angle)
+  quadrant = common.angle_quadrant(angle)
 
   def shares(bins):
     return [float(failed[bins == b].mean()) if (bins == b).any() else None for b in range(4)]
@@ -411,7 +405,7 @@ def paths_by_quadrant(angle, returns, shoulder) -> list[dict]:
   [T, K]) leaves [-pi, pi] (it crossed the seam of the range it starts in), and the median
   length of the shoulder's path, sum |theta_{t+1} - theta_t| (rad; a spinning arm's grows with
   every turn)."""
-  quadrant = angle_quadrant(angle)
+  quadrant = common.angle_quadrant(angle)
   leaves = (np.abs(shoulder) > np.pi).any(axis=0)
   path = np.abs(np.diff(shoulder, axis=0)).sum(axis=0)
   out = []

@@ -613,8 +613,8 @@ def main(argv=None) -> int:
             f", the best evaluation's in {os.path.join(directory, 'best_policy.npz')}"
             + (", by log pD in best_log_pd_policy.npz"
                if os.path.exists(os.path.join(directory, "best_log_pd_policy.npz")) else "")
-            + (", the imitator model in imitator.npz"
-               if os.path.exists(os.path.join(directory, "imitator.npz")) else ""))
+            + (f", the imitator model in {form_lib.FormReward.export_file}" if os.path.exists(
+                os.path.join(directory, form_lib.FormReward.export_file)) else ""))
     return 0
   try:
     mesh_lib.check_batch_size(args.num_envs, mesh)

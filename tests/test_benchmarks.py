@@ -800,13 +800,25 @@ def test_form_reward_of_behaviour_reads_a_runs_imitator_model(tmp_path):
   path = str(tmp_path / "imitator.npz")
   layout = [[k, v] for k, v in env.observation_layout.items()]
   source.export(state, path, {"task": env.name, "observation_size": d,
-                              "observation_layout": layout, "imitator": {"env_steps": 10}})
-  kept = bench.kept_imitator(path, env, config)
-  assert int(kept.steps) == 1
+                              "observation_layout": layout, "env_steps": 10,
+                              "policy_file": "policy.npz"})
+  kept, info = bench.kept_imitator(path, env, config)
+  assert int(kept.steps) == 1 and info["env_steps"] == 10
+  np.testing.assert_allclose(info["reward_mean"], state.reward.mean[0], rtol=1e-6)
   np.testing.assert_allclose(source.log_probs(state._replace(imitator=kept), obs)[1],
                              source.log_probs(state, obs)[1], rtol=1e-6, atol=1e-5)
   with pytest.raises(ValueError, match="not an imitator model"):
     bench.kept_imitator(path, env, em.EffectModelConfig(width=16))
+  # members by their place in the run: a single run's directory, a population's seed folders
+  assert bench.members("r", {"seed": 3}) == [("r", {})]
+  grid_run = {"seeds": [3, 4], "overrides": [{"reward_clip": 2.0}, {"reward_clip": 3.0}]}
+  assert bench.members("r", grid_run) == [(os.path.join("r", "seed3_reward_clip2"),
+                                            {"reward_clip": 2.0}),
+                                           (os.path.join("r", "seed4_reward_clip3"),
+                                            {"reward_clip": 3.0})]
+  # a demonstrator of the same settings is not an imitator model
+  from mjx_form.files import effect_models
+  shipped = tasks.bundled_demonstrator("reacher_easy")
+  shipped_config = effect_models.load_effect_model(shipped).metadata["config"]
   with pytest.raises(ValueError, match="not an imitator model"):
-    bench.kept_imitator(tasks.bundled_demonstrator("reacher_easy"), env,
-                        em.EffectModelConfig(width=8))
+    bench.kept_imitator(shipped, env, em.EffectModelConfig(**shipped_config))

@@ -351,35 +351,54 @@ def test_demonstrators_per_member_give_each_member_its_own(form_trainer):
 
 def test_the_imitator_model_is_exported_as_an_effect_model_file_and_refused_as_a_demonstrator(
     tmp_path):
-  """FormReward.export writes the imitator model as it stands (after its online steps): read
-  back, it gives the same log pI; a run refuses the file as a demonstrator, naming it."""
+  """Each member's imitator model is written as it stands (after its online steps), with the
+  reward's running statistics: read back, it gives that member's log pI; a run refuses the file
+  as a demonstrator, naming it."""
+  from types import SimpleNamespace
+
+  from mjx_form.imitation import pipeline
+  from mjx_form.rl import runner
   source = FormReward(EFFECT, _demonstrator())
-  state = source.init(jax.random.PRNGKey(0), D, 2)
+  env = tasks.make("reacher_easy")
   rng = np.random.default_rng(1)
   batch = {"observation": jnp.asarray(rng.normal(size=(3, 8, D)), jnp.float32),
            "discount": jnp.ones((3, 7))}
-  for i in range(3):
-    state, _ = source.update(state, batch, jax.random.PRNGKey(i))
-  env = tasks.make("reacher_easy")
-  layout = [[k, v] for k, v in env.observation_layout.items()]
-  path = tmp_path / "imitator.npz"
-  source.export(state, str(path), {"task": "reacher_easy", "observation_size": D,
-                                   "observation_layout": layout,
-                                   "imitator": {"env_steps": 1234}})
-  file = effect_models.load_effect_model(path, task="reacher_easy")
-  assert file.metadata["imitator"] == {"env_steps": 1234, "updates": 3}
-  assert file.metadata["training"]["steps"] == 3 and file.metadata["config"] == EFFECT.to_dict()
-  norm = normalizer.NormalizerState(jnp.asarray(file.mean), jnp.asarray(file.var),
-                                    jnp.asarray(1, jnp.int32))
+  states = jax.vmap(lambda k: source.init(k, D, 2))(jax.random.split(jax.random.PRNGKey(0), 2))
+  for i in range(3):  # member 1 takes one more step than member 0, on other batches
+    keys = jax.random.split(jax.random.PRNGKey(i), 2)
+    batches = jax.tree.map(lambda x: jnp.stack([x, x[::-1]]), batch)
+    stepped, _ = jax.vmap(source.update)(states, batches, keys)
+    states = jax.tree.map(lambda new, old: jnp.stack([new[0] if i < 2 else old[0], new[1]]),
+                          stepped, states)
+  trainer = SimpleNamespace(source=source, env=env, member=lambda tree, i: jax.tree.map(
+      lambda x: x[i], tree))
+  for i in range(2):
+    (tmp_path / f"m{i}").mkdir()
+    runner.export_source(trainer, SimpleNamespace(source=states), i, str(tmp_path / f"m{i}"),
+                         {"env_steps": 100 + i})
   x, x_next = batch["observation"][:, :-1], batch["observation"][:, 1:]
-  from_file = em.transition_log_prob(source.model, file.params, norm, x, x_next)
-  np.testing.assert_allclose(from_file, source.log_probs(state, batch["observation"])[1],
-                             rtol=1e-6, atol=1e-5)
-  fresh = source.init(jax.random.PRNGKey(0), D, 2)  # the steps changed the model
-  assert not np.allclose(from_file, source.log_probs(fresh, batch["observation"])[1])
-  from mjx_form.imitation import pipeline
+  logs = []
+  for i in range(2):
+    member = jax.tree.map(lambda v: v[i], states)
+    file = effect_models.load_effect_model(tmp_path / f"m{i}" / "imitator.npz",
+                                           task="reacher_easy")
+    assert file.metadata["training"]["steps"] == 2 + i
+    assert file.metadata["config"] == EFFECT.to_dict()
+    info = file.metadata["imitator"]
+    assert (info["env_steps"], info["policy_file"]) == (100 + i, "policy.npz")
+    np.testing.assert_allclose([info["reward_mean"], info["reward_sd"] ** 2],
+                               [member.reward.mean[0], member.reward.var[0]], rtol=1e-6)
+    norm = normalizer.NormalizerState(jnp.asarray(file.mean), jnp.asarray(file.var),
+                                      jnp.asarray(1, jnp.int32))
+    logs.append(em.transition_log_prob(source.model, file.params, norm, x, x_next))
+    np.testing.assert_allclose(logs[-1], source.log_probs(member, batch["observation"])[1],
+                               rtol=1e-6, atol=1e-5)
+  assert not np.allclose(logs[0], logs[1])  # each member's own model
   with pytest.raises(effect_models.EffectModelFileError, match="an imitator model"):
-    pipeline.load_demonstrator(str(path), env)
+    pipeline.load_demonstrator(str(tmp_path / "m0" / "imitator.npz"), env)
+  # A source without a file to export writes nothing.
+  runner.export_source(SimpleNamespace(source=object()), None, 0, str(tmp_path / "none"), {})
+  assert not (tmp_path / "none").exists()
 
 
 def test_standardised_reward_uses_the_running_statistics_of_the_raw_reward():
@@ -829,8 +848,7 @@ def test_form_command_line_runs_every_stage(tmp_path, capsys):
   assert shas == {policy_io.load_policy(first / "policy.npz")[1]["sha256"]}
   # The imitator model at the run's end, beside the policy (one update per learner step).
   imitator = effect_models.load_effect_model(first / "imitator.npz", task="reacher_easy")
-  assert imitator.metadata["imitator"]["updates"] == readme.updates_per_iteration * (
-      records[0]["iteration"])
+  assert imitator.metadata["training"]["steps"] == records[0]["updates"] > 0
   assert imitator.metadata["imitator"]["env_steps"] == records[0]["env_steps"]
   assert imitator.metadata["config"] == shipped.metadata["config"]
   # Resume: the kept demonstrator is used; the run continues from its checkpoint.
@@ -838,6 +856,8 @@ def test_form_command_line_runs_every_stage(tmp_path, capsys):
                                "--final_eval_envs", "0", "--results", str(curve))) == 0
   assert "resumed from iteration 1" in capsys.readouterr().out
   assert checkpoint.latest_step(str(first / "checkpoints")) == 2
+  resumed = effect_models.load_effect_model(first / "imitator.npz", task="reacher_easy")
+  assert resumed.metadata["training"]["steps"] == 2 * records[0]["updates"]  # rewritten
   # The best policies over both processes' evaluations: by their task return, and by their
   # log pD (no task reward), each with the value that chose it.
   curve_points = [r for r in results.read_records(str(curve)) if r["kind"] == "learning_curve"]

@@ -25,6 +25,10 @@ Metadata keys (besides format, version, sha256):
                       1..max_offset), the held-out curve, episodes used for training/held out
   demonstrations      what it was trained on: the demonstration file's sha256, episodes,
                       physics and expert (policy file, its sha256, mean return)
+  imitator            only in a FORM run's imitator model (its imitator.npz, written online,
+                      mjx_form.imitation.form.FormReward.export): the run's env steps, its
+                      policy file and the running mean and sd of its raw reward; `training`
+                      then holds its steps only, and a run refuses the file as a demonstrator
 
 `load_effect_model` refuses a file of another task, observation layout or distractor setting,
 another format (e.g. a policy file), and damaged files, naming the file and the mismatch.

@@ -69,6 +69,7 @@ from typing import Any, NamedTuple, Sequence
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from mjx_form.files import effect_models
 from mjx_form.imitation import effect_model as em
@@ -104,6 +105,7 @@ class FormReward:
 
   name = "form"
   needs_task_reward = False
+  export_file = "imitator.npz"  # `export`'s, beside each member's policy.npz
   # may differ between a population's members
   variable_settings = ("standardise_reward", "reward_clip", "ensemble_log_pd")
 
@@ -213,18 +215,21 @@ class FormReward:
     """Writes one member's imitator model (`state`: that member's, no member axis) as an
     effect-model file (mjx_form.files.effect_models), so that what a run's reward subtracted
     at its end can be read after the run, whose checkpoints may not come back from the GPU.
-    `info`: task, observation_size, observation_layout and `imitator` (what the run says of
-    the behaviour it modelled: the run's env steps, its policy file); the file's `imitator`
-    entry makes a run refuse it as a demonstrator (mjx_form.imitation.pipeline)."""
-    imitator = jax.device_get(state.imitator)
-    steps = int(imitator.steps)
-    metadata = {**{k: v for k, v in info.items() if k != "imitator"}, "distractors": None,
+    `info`: task, observation_size, observation_layout, and env_steps and policy_file (the
+    behaviour it modelled); the file's `imitator` entry (those two and the running mean and sd
+    of the raw reward) makes a run refuse it as a demonstrator (mjx_form.imitation.pipeline)."""
+    params, norm, steps, reward = jax.device_get((state.imitator.params,
+                                                  state.imitator.normalizer,
+                                                  state.imitator.steps, state.reward))
+    metadata = {"task": info["task"], "observation_size": info["observation_size"],
+                "observation_layout": info["observation_layout"], "distractors": None,
                 "config": self.config.to_dict(),
-                "training": {"steps": steps, "online": True},
+                "training": {"steps": int(steps), "online": True},
                 "demonstrations": {"episodes": None, "source": "the run's own replay"},
-                "imitator": {**info.get("imitator", {}), "updates": steps}}
-    effect_models.save_effect_model(path, imitator.params, imitator.normalizer.mean,
-                                    imitator.normalizer.var, metadata, overwrite=True)
+                "imitator": {"env_steps": info["env_steps"], "policy_file": info["policy_file"],
+                             "reward_mean": float(reward.mean[0]),
+                             "reward_sd": float(np.sqrt(reward.var[0]))}}
+    effect_models.save_effect_model(path, params, norm.mean, norm.var, metadata, overwrite=True)
 
   def settings(self) -> dict:
     if not self.per_member:

@@ -24,9 +24,10 @@ A source is an object with:
       episodes' transitions x -> x_next ([N, D] raw observations, the policy's mean action),
       e.g. FORM's log pD: a measure of imitation that needs no task reward; reported beside
       the evaluation return, nothing in training depends on it
-  export(state, path, info) (optional): writes what one member's source learned online
-      (`state`: that member's), e.g. FORM's imitator model; the runner calls it beside each
-      member's exported policy, `info` naming the task, its observations and the env steps
+  export_file: str and export(state, path, info) (optional): writes what one member's source
+      learned online (`state`: that member's), e.g. FORM's imitator model, to `path` (the
+      member's directory and `export_file`); the runner calls it beside each member's exported
+      policy, `info` naming the task, its observations, the env steps and the policy file
 where `batch` is a dict of unrolls: observation [B, T+1, D] (raw, not standardised), action
 [B, T, A], discount [B, T], and reward [B, T] only when needs_task_reward is set.
 """

@@ -47,7 +47,6 @@ from mjx_form.rl.learner import LearnerConfig
 from mjx_form.rl.train import TrainConfig, Trainer, iterations_for
 
 # Settings that may change when a run is resumed (they do not change what is computed).
-IMITATOR_FILE = "imitator.npz"  # (FORM) the imitator model at the run's end, beside policy.npz
 RESUMABLE = ("total_env_steps", "log_every", "eval_every", "checkpoint_every")
 # Settings added since checkpoints were first written, with the value that does what runs did
 # before them: a checkpoint whose config lacks one resumes only with that value.
@@ -375,7 +374,7 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
   if exported:
     for i, d in enumerate(dirs):
       export_policy(trainer, state, i, os.path.join(d, "policy.npz"), rows[i])
-      export_source(trainer, state, i, os.path.join(d, IMITATOR_FILE), rows[i])
+      export_source(trainer, state, i, d, rows[i])
   if final_eval_envs and (stopped or int(state.iteration) == total_iterations):
     final_paths = [os.path.join(d, "policy.npz") for d in dirs] if exported else None
     _final_evaluation(trainer, state, best_paths, rows, final_eval_envs, curve,
@@ -594,16 +593,18 @@ def _write_curve_point(writer: results.ResultWriter, trainer: Trainer, member: i
                **{k: row[k] for k in _CURVE_FIELDS if k in row and np.isfinite(row[k])})
 
 
-def export_source(trainer: Trainer, state, member: int, path: str, row: dict) -> None:
-  """Writes what a member's reward source learned online (FORM: its imitator model), where the
-  source can (`export`, mjx_form.rl.reward_sources); nothing for others."""
-  if not hasattr(trainer.source, "export"):
+def export_source(trainer: Trainer, state, member: int, directory: str, row: dict) -> None:
+  """Writes what a member's reward source learned online (FORM: its imitator model) to its
+  `export_file` in the member's directory, where the source has one (mjx_form.rl.reward_sources);
+  nothing for others."""
+  name = getattr(trainer.source, "export_file", None)
+  if name is None:
     return
   env = trainer.env
-  trainer.source.export(trainer.member(state.source, member), path, {
+  trainer.source.export(trainer.member(state.source, member), os.path.join(directory, name), {
       "task": env.name, "observation_size": env.observation_size,
       "observation_layout": [[k, v] for k, v in env.observation_layout.items()],
-      "imitator": {"env_steps": row.get("env_steps"), "policy_file": "policy.npz"}})
+      "env_steps": row.get("env_steps"), "policy_file": "policy.npz"})
 
 
 def export_policy(trainer: Trainer, state, member: int, path: str, row: dict) -> None:
