@@ -110,8 +110,8 @@ def load_demonstrator(path: str, env) -> effect_models.EffectModelFile:
                                          distractors=None)
   if "imitator" in file.metadata:
     raise effect_models.EffectModelFileError(
-        f"{path}: an imitator model (a FORM run's {FormReward.export_file}, trained on the run's own "
-        "behaviour), not a demonstrator")
+        f"{path}: an imitator model (a FORM run's {FormReward.export_file}, trained on the "
+        "run's own behaviour), not a demonstrator")
   return file
 
 
