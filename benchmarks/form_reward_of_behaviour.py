@@ -49,7 +49,7 @@ from mjx_form.files import effect_models, experts, results  # noqa: E402
 from mjx_form.imitation import demonstrator as demonstrator_lib  # noqa: E402
 from mjx_form.imitation import effect_model as em  # noqa: E402
 from mjx_form.imitation import form, pipeline  # noqa: E402
-from mjx_form.rl import grid, normalizer, runner  # noqa: E402
+from mjx_form.rl import grid, runner  # noqa: E402
 
 
 def main(argv=None) -> int:
@@ -95,22 +95,13 @@ def members(run_dir: str, config: dict) -> list[tuple[str, dict]]:
   return list(zip(runner.member_dirs(run_dir, seeds, overrides), overrides))
 
 
-def run_reward(run_dir: str, config: dict, env, member: int, own: dict) -> form.FormReward:
-  """Member `member`'s FORM reward source: the run's kept demonstrators (its own where each
-  member had one) and reward settings, with the member's own (`own`, a grid's overrides)."""
-  ready = [(p, pipeline.load_demonstrator(p, env)) for p in pipeline.kept_paths(run_dir)]
-  if not ready:
-    raise ValueError(f"{run_dir}: keeps no demonstrator.npz")
+def run_reward(run_dir: str, config: dict, env, own: dict) -> form.FormReward:
+  """The run's FORM reward source (its kept demonstrators, pipeline.kept_source, and reward
+  settings), with a member's own settings (`own`, a grid's overrides)."""
   settings = config["reward"]
-  if settings.get("member_demonstrators"):
-    ec, models, _ = pipeline.members_of(ready, None)
-    models = [models[member]]
-  else:
-    ec, models, _ = pipeline.ensemble(ready, None)
-  source = form.FormReward(ec, models,
-                           standardise_reward=settings.get("standardise_reward", False),
-                           reward_clip=settings.get("reward_clip", 0.0),
-                           ensemble_log_pd=settings.get("ensemble_log_pd", "mixture"))
+  source = pipeline.kept_source(
+      run_dir, env, reward={k: settings[k] for k in form.FormReward.variable_settings
+                            if k in settings}, what="the run")
   return source.specialise(grid.split(own)[2])
 
 
@@ -122,10 +113,9 @@ def kept_imitator(path: str, env, config) -> tuple[em.EffectModelState, dict]:
                                          observation_layout=env.observation_layout)
   if "imitator" not in file.metadata or file.metadata["config"] != config.to_dict():
     raise ValueError(f"{path}: not an imitator model of this run's settings ({config.to_dict()})")
-  norm = normalizer.NormalizerState(jnp.asarray(file.mean), jnp.asarray(file.var),
-                                    jnp.asarray(1, jnp.int32))
+  _, model = pipeline.demonstrator_from_file(file, path)  # (its parameters checked to fit)
   steps = jnp.asarray(file.metadata["training"]["steps"])
-  return (em.EffectModelState(jax.tree.map(jnp.asarray, file.params), None, norm, steps),
+  return (em.EffectModelState(model.params, None, model.normalizer, steps),
           file.metadata["imitator"])
 
 
@@ -174,7 +164,7 @@ def summary(groups: np.ndarray | None, **per_episode: np.ndarray) -> dict:
 
 def score_member(args, config: dict, member: int, directory: str, own: dict) -> dict:
   env = tasks.make(config["task"], physics=config["physics"])
-  source = run_reward(args.run_dir, config, env, member, own)
+  source = run_reward(args.run_dir, config, env, own)
   path = os.path.join(directory, args.policy_file)
   agent = experts.load_expert(path, env)
   expert = experts.load_expert(tasks.bundled_expert(env.name), env)
@@ -208,6 +198,9 @@ def score_member(args, config: dict, member: int, directory: str, own: dict) -> 
           f"{time.perf_counter() - start:.0f}s", flush=True)
   fs = source.init(jax.random.PRNGKey(0), env.observation_size, env.action_size)
   fs = fs._replace(imitator=state)
+  if source.per_member:  # (init gives the first member's demonstrator)
+    fs = fs._replace(demonstrator=jax.tree.map(lambda x: jnp.asarray(x[member]),
+                                               source.demonstrator))
   log_probs = jax.jit(lambda obs: source.log_probs(fs, obs))
 
   def raw(obs):  # [K, T+1, D] -> log pD, log pI [K, T]
@@ -215,9 +208,9 @@ def score_member(args, config: dict, member: int, directory: str, own: dict) -> 
              for i in range(0, obs.shape[0], 32)]
     return tuple(np.concatenate([p[j] for p in parts]) for j in range(2))
 
-  ref_d, ref_i = raw(sampled)
   clip, standardise = source.reward_clip, source.standardise_reward
   if stats is None:  # (the run's own where its imitator file keeps them)
+    ref_d, ref_i = raw(sampled)
     stats = reward_statistics((ref_d - ref_i).ravel(), clip)
   mean, sd = stats
   out = {"member": member, "policy_file": path, "own_settings": own,
@@ -253,8 +246,8 @@ def run(args) -> int:
     directory, own = dirs[member]
     out = score_member(args, config, member, directory, own)
     a = out["all"]
-    print(f"{os.path.basename(directory)}: task return policy {a['policy_task_return']:.1f} expert "
-          f"{a['expert_task_return']:.1f}; FORM return policy {a['policy_form_return']:.1f} "
+    print(f"{os.path.basename(directory)}: task return policy {a['policy_task_return']:.1f} "
+          f"expert {a['expert_task_return']:.1f}; FORM return policy {a['policy_form_return']:.1f} "
           f"expert {a['expert_form_return']:.1f} (expert higher on "
           f"{a['expert_form_return_higher']:.0%} of starts); log pD {a['policy_log_pd']:.1f} / "
           f"{a['expert_log_pd']:.1f}, log pI {a['policy_log_pi']:.1f} / {a['expert_log_pi']:.1f}")

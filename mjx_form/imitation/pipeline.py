@@ -134,18 +134,8 @@ def prepare(env, config: em.EffectModelConfig, explicit: dict, artefacts: Artefa
       os.path.basename(p) for p in glob.glob(os.path.join(run_dir, "demonstrator_*.npz")))))
   reward = reward or {}
   kept = os.path.join(run_dir, DEMONSTRATOR_FILE)
-  if resume:  # (demonstrators per member where the run was started with them)
-    paths = kept_paths(run_dir)
-    if not paths:
-      raise PipelineError(f"--resume: {run_dir} holds no {DEMONSTRATOR_FILE}")
-    ready = [(p, load_demonstrator(p, env)) for p in paths]
-    stored = _stored_reward(run_dir).get("member_demonstrators")
-    if stored is not None:  # (what the run was started with)
-      _check_kept(run_dir, ready, stored)
-      config, demonstrators, sha256 = members_of(ready, explicit)
-      return FormReward(config, demonstrators, sha256, member_demonstrators=True, **reward)
-    config, demonstrators, sha256 = ensemble(ready, explicit)
-    return FormReward(config, demonstrators, sha256, **reward)
+  if resume:
+    return kept_source(run_dir, env, explicit, reward)
 
   per_member = artefacts.member_demonstrators
   if per_member and artefacts.train_demonstrator:
@@ -227,20 +217,40 @@ def prepare(env, config: em.EffectModelConfig, explicit: dict, artefacts: Artefa
   return source
 
 
+def kept_source(run_dir: str, env, explicit: dict | None = None, reward: dict | None = None,
+                what: str = "--resume") -> FormReward:
+  """The FORM reward source of the demonstrators kept in `run_dir` (one, an ensemble, or one per
+  member where config.json says the run was started with them, checked against it), with the
+  `reward` settings; refused (naming the file, `what` first) where none is kept or one does not
+  fit. What a resumed run continues with, and what a finished run's reward was."""
+  paths = kept_paths(run_dir)
+  if not paths:
+    raise PipelineError(f"{what}: {run_dir} holds no {DEMONSTRATOR_FILE}")
+  ready = [(p, load_demonstrator(p, env)) for p in paths]
+  reward = reward or {}
+  stored = _stored_reward(run_dir).get("member_demonstrators")
+  if stored is not None:  # (what the run was started with)
+    _check_kept(run_dir, ready, stored, what)
+    config, demonstrators, sha256 = members_of(ready, explicit)
+    return FormReward(config, demonstrators, sha256, member_demonstrators=True, **reward)
+  config, demonstrators, sha256 = ensemble(ready, explicit)
+  return FormReward(config, demonstrators, sha256, **reward)
+
+
 def _check_kept(run_dir: str, ready: list[tuple[str, effect_models.EffectModelFile]],
-                stored: list[str]) -> None:
+                stored: list[str], what: str) -> None:
   """Refuses kept demonstrators per member that are not those config.json lists, naming the
   first file missing or changed."""
   for i, sha in enumerate(stored):
     name = os.path.join(run_dir, kept_name(i))
     if i >= len(ready):
-      raise PipelineError(f"--resume: {name} is missing (the run's {len(stored)} members "
+      raise PipelineError(f"{what}: {name} is missing (the run's {len(stored)} members "
                           "each kept a demonstrator)")
     if ready[i][1].metadata["sha256"] != sha:
-      raise PipelineError(f"--resume: {name} is not member {i}'s demonstrator (sha256 "
+      raise PipelineError(f"{what}: {name} is not member {i}'s demonstrator (sha256 "
                           f"{ready[i][1].metadata['sha256'][:12]}, config.json: {sha[:12]})")
   if len(ready) > len(stored):
-    raise PipelineError(f"--resume: {ready[len(stored)][0]} is not one of the run's "
+    raise PipelineError(f"{what}: {ready[len(stored)][0]} is not one of the run's "
                         f"{len(stored)} members' demonstrators")
 
 
