@@ -275,6 +275,8 @@ def _learner_notes(record: dict, with_period: bool = True,
     notes.append("sampled Q in bf16")
   if with_penalty and learner.get("mpo", {}).get("action_penalty"):
     notes.append("action penalty")
+  if (epsilon_scale := learner.get("mpo", {}).get("epsilon_scale", 1e-5)) != 1e-5:
+    notes.append(f"epsilon_scale {epsilon_scale:g}")
   if settings.get("network_width", 256) != 256:
     notes.append(f"networks {settings['network_width']} wide")
   head = settings.get("policy_head", "paper")

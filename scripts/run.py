@@ -182,6 +182,11 @@ def parse_args(argv=None) -> argparse.Namespace:
                      help="the critic sees clip(a, -1, 1), the action the environment applies "
                           "(Acme's control-suite MPO), or tanh of the unclipped sample, as the "
                           "paper (default: see --preset)")
+  train.add_argument("--epsilon_scale", type=float, default=None, metavar="E",
+                     help="MPO's bound on the KL of the policy scale's change per update and "
+                          "action dimension (default: see --preset; the paper's and Acme's "
+                          f"older learner's {defaults.learner.mpo.epsilon_scale:g}, Acme's "
+                          "control-suite MPO 1e-6): smaller keeps the scale from collapsing")
   train.add_argument("--sampled_q_bfloat16", action=argparse.BooleanOptionalAction,
                      default=None,
                      help="the target critic's Q of the sampled actions in bfloat16 (half of an "
@@ -389,7 +394,8 @@ def train_config(args: argparse.Namespace) -> TrainConfig:
       LearnerConfig(), num_action_samples=args.num_action_samples,
       target_update_period=period, clip_critic_actions=chosen["clip_critic_actions"],
       sampled_q_bfloat16=bfloat16,
-      mpo=dataclasses.replace(LearnerConfig().mpo, action_penalty=chosen["action_penalty"]))
+      mpo=dataclasses.replace(LearnerConfig().mpo, action_penalty=chosen["action_penalty"],
+                              epsilon_scale=chosen["epsilon_scale"]))
   seed = args.seeds[0] if args.seeds else args.seed
   return TrainConfig(task=args.task, physics=args.physics,
                      reward_source="form" if args.method == "form" else "task",

@@ -16,8 +16,10 @@ def test_paper_preset_is_the_paper_learner_and_actor():
   paper = recipes.expert_settings("hopper_stand", "paper")
   assert paper == {"policy_head": "paper", "action_noise_correlation": 0.0,
                    "target_update_period": 200, "sampled_q_bfloat16": False,
-                   "clip_critic_actions": False, "action_penalty": False}
+                   "clip_critic_actions": False, "action_penalty": False,
+                   "epsilon_scale": 1e-5}
   assert paper["target_update_period"] == LearnerConfig().target_update_period
+  assert paper["epsilon_scale"] == LearnerConfig().mpo.epsilon_scale
   assert paper["action_penalty"] == LearnerConfig().mpo.action_penalty
   assert paper["clip_critic_actions"] == LearnerConfig().clip_critic_actions
   assert paper["policy_head"] == TrainConfig().policy_head
@@ -30,6 +32,7 @@ def test_recipes_name_real_tasks_and_valid_settings():
     assert recipe.get("policy_head", "paper") in POLICY_HEADS
     assert 0.0 <= recipe.get("action_noise_correlation", 0.0) < 1.0
     assert recipe.get("target_update_period", 1) >= 1
+    assert 0.0 < recipe.get("epsilon_scale", 1e-5) < 1.0, task
     assert all(isinstance(recipe.get(k, False), bool)
                for k in ("clip_critic_actions", "sampled_q_bfloat16", "action_penalty")), task
 
@@ -42,13 +45,16 @@ def test_expert_and_form_presets_share_names():
 def test_default_preset_is_the_task_recipe_else_the_paper():
   assert recipes.expert_settings("hopper_stand") == {
       "policy_head": "acme", "action_noise_correlation": 0.9, "target_update_period": 100,
-      "sampled_q_bfloat16": True, "clip_critic_actions": False, "action_penalty": False}
+      "sampled_q_bfloat16": True, "clip_critic_actions": False, "action_penalty": False,
+      "epsilon_scale": 1e-5}
   assert recipes.expert_settings("walker_run") == {
       "policy_head": "paper", "action_noise_correlation": 0.0, "target_update_period": 25,
-      "sampled_q_bfloat16": True, "clip_critic_actions": True, "action_penalty": False}
+      "sampled_q_bfloat16": True, "clip_critic_actions": True, "action_penalty": False,
+      "epsilon_scale": 1e-5}
   assert recipes.expert_settings("reacher_hard") == {
       "policy_head": "paper", "action_noise_correlation": 0.0, "target_update_period": 25,
-      "sampled_q_bfloat16": True, "clip_critic_actions": False, "action_penalty": True}
+      "sampled_q_bfloat16": True, "clip_critic_actions": False, "action_penalty": True,
+      "epsilon_scale": 1e-5}
   assert recipes.expert_settings("cheetah_run") == recipes.expert_settings("cheetah_run", "paper")
   with pytest.raises(ValueError, match="unknown preset 'fast'"):
     recipes.expert_settings("hopper_stand", "fast")
@@ -96,6 +102,12 @@ def test_run_applies_the_recipe_to_expert_runs_only_and_flags_win():
   assert config("--task", "reacher_hard", "--method", "form",
                 "--action_penalty").learner.mpo.action_penalty is True
   assert config("--task", "walker_run", "--method", "expert").learner.mpo.action_penalty is False
+  # --epsilon_scale sets MPO's scale bound for either method; without it, the preset's.
+  assert config("--task", "walker_run", "--method", "expert",
+                "--epsilon_scale", "1e-6").learner.mpo.epsilon_scale == 1e-6
+  assert config("--task", "walker_run", "--method", "form",
+                "--epsilon_scale", "1e-6").learner.mpo.epsilon_scale == 1e-6
+  assert config("--task", "walker_run", "--method", "form").learner.mpo.epsilon_scale == 1e-5
   head = config("--task", "hopper_stand", "--method", "expert", "--policy_head", "paper")
   assert head.policy_head == "paper" and head.action_noise_correlation == 0.9
   # FORM has its own settings: settings.PER_TASK_RUN's entry (hopper_stand's sets the actor),

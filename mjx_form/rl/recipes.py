@@ -19,14 +19,15 @@ from mjx_form.rl.train import TrainConfig
 
 PRESETS = ("default", "paper")
 KEYS = ("policy_head", "action_noise_correlation", "target_update_period", "sampled_q_bfloat16",
-        "clip_critic_actions", "action_penalty")
+        "clip_critic_actions", "action_penalty", "epsilon_scale")
 
 PAPER = {"policy_head": TrainConfig().policy_head,
          "action_noise_correlation": TrainConfig().action_noise_correlation,
          "target_update_period": LearnerConfig().target_update_period,
          "sampled_q_bfloat16": LearnerConfig().sampled_q_bfloat16,
          "clip_critic_actions": LearnerConfig().clip_critic_actions,
-         "action_penalty": LearnerConfig().mpo.action_penalty}
+         "action_penalty": LearnerConfig().mpo.action_penalty,
+         "epsilon_scale": LearnerConfig().mpo.epsilon_scale}
 
 PER_TASK: dict[str, dict] = {
     # hopper_stand. The paper's settings plateau at ~330-360 (standing from some starts only;
