@@ -184,9 +184,9 @@ def parse_args(argv=None) -> argparse.Namespace:
                           "paper (default: see --preset)")
   train.add_argument("--epsilon_scale", type=float, default=None, metavar="E",
                      help="MPO's bound on the KL of the policy scale's change per update and "
-                          "action dimension (default: see --preset; the paper's and Acme's "
-                          f"older learner's {defaults.learner.mpo.epsilon_scale:g}, Acme's "
-                          "control-suite MPO 1e-6): smaller keeps the scale from collapsing")
+                          "action dimension (default: see --preset; the paper's "
+                          f"{defaults.learner.mpo.epsilon_scale:g}, Acme's 1e-6): smaller "
+                          "slows the scale's change, its collapse too")
   train.add_argument("--sampled_q_bfloat16", action=argparse.BooleanOptionalAction,
                      default=None,
                      help="the target critic's Q of the sampled actions in bfloat16 (half of an "

@@ -108,6 +108,13 @@ def test_run_applies_the_recipe_to_expert_runs_only_and_flags_win():
   assert config("--task", "walker_run", "--method", "form",
                 "--epsilon_scale", "1e-6").learner.mpo.epsilon_scale == 1e-6
   assert config("--task", "walker_run", "--method", "form").learner.mpo.epsilon_scale == 1e-5
+  # quadruped_run's recipe sets it; the flag and the paper preset win; FORM keeps the paper's.
+  assert config("--task", "quadruped_run", "--method", "expert").learner.mpo.epsilon_scale == 1e-6
+  assert config("--task", "quadruped_run", "--method", "expert", "--epsilon_scale",
+                "1e-5").learner.mpo.epsilon_scale == 1e-5
+  assert config("--task", "quadruped_run", "--method", "expert",
+                "--preset", "paper").learner == LearnerConfig()
+  assert config("--task", "quadruped_run", "--method", "form").learner.mpo.epsilon_scale == 1e-5
   head = config("--task", "hopper_stand", "--method", "expert", "--policy_head", "paper")
   assert head.policy_head == "paper" and head.action_noise_correlation == 0.9
   # FORM has its own settings: settings.PER_TASK_RUN's entry (hopper_stand's sets the actor),

@@ -80,6 +80,17 @@ PER_TASK: dict[str, dict] = {
     # fresh CPU episodes, 924.5 from starts on its back (2026-11-26_expert_eval_cpu_...).
     "quadruped_walk": {"target_update_period": 25, "clip_critic_actions": True,
                        "sampled_q_bfloat16": True},
+    # quadruped_run. quadruped_walk's recipe levels off at ~420-720 (fast_ls4, 512 envs: 486 /
+    # 714 / 421 at 23.7M steps at 128 updates per iteration, 2026-11-26; from quadruped_walk's
+    # expert at 512 updates 711 / 718 at 14.8M, 2026-11-27), its policy scale falling to ~0.3
+    # with most means out of bounds. With MPO's scale bound at Acme's 1e-6 instead of the
+    # paper's 1e-5, at 512 envs x 512 updates (`--physics fast_ls4 --seeds 0,1 --grid
+    # epsilon_scale=1e-5,1e-6`, one population on one H200, 23 min): evaluations 836 / 876 at
+    # 12.9M steps against 267 / 774 (seeds 0 / 1), the scale 0.48-0.58 against 0.32-0.39
+    # (2026-11-28_learning_curve_h200_quadruped_run_t25_clip_bf16_fast_ls4_replay_ratio64_
+    # epsilon_scale_grid_seeds01; fresh finals in that record). Two seeds; the bar is 914.8.
+    "quadruped_run": {"target_update_period": 25, "clip_critic_actions": True,
+                      "sampled_q_bfloat16": True, "epsilon_scale": 1e-6},
     # reacher_hard. The paper's settings at 512 envs x 64 updates: first evaluation >= 932.2
     # (0.95x the paper's expert) after 451 s, 57.3M steps (2026-11-21; that run's policy was
     # the shipped expert until 2026-11-27, 904.9 over 1024 fresh episodes, and never still at
