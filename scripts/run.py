@@ -295,10 +295,10 @@ def parse_args(argv=None) -> argparse.Namespace:
                           "(default: standardised, clipped at 3 sd, 25, bfloat16, and a task's "
                           "own entry, mjx_form/imitation/settings.py; paper: raw, unclipped, "
                           "200, float32). For expert: the policy head, actor noise correlation, "
-                          "target period, sampled-Q precision and the critic's view of actions "
-                          "(default: the task's recipe in mjx_form/rl/recipes.py where it has "
-                          "one, else the paper's: paper head, 0, 200, float32, tanh). Single "
-                          "flags win")
+                          "target period, sampled-Q precision, the critic's view of actions, "
+                          "action penalty and epsilon_scale (default: the task's recipe in "
+                          "mjx_form/rl/recipes.py where it has one, else the paper's: paper "
+                          "head, 0, 200, float32, tanh, off, 1e-5). Single flags win")
   form.add_argument("--standardise_reward", dest="reward_scale", action="store_const",
                     const="standardised", help=argparse.SUPPRESS)  # before --reward_scale
   form.add_argument("--reward_scale", default=None, choices=("standardised", "raw"),
@@ -379,6 +379,8 @@ def parse_args(argv=None) -> argparse.Namespace:
       parser.error(f"--{name} must be a positive integer, got {getattr(args, name)}")
   if args.final_eval_envs < 0:
     parser.error(f"--final_eval_envs must be >= 0, got {args.final_eval_envs}")
+  if args.epsilon_scale is not None and not 0.0 < args.epsilon_scale < float("inf"):
+    parser.error(f"--epsilon_scale must be positive and finite, got {args.epsilon_scale}")
   return args
 
 
@@ -451,7 +453,8 @@ def recipe_hint(args: argparse.Namespace, error: ValueError) -> str:
             "it, without it)")
   if args.method == "expert" and recipe_applies(args):
     return (f" ({args.task}'s expert runs take its recipe, mjx_form/rl/recipes.py; a run "
-            "started with the paper's settings resumes with --preset paper)")
+            "started with the paper's settings, or before the recipe had these keys, resumes "
+            "with --preset paper and the flags it was started with)")
   return ""
 
 

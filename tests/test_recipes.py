@@ -55,6 +55,10 @@ def test_default_preset_is_the_task_recipe_else_the_paper():
       "policy_head": "paper", "action_noise_correlation": 0.0, "target_update_period": 25,
       "sampled_q_bfloat16": True, "clip_critic_actions": False, "action_penalty": True,
       "epsilon_scale": 1e-5}
+  assert recipes.expert_settings("quadruped_run") == {
+      "policy_head": "paper", "action_noise_correlation": 0.0, "target_update_period": 25,
+      "sampled_q_bfloat16": True, "clip_critic_actions": True, "action_penalty": False,
+      "epsilon_scale": 1e-6}
   assert recipes.expert_settings("cheetah_run") == recipes.expert_settings("cheetah_run", "paper")
   with pytest.raises(ValueError, match="unknown preset 'fast'"):
     recipes.expert_settings("hopper_stand", "fast")
@@ -165,3 +169,12 @@ def test_run_names_the_recipe_and_its_overrides(capsys):
   with pytest.raises(SystemExit):
     cli.parse_args(["--method", "random", "--preset", "paper"])
   assert "--preset apply to --method form and expert" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("value", ["0", "-1e-6", "inf", "nan"])
+def test_run_refuses_an_epsilon_scale_that_is_not_positive_and_finite(value, capsys):
+  cli = load_script("run")
+  with pytest.raises(SystemExit) as exit_info:
+    cli.parse_args(["--method", "expert", f"--epsilon_scale={value}"])
+  assert exit_info.value.code == 2
+  assert "--epsilon_scale must be positive and finite" in capsys.readouterr().err

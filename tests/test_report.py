@@ -180,6 +180,10 @@ def test_form_table_keeps_the_halves_of_an_action_penalty_grid_apart():
   assert report._learner_notes({"settings": {"network_width": 512}}) == ["networks 512 wide"]
   # (the expert runs' table has a column of its own for the penalty)
   assert report._learner_notes({"settings": penalty(True)}, with_penalty=False) == []
+  # MPO's scale bound is named where it is not the paper's 1e-5 (records without it had 1e-5)
+  scale = lambda e: {"learner": {"mpo": {"epsilon_scale": e}}}
+  assert report._learner_notes({"settings": scale(1e-6)}) == ["epsilon_scale 1e-06"]
+  assert report._learner_notes({"settings": scale(1e-5)}) == []
 
 
 def _default_settings(task):
