@@ -379,8 +379,11 @@ def parse_args(argv=None) -> argparse.Namespace:
       parser.error(f"--{name} must be a positive integer, got {getattr(args, name)}")
   if args.final_eval_envs < 0:
     parser.error(f"--final_eval_envs must be >= 0, got {args.final_eval_envs}")
-  if args.epsilon_scale is not None and not 0.0 < args.epsilon_scale < float("inf"):
-    parser.error(f"--epsilon_scale must be positive and finite, got {args.epsilon_scale}")
+  if args.epsilon_scale is not None:
+    try:
+      grid.check_value("epsilon_scale", args.epsilon_scale)  # (--grid's check of it)
+    except ValueError as e:
+      parser.error(f"--{e}")
   return args
 
 

@@ -55,6 +55,8 @@ def test_values_are_parsed_as_their_setting_and_checked():
                               ("clip_critic_actions", "2", "0/1"),
                               ("reward_clip", "-1", "0 \\(off\\) or finite and > 1"),
                               ("reward_clip", "inf", "finite"),
+                              ("epsilon_scale", "0", "positive and finite"),
+                              ("epsilon_mean", "inf", "positive and finite"),
                               ("reward_clip", "1", "collapses"),
                               ("action_noise_correlation", "1", r"\[0, 1\)"),
                               ("action_noise_correlation", "-0.5", r"\[0, 1\)"),

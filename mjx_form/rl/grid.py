@@ -46,6 +46,8 @@ LEARNER = {
     "action_penalty": (("mpo", "action_penalty"), bool),
     "epsilon_penalty": (("mpo", "epsilon_penalty"), float),
 }
+# MPO's KL bounds: each a dual's target, so 0 or inf makes its dual loss degenerate.
+KL_BOUNDS = ("epsilon", "epsilon_mean", "epsilon_scale", "epsilon_penalty")
 # name -> type: TrainConfig fields: the actors' draw, and whether the agent wraps the task's raw
 # angles (realised as each member's observation-normaliser `period` at init, zeros in a member
 # that does not wrap: normalizer.wrap leaves its features as they are).
@@ -108,6 +110,8 @@ def check_value(name: str, value) -> None:
     # batch after batch (FORM's module docstring).
     raise ValueError(f"reward_clip must be 0 (off) or finite and > 1 (the clipped "
                      f"statistics' sd collapses at c <= 1), got {value}")
+  if name in KL_BOUNDS and not 0.0 < value < float("inf"):
+    raise ValueError(f"{name} must be positive and finite, got {value}")
   if (name in LEARNER and _kind(name) is not bool and name not in ("discount", "retrace_lambda")
       and not value > 0):
     raise ValueError(f"{name} must be positive, got {value}")
