@@ -47,6 +47,8 @@ def test_values_are_parsed_as_their_setting_and_checked():
   assert grid.parse_value("reward_clip", "3") == 3.0 and grid.parse_value("reward_clip", "0") == 0
   assert grid.parse_value("action_noise_correlation", "0") == 0.0  # independent: allowed
   assert grid.parse_value("action_noise_correlation", "0.9") == 0.9
+  assert grid.parse_value("policy_average_decay", "0") == 0.0  # none kept: allowed
+  assert grid.parse_value("policy_average_decay", "0.999") == 0.999
   for name, text, message in (("target_update_period", "2.5", "expected int"),
                               ("target_update_period", "0", "must be positive"),
                               ("discount", "1.5", r"\(0, 1\]"),
@@ -60,6 +62,8 @@ def test_values_are_parsed_as_their_setting_and_checked():
                               ("reward_clip", "1", "collapses"),
                               ("action_noise_correlation", "1", r"\[0, 1\)"),
                               ("action_noise_correlation", "-0.5", r"\[0, 1\)"),
+                              ("policy_average_decay", "1", r"\[0, 1\)"),
+                              ("policy_average_decay", "-0.1", r"\[0, 1\)"),
                               ("num_envs", "8", "cannot differ")):
     with pytest.raises(ValueError, match=message):
       grid.parse_value(name, text)

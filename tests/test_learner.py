@@ -102,3 +102,68 @@ def test_sampled_q_diagnostics_measure_the_spread_and_bfloat16s_error():
   error = np.abs(q[True][:, :1] - q[False][:, :1]).mean()
   assert error > 0
   np.testing.assert_allclose(metrics[True]["sampled_q_bf16_error"], error, rtol=1e-5)
+
+
+def _updates(config: learner.LearnerConfig, n: int):
+  """The states after each of n updates from one init, on random batches."""
+  state = learner.init(NETWORKS, config, jax.random.PRNGKey(0), D, A)
+  norm = normalizer.init(D)
+  step = jax.jit(lambda s, batch, rewards, key: learner.update(NETWORKS, config, s, norm, batch,
+                                                               rewards, key)[0])
+  states = []
+  for k in jax.random.split(jax.random.PRNGKey(3), n):
+    keys = jax.random.split(k, 4)
+    batch = {"observation": jax.random.normal(keys[0], (B, T + 1, D)),
+             "action": jax.random.normal(keys[1], (B, T, A)),
+             "behaviour_log_prob": jnp.zeros((B, T)), "discount": jnp.ones((B, T))}
+    state = step(state, batch, jax.random.normal(keys[2], (B, T)), keys[3])
+    states.append(state)
+  return states
+
+
+def test_average_policy_is_the_mean_then_an_exponential_average_and_changes_no_update():
+  """`policy_average_decay` d: after update n the average is the mean of the policies of updates
+  1..n while n <= 1/(1-d) (here 4), then a <- d a + (1 - d) theta_n; the online networks follow
+  the same path as without the average, and without it the state keeps none."""
+  d, n = 0.75, 7
+  plain = _updates(CONFIG, n)
+  averaging = _updates(dataclasses.replace(CONFIG, policy_average_decay=d), n)
+  assert plain[0].average_policy is None
+  assert learner.init(NETWORKS, dataclasses.replace(CONFIG, policy_average_decay=d),
+                      jax.random.PRNGKey(0), D, A).average_policy is not None
+  flat = lambda tree: np.concatenate([np.ravel(x) for x in jax.tree.leaves(tree)])
+  for a, b in zip(plain, averaging):
+    np.testing.assert_array_equal(flat(a.policy), flat(b.policy))
+    np.testing.assert_array_equal(flat(a.critic), flat(b.critic))
+  thetas = [flat(s.policy).astype(np.float64) for s in plain]
+  for m in range(1, 5):  # the plain mean
+    np.testing.assert_allclose(flat(averaging[m - 1].average_policy),
+                               np.mean(thetas[:m], axis=0), rtol=1e-5, atol=1e-6)
+  expected = np.mean(thetas[:4], axis=0)
+  for m in range(5, n + 1):  # the exponential average
+    expected = d * expected + (1 - d) * thetas[m - 1]
+    np.testing.assert_allclose(flat(averaging[m - 1].average_policy), expected, rtol=1e-5,
+                               atol=1e-6)
+  assert not np.allclose(expected, thetas[-1], atol=1e-4)  # (the average is not the policy)
+
+
+def test_a_member_at_decay_zero_keeps_a_copy_of_its_policy():
+  """In a population where another member averages, a member at 0 (its traced value) keeps its
+  policy in the average's place."""
+  config = dataclasses.replace(CONFIG, policy_average_decay=0.9)
+  state = learner.init(NETWORKS, config, jax.random.PRNGKey(0), D, A)
+  keys = jax.random.split(jax.random.PRNGKey(5), 4)
+  batch = {"observation": jax.random.normal(keys[0], (B, T + 1, D)),
+           "action": jax.random.normal(keys[1], (B, T, A)),
+           "behaviour_log_prob": jnp.zeros((B, T)), "discount": jnp.ones((B, T))}
+  rewards = jax.random.normal(keys[2], (B, T))
+  step = jax.jit(lambda s, decay: learner.update(
+      NETWORKS, dataclasses.replace(config, policy_average_decay=decay), s, normalizer.init(D),
+      batch, rewards, keys[3])[0])
+  zero, kept = state, state
+  for _ in range(3):
+    zero, kept = step(zero, jnp.float32(0.0)), step(kept, jnp.float32(0.9))
+  for a, p in zip(jax.tree.leaves(zero.average_policy), jax.tree.leaves(zero.policy)):
+    np.testing.assert_array_equal(a, p)
+  assert not all(np.allclose(a, p) for a, p in zip(jax.tree.leaves(kept.average_policy),
+                                                    jax.tree.leaves(kept.policy)))

@@ -221,6 +221,15 @@ def test_action_penalty_setting_reaches_the_learner(tmp_path):
   assert {"penalty_temperature", "sampled_out_of_bounds", "mean_out_of_bounds"} <= set(metrics)
   plain = Trainer(CONFIG, mesh_lib.make_mesh()).abstract_state
   assert plain.learner.duals.log_penalty_temperature is None
+  assert plain.learner.average_policy is None  # (and checkpoints keep their structure)
+
+
+def test_a_population_keeps_average_policies_if_any_member_averages():
+  trainer = Trainer(CONFIG, mesh_lib.make_mesh(), seeds=(0, 0),
+                    overrides=({"policy_average_decay": 0.0}, {"policy_average_decay": 0.9}))
+  average = trainer.abstract_state.learner.average_policy
+  assert jax.tree.structure(average) == jax.tree.structure(trainer.abstract_state.learner.policy)
+  assert trainer.abstract_state.settings["policy_average_decay"].shape == (2,)
 
 
 def test_settings_added_since_older_checkpoints_default_to_what_ran_before():
@@ -711,3 +720,38 @@ def test_angle_features_reach_the_networks_the_loop_and_the_policy_files(tmp_pat
     np.testing.assert_allclose(row["best_policy_return"], row["final_policy_return"], rtol=1e-5)
   with pytest.raises(ValueError, match="no unbounded angle"):
     Trainer(dataclasses.replace(CONFIG, task="walker_walk", angle_features=True))
+
+
+def test_average_policy_is_evaluated_exported_and_recorded(tmp_path, capsys):
+  """--policy_average_decay: every evaluation scores the average policy too, on the same
+  starts (progress.csv, progress lines, learning-curve records), the run exports it as
+  average_policy.npz (its own evaluation in the file) and evaluates it afresh at the end (a
+  final_return record, policy "average"); a decay outside [0, 1) is refused."""
+  cli = load_script("run")
+  with pytest.raises(SystemExit) as exit_info:
+    cli.parse_args(_cli_args(tmp_path / "bad", "--policy_average_decay", "1"))
+  assert exit_info.value.code == 2
+  assert "policy_average_decay must be in [0, 1)" in capsys.readouterr().err
+  run_dir, curve = tmp_path / "run", tmp_path / "curve.jsonl"
+  args = _cli_args(run_dir, "--env_steps", "80", "--eval_every", "1", "--policy_average_decay",
+                   "0.5", "--results", str(curve))
+  config = cli.train_config(cli.parse_args(args))
+  assert config.learner.policy_average_decay == 0.5
+  assert runner.learner_preset(config) == runner.learner_preset(CONFIG)  # (no update changes)
+  assert cli.main(args) == 0
+  out = capsys.readouterr().out
+  assert "(average policy " in out and "fresh evaluation of the average policy" in out
+  with open(run_dir / "progress.csv") as f:
+    rows = list(csv.DictReader(f))
+  assert len(rows) == 2 and all(r["eval_return_average"] != "" for r in rows)
+  average, meta = policy_io.load_policy(run_dir / "average_policy.npz", task="reacher_easy")
+  final, _ = policy_io.load_policy(run_dir / "policy.npz", task="reacher_easy")
+  assert meta["eval_return"] == pytest.approx(float(rows[-1]["eval_return_average"]))
+  assert not np.allclose(np.concatenate([np.ravel(x) for x in jax.tree.leaves(average)]),
+                         np.concatenate([np.ravel(x) for x in jax.tree.leaves(final)]))
+  records = results.read_records(str(curve))
+  assert [r["eval_return_average"] for r in records if r["kind"] == "learning_curve"] == [
+      pytest.approx(float(r["eval_return_average"])) for r in rows]
+  finals = {r["policy"]: r for r in records if r["kind"] == "final_return"}
+  assert set(finals) == {"final", "best", "average"}
+  assert finals["average"]["settings"]["learner"]["policy_average_decay"] == 0.5

@@ -14,7 +14,9 @@ draws exactly what a single run's independent draw gives, while the population k
 state for every member. The action penalty is another: its dual is in every member's state
 if any member penalises, and stays at its initial value in a member that does not. And
 `wrap_angles`: every member's normaliser has a period if any member wraps, zeros in a member
-that does not, which wraps nothing; `angle_features` likewise: every member's normaliser has
+that does not, which wraps nothing; the policy averaged over updates likewise: every member
+keeps one if any member's `policy_average_decay` is above 0, a member at 0 keeps a copy of its
+policy; `angle_features` likewise: every member's normaliser has
 `angles` if any member sees cos and sin, zero rows in a member that does not. That member's
 networks take the 2K extra inputs, always 0, so it computes what a single run without angle
 features computes except for its first layers' initial weights, drawn for the larger input.)
@@ -45,6 +47,7 @@ LEARNER = {
     "clip_critic_actions": (("clip_critic_actions",), bool),
     "action_penalty": (("mpo", "action_penalty"), bool),
     "epsilon_penalty": (("mpo", "epsilon_penalty"), float),
+    "policy_average_decay": (("policy_average_decay",), float),
 }
 # MPO's KL bounds: each a dual's target, so 0 or inf makes its dual loss degenerate.
 KL_BOUNDS = ("epsilon", "epsilon_mean", "epsilon_scale", "epsilon_penalty")
@@ -110,9 +113,11 @@ def check_value(name: str, value) -> None:
     # batch after batch (FORM's module docstring).
     raise ValueError(f"reward_clip must be 0 (off) or finite and > 1 (the clipped "
                      f"statistics' sd collapses at c <= 1), got {value}")
+  if name == "policy_average_decay" and not 0.0 <= value < 1.0:
+    raise ValueError(f"policy_average_decay must be in [0, 1) (0: no average), got {value}")
   if name in KL_BOUNDS and not 0.0 < value < float("inf"):
     raise ValueError(f"{name} must be positive and finite, got {value}")
-  if (name in LEARNER and _kind(name) is not bool and name not in ("discount", "retrace_lambda")
+  if (name in LEARNER and _kind(name) is not bool and name not in ("discount", "retrace_lambda", "policy_average_decay")
       and not value > 0):
     raise ValueError(f"{name} must be positive, got {value}")
 

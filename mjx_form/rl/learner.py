@@ -7,6 +7,11 @@ rewards [B, T] from a reward source. Q targets use the target critic and the tar
 The MPO E-step reuses the same samples and target Q values at x_0 .. x_{T-1}. Policy, critic
 and duals have their own Adam optimisers; targets are copied from the online networks every
 `target_update_period` updates (at updates 0, P, 2P, ...).
+
+With `policy_average_decay` d > 0 the state also keeps the policy's parameters averaged over
+updates (`average_policy`, for evaluation only: acting and learning use the online policy):
+after update n (n = 1, 2, ...) a <- d_n a + (1 - d_n) theta_n, d_n = min(d, (n - 1) / n), the
+plain mean of all updates' parameters until n reaches 1 / (1 - d), an exponential average after.
 """
 
 from __future__ import annotations
@@ -40,6 +45,9 @@ class LearnerConfig:
   # The target critic's Q of the sampled actions (20 per state: half of an update's time on a
   # GPU) computed in bfloat16 instead of float32 (`sampled_q`); off: the paper's precision.
   sampled_q_bfloat16: bool = False
+  # d of the policy's parameters averaged over updates (module docstring); 0: none kept (the
+  # paper evaluates the online policy).
+  policy_average_decay: float = 0.0
   mpo: mpo.MPOConfig = mpo.MPOConfig()
 
 
@@ -53,6 +61,7 @@ class LearnerState(NamedTuple):
   critic_opt: Any
   dual_opt: Any
   updates: jax.Array  # int32 [], learner updates taken
+  average_policy: Any = None  # the policy averaged over updates; None: not kept
 
 
 def _optimizers(config: LearnerConfig):
@@ -64,7 +73,8 @@ def _optimizers(config: LearnerConfig):
 
 def init(networks: Networks, config: LearnerConfig, key: jax.Array, observation_size: int,
          action_size: int) -> LearnerState:
-  """Fresh parameters, targets equal to them, optimiser and dual states."""
+  """Fresh parameters, targets equal to them, optimiser and dual states (and the average
+  policy, equal to the policy, where `policy_average_decay` keeps one)."""
   policy_key, critic_key = jax.random.split(key)
   obs = jnp.zeros((1, observation_size))
   policy = networks.policy.init(policy_key, obs)
@@ -72,7 +82,20 @@ def init(networks: Networks, config: LearnerConfig, key: jax.Array, observation_
   duals = mpo.init_duals(config.mpo, action_size)
   policy_tx, critic_tx, dual_tx = _optimizers(config)
   return LearnerState(policy, critic, policy, critic, duals, policy_tx.init(policy),
-                      critic_tx.init(critic), dual_tx.init(duals), jnp.zeros((), jnp.int32))
+                      critic_tx.init(critic), dual_tx.init(duals), jnp.zeros((), jnp.int32),
+                      policy if keeps_average(config) else None)
+
+
+def keeps_average(config: LearnerConfig) -> bool:
+  """Whether the state keeps an average policy (a Python decision: the state's structure)."""
+  return config.policy_average_decay > 0
+
+
+def averaged(average, policy, decay, updates: jax.Array):
+  """The average policy after update `updates` (n >= 1) made `policy` (module docstring)."""
+  n = updates.astype(jnp.float32)
+  d = jnp.minimum(decay, (n - 1.0) / n)
+  return jax.tree.map(lambda a, p: d * a + (1.0 - d) * p, average, policy)
 
 
 def _retrace_unroll() -> int | bool:
@@ -180,4 +203,7 @@ def update(networks: Networks, config: LearnerConfig, state: LearnerState,
                          critic=steps["critic"][0], critic_opt=steps["critic"][1],
                          duals=mpo.clip_duals(steps["duals"][0]), dual_opt=steps["duals"][1],
                          updates=state.updates + 1)
+  if state.average_policy is not None:
+    state = state._replace(average_policy=averaged(state.average_policy, state.policy,
+                                                   config.policy_average_decay, state.updates))
   return state, metrics

@@ -25,6 +25,9 @@ Run directory layout:
   best_log_pd_policy.npz  (FORM) the policy of the evaluation whose episodes the demonstrator
                       scores highest (their mean log pD per transition): the best an imitator
                       can choose without the task reward
+  average_policy.npz  (`policy_average_decay` > 0) the policy averaged over updates
+                      (mjx_form.rl.learner), written with policy.npz; each evaluation scores it
+                      too (eval_return_average), on the same starts
   imitator.npz        (FORM) the imitator model beside policy.npz, written with it: what the
                       reward subtracted (log pI) at the run's end, as an effect-model file
                       (mjx_form.files.effect_models; a run refuses it as a demonstrator)
@@ -33,6 +36,7 @@ Run directory layout:
 from __future__ import annotations
 
 import csv
+import dataclasses
 import json
 import os
 import time
@@ -53,7 +57,8 @@ RESUMABLE = ("total_env_steps", "log_every", "eval_every", "checkpoint_every")
 ADDED_SETTINGS = {"learner.mpo.action_penalty": False, "learner.mpo.epsilon_penalty": 1e-3,
                   "learner.clip_critic_actions": False, "learner.sampled_q_bfloat16": False,
                   "policy_head": "paper", "action_noise_correlation": 0.0,
-                  "wrap_angles": False, "init_policy": None, "angle_features": False}
+                  "wrap_angles": False, "init_policy": None, "angle_features": False,
+                  "learner.policy_average_decay": 0.0}
 
 
 # Columns that not every row has (evaluation rows; devices that report memory).
@@ -285,7 +290,11 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
   for d in dirs:
     os.makedirs(d, exist_ok=True)
   scored = ("eval_demonstrator_log_prob",) if trainer.evaluation_inputs(state) else ()
-  logs = [CsvLog(d, _OPTIONAL_COLUMNS + scored) for d in dirs]
+  # The policy averaged over updates (`policy_average_decay`) is evaluated beside the online one.
+  averages = state.learner.average_policy is not None
+  average_columns = tuple(f"{k}_average" for k in ("eval_return", "eval_return_std", *scored)
+                          ) if averages else ()
+  logs = [CsvLog(d, _OPTIONAL_COLUMNS + scored + average_columns) for d in dirs]
   wall_offset = max(log.rewind(int(state.iteration)) for log in logs) if resume else 0.0
   curve = results.ResultWriter(results_path) if results_path else None
 
@@ -329,6 +338,9 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
       t0 = time.perf_counter()
       returns, scores = _evaluated(trainer, state, state.learner.policy, state.normalizer,
                                    eval_keys)
+      if averages:  # (the same episodes' starts)
+        average_returns, average_scores = _evaluated(
+            trainer, state, state.learner.average_policy, state.normalizer, eval_keys)
       eval_seconds += time.perf_counter() - t0
     wall = wall_offset + time.perf_counter() - call_start
     peak = results.peak_memory_bytes()
@@ -343,6 +355,11 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
         row.update(eval_return=float(returns[i].mean()), eval_return_std=float(returns[i].std()))
         if scores is not None:  # (FORM: log pD of the evaluation episodes, no task reward)
           row["eval_demonstrator_log_prob"] = float(scores[i].mean())
+        if averages:
+          row.update(eval_return_average=float(average_returns[i].mean()),
+                     eval_return_std_average=float(average_returns[i].std()))
+          if average_scores is not None:
+            row["eval_demonstrator_log_prob_average"] = float(average_scores[i].mean())
         for name, key, _ in kept:
           if row[key] > best_values[name][i]:
             best_values[name][i] = row[key]
@@ -374,10 +391,15 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
   if exported:
     for i, d in enumerate(dirs):
       export_policy(trainer, state, i, os.path.join(d, "policy.npz"), rows[i])
+      if averages:
+        export_policy(trainer, state, i, os.path.join(d, AVERAGE_FILE), _average_row(rows[i]),
+                      params=state.learner.average_policy)
       export_source(trainer, state, i, d, rows[i])
   if final_eval_envs and (stopped or int(state.iteration) == total_iterations):
     final_paths = [os.path.join(d, "policy.npz") for d in dirs] if exported else None
-    _final_evaluation(trainer, state, best_paths, rows, final_eval_envs, curve,
+    kept_paths = {**best_paths, **({"average": [os.path.join(d, AVERAGE_FILE) for d in dirs]}
+                                   if averages else {})}
+    _final_evaluation(trainer, state, kept_paths, rows, final_eval_envs, curve,
                       total_env_steps, labels, print_fn, finished=not stopped,
                       final_paths=final_paths)
   return rows
@@ -388,7 +410,7 @@ def _final_evaluation(trainer: Trainer, state, best_paths: dict[str, list[str]],
                       labels: list[str], print_fn, finished: bool = True,
                       final_paths: list[str] | None = None) -> None:
   """Every member's final policy (the state's; exported to `final_paths`, where given) and each
-  of its best ones (`best_paths`: {BEST name: each member's file}) on `episodes` fresh
+  of its kept ones (`best_paths`: {BEST name or "average": each member's file}) on `episodes` fresh
   episodes: kind final_return (`finished`: False where `max_seconds` stopped the run before
   `total_env_steps`). A best policy whose files hold, for every member, the arrays of one
   evaluated before (often: the best by log pD is the best by return) is not evaluated again:
@@ -481,6 +503,8 @@ def _progress_line(row: dict, total_iterations: int, steps_per_iteration: int) -
           + (f"  ~{left:.0f}s left" if np.isfinite(left) else "")
           + f"  train return {_show(row['train_return'])}"
           + (f"  eval {row['eval_return']:.1f}" if "eval_return" in row else "")
+          + (f" (average policy {row['eval_return_average']:.1f})"
+             if "eval_return_average" in row else "")
           + (f" (log pD {row['eval_demonstrator_log_prob']:.1f})"
              if "eval_demonstrator_log_prob" in row else ""))
   if "form_reward" in row:
@@ -503,7 +527,18 @@ BEST = (("best", "eval_return", "best_policy.npz"),
         ("best_log_pd", "eval_demonstrator_log_prob", "best_log_pd_policy.npz"))
 # How progress lines name the policies of the final evaluation.
 _POLICY_WORDS = {"final": "final policy", "best": "best policy",
-                 "best_log_pd": "best policy by log pD"}
+                 "best_log_pd": "best policy by log pD", "average": "average policy"}
+# The policy averaged over updates, exported beside policy.npz (`policy_average_decay` > 0).
+AVERAGE_FILE = "average_policy.npz"
+
+
+def _average_row(row: dict) -> dict:
+  """`row` with the average policy's evaluation in the place of the online policy's."""
+  out = {k: v for k, v in row.items() if k not in ("eval_return", "eval_demonstrator_log_prob")}
+  for key in ("eval_return", "eval_demonstrator_log_prob"):
+    if f"{key}_average" in row:
+      out[key] = row[f"{key}_average"]
+  return out
 
 # How a population lies on several devices, as the run's first line says it.
 _LAYOUT_WORDS = {"members": "whole members per device",
@@ -534,8 +569,10 @@ def method_name(config: TrainConfig) -> str:
 
 
 def learner_preset(config: TrainConfig) -> str:
-  """'paper' where the learner runs the paper's settings (LearnerConfig's defaults)."""
-  return "paper" if config.learner == LearnerConfig() else "custom"
+  """'paper' where the learner runs the paper's settings (LearnerConfig's defaults; an average
+  policy kept for evaluation changes no update)."""
+  learner = dataclasses.replace(config.learner, policy_average_decay=0.0)
+  return "paper" if learner == LearnerConfig() else "custom"
 
 
 def _record_base(trainer: Trainer, member: int) -> dict:
@@ -574,7 +611,9 @@ _CURVE_FIELDS = (
     "imitator_fresh_log_prob", "form_reward_fresh",
     # FORM: the demonstrator's mean log pD of the evaluation episodes' transitions (the policy's
     # mean action): how well the policy imitates, measured without the task reward
-    "eval_demonstrator_log_prob")
+    "eval_demonstrator_log_prob",
+    # the policy averaged over updates (`policy_average_decay`), on the same episodes' starts
+    "eval_return_average", "eval_return_std_average", "eval_demonstrator_log_prob_average")
 
 
 def _write_curve_point(writer: results.ResultWriter, trainer: Trainer, member: int, row: dict, *,
@@ -607,11 +646,14 @@ def export_source(trainer: Trainer, state, member: int, directory: str, row: dic
       "env_steps": row.get("env_steps"), "policy_file": "policy.npz"})
 
 
-def export_policy(trainer: Trainer, state, member: int, path: str, row: dict) -> None:
-  """Writes a member's policy and its observation normaliser (a small, pickle-free file)."""
+def export_policy(trainer: Trainer, state, member: int, path: str, row: dict,
+                  params=None) -> None:
+  """Writes a member's policy (`params`, [P, ...]; default the state's online policy) and its
+  observation normaliser (a small, pickle-free file)."""
   env, cfg = trainer.env, trainer.member_config(member)
   norm = trainer.member(state.normalizer, member)
-  arrays = {"policy": jax.device_get(trainer.member(state.learner.policy, member)),
+  params = state.learner.policy if params is None else params
+  arrays = {"policy": jax.device_get(trainer.member(params, member)),
             "normalizer": {"mean": np.asarray(norm.mean), "var": np.asarray(norm.var),
                            # (a member that does not wrap, beside ones that do, has zeros)
                            **({"period": np.asarray(norm.period)} if cfg.wrap_angles else {}),

@@ -244,9 +244,12 @@ class Trainer:
     self._correlated = any(self.member_config(i).action_noise_correlation
                            for i in range(self.members))
     # The learner state's structure: the action penalty's dual is there if any member penalises
-    # (a member whose flag is off leaves it at its initial value).
-    self._init_learner = grid.learner_config(config.learner, {"action_penalty": any(
-        self.member_config(i).learner.mpo.action_penalty for i in range(self.members))})
+    # (a member whose flag is off leaves it at its initial value), the average policy if any
+    # member averages (a member at 0 keeps a copy of its policy).
+    learners = [self.member_config(i).learner for i in range(self.members)]
+    self._init_learner = grid.learner_config(config.learner, {
+        "action_penalty": any(c.mpo.action_penalty for c in learners),
+        "policy_average_decay": max(c.policy_average_decay for c in learners)})
     if self._angle_features() and not self.env.periodic_observations:
       raise ValueError(f"angle_features: {self.env.name} observes no unbounded angle")
     abstract = jax.eval_shape(self._init, self.keys(0))
@@ -417,7 +420,8 @@ class Trainer:
 
   def start_from(self, state: TrainState, policy, norm: normalizer.NormalizerState
                  ) -> TrainState:
-    """`state` (fresh from `init`) with every member's policy and target policy set to `policy`
+    """`state` (fresh from `init`) with every member's policy, target policy (and average
+    policy) set to `policy`
     (flax params of this run's policy network, e.g. a trained expert's) and its observation
     statistics to `norm`'s mean and variance, as long-run averages (the next update moves
     them by 1 - decay, not from scratch). Each member keeps its own `period`; the critic, the
@@ -439,6 +443,9 @@ class Trainer:
     learner = state.learner._replace(
         policy=jax.tree.map(put, policy, state.learner.policy),
         target_policy=jax.tree.map(put, policy, state.learner.target_policy))
+    if learner.average_policy is not None:  # (the first update replaces it anyway)
+      learner = learner._replace(average_policy=jax.tree.map(put, policy,
+                                                             learner.average_policy))
     # A count past which the bias correction 1 - d**count is 1 (to float precision for decays up
     # to ~0.99998; 0.99, the default: d**1e6 = 0).
     stats = state.normalizer._replace(
