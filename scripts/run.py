@@ -635,6 +635,8 @@ def main(argv=None) -> int:
             f", the best evaluation's in {os.path.join(directory, 'best_policy.npz')}"
             + (", by log pD in best_log_pd_policy.npz"
                if os.path.exists(os.path.join(directory, "best_log_pd_policy.npz")) else "")
+            + (f", the average policy in {runner.AVERAGE_FILE}" if args.policy_average_decay
+               else "")
             + (f", the imitator model in {form_lib.FormReward.export_file}" if os.path.exists(
                 os.path.join(directory, form_lib.FormReward.export_file)) else ""))
     return 0
