@@ -7,12 +7,14 @@ outlasts the machine. So a sitting of several runs starts them detached (`start`
 status to `--out` (the device's $OUT) as one `records.tgz`, so that whatever the sitting ends
 like, the records already polled are safe. The last poll (`--final`, or once every job has
 ended) also packs the run directories into parts of at most 15 MB, without checkpoints unless
-`--checkpoints` asks for each run's newest (lean ones, to resume in the next sitting); the
+`--checkpoints` asks for each run's newest (lean ones, to resume in the next sitting; `--runs`
+packs only the jobs named, so that a last call can bring back one run with its checkpoint); the
 runs' TensorBoard folders come last, where there is room (progress.csv holds the same values).
 
   python scripts/gpu_jobs.py check jobs.txt        # on the CPU, before the sitting
   python scripts/gpu_jobs.py start jobs.txt --dir /tmp/sitting --deadline 1200
   python scripts/gpu_jobs.py poll --dir /tmp/sitting --wait 540 --out $OUT [--final]
+  python scripts/gpu_jobs.py poll --dir /tmp/sitting --out $OUT --final --runs qr3 --checkpoints
 
 `check` parses each `scripts/run.py` job as run.py would (with $LEFT, $RES and $RUNS filled
 in) and prints the settings it would train with, so that a mistyped flag or a setting other than
@@ -336,18 +338,26 @@ def _bytes(paths) -> int:
   return sum(f.stat().st_size for f in paths)
 
 
-def pack(folder: Path, out: Path, checkpoints: bool = False) -> list[Path]:
-  """folder's runs in one .tgz, split into parts of at most PART_BYTES under `out`
-  (runs.tgz.part00, ...); returns the parts. Checkpoints are left out, except with
+def pack(folder: Path, out: Path, checkpoints: bool = False,
+         jobs: tuple[str, ...] | None = None) -> list[Path]:
+  """folder's runs (`jobs`: only those jobs' run directories, runs/NAME) in one .tgz, split
+  into parts of at most PART_BYTES under `out` (runs.tgz.part00, ...); returns the parts. Checkpoints are left out, except with
   `checkpoints` each run's newest (lean ones, `--lean_checkpoints`, are a few MB), smallest
   first, as many as keep the files under PACK_LIMIT; then each run's TensorBoard folder (`tb`,
   the same values as its progress.csv: a six-member run's are ~18 MB), as many as fit. It names
   those left out. JobsError, nothing packed, where the rest of the runs alone pass PACK_LIMIT."""
   runs = folder / "runs"
-  boards = sorted(p for p in runs.rglob("tb") if p.is_dir()) if runs.is_dir() else []
-  files = [f for f in _files(folder, ("runs",)) if not any(b in f.parents for b in boards)]
+  if jobs is not None:
+    missing = [j for j in jobs if not (runs / j).is_dir()]
+    if missing:
+      raise JobsError(f"no run directory for {', '.join(missing)} under {runs}")
+  chosen = lambda p: jobs is None or p.relative_to(runs).parts[0] in jobs
+  boards = sorted(p for p in runs.rglob("tb") if p.is_dir() and chosen(p)) if runs.is_dir() else []
+  files = [f for f in _files(folder, ("runs",)) if chosen(f)
+           and not any(b in f.parents for b in boards)]
   total = _bytes(files)
-  steps = {p: _bytes(p) for p in newest_checkpoints(runs)} if checkpoints else {}
+  steps = ({p: _bytes(p) for p in newest_checkpoints(runs) if chosen(p)} if checkpoints
+           else {})
   logs = {p: _bytes(p) for p in boards}
   for extra, size in [*sorted(steps.items(), key=lambda kv: kv[1]),
                       *sorted(logs.items(), key=lambda kv: kv[1])]:
@@ -383,10 +393,11 @@ def _scheduler_alive(folder: Path) -> bool:
 
 
 def poll(folder: Path, wait_s: float, out: Path | None, final: bool, lines: int = 3,
-         checkpoints: bool = False) -> bool:
+         checkpoints: bool = False, jobs: tuple[str, ...] | None = None) -> bool:
   """Waits until every job has ended or `wait_s` has passed; prints each job's state and last
   log lines; writes the records, logs and status to `out`; packs the runs there (with their
-  newest checkpoints if `checkpoints`) once every job has ended or `final`. Returns whether
+  newest checkpoints if `checkpoints`; `jobs`: only theirs) once every job has ended or `final`.
+  Returns whether
   every job has ended."""
   if not (folder / "status.json").exists():
     raise JobsError(f"{folder} holds no sitting (no status.json): run `start` first")
@@ -408,7 +419,7 @@ def poll(folder: Path, wait_s: float, out: Path | None, final: bool, lines: int 
              {"status.json": status_bytes})
     print(f"records, logs and status in {out / 'records.tgz'}")
     if done or final:
-      parts = pack(folder, out, checkpoints)
+      parts = pack(folder, out, checkpoints, jobs)
       print(f"runs packed into {len(parts)} part(s) under {out}: cat runs.tgz.part* | tar xz")
   print("every job has ended" if done else "jobs still running")
   return done
@@ -436,6 +447,10 @@ def main(argv=None) -> int:
   p.add_argument("--checkpoints", action="store_true",
                  help="pack each run's newest checkpoint too (to resume on another machine: "
                       "run with --lean_checkpoints; as many as keep the whole under 56 MiB)")
+  p.add_argument("--runs", default=None, metavar="NAME[,NAME]",
+                 help="pack only these jobs' run directories (default all): e.g. a last call "
+                      "`--wait 0 --final --runs qr3 --checkpoints` after the others came back, "
+                      "where one pack would not hold every run and a checkpoint")
   p = sub.add_parser("_schedule")  # the detached scheduler `start` launches
   p.add_argument("--dir", type=Path, required=True)
   args = parser.parse_args(argv)
@@ -445,7 +460,8 @@ def main(argv=None) -> int:
     elif args.action == "start":
       start(args.jobs, args.dir, args.deadline, args.gpus)
     elif args.action == "poll":
-      poll(args.dir, args.wait, args.out, args.final, args.lines, args.checkpoints)
+      poll(args.dir, args.wait, args.out, args.final, args.lines, args.checkpoints,
+           tuple(args.runs.split(",")) if args.runs else None)
     else:
       plan = json.loads((args.dir / "jobs.json").read_text())
       schedule(plan["jobs"], plan["gpus"], args.dir, plan["end_time"])

@@ -266,3 +266,21 @@ def test_check_parses_run_jobs_as_run_does_and_names_a_bad_one(tmp_path, capsys)
   assert gpu_jobs.main(["check", str(jobs)]) == 2
   err = capsys.readouterr().err
   assert "job 'bad'" in err and "unrecognized arguments: --updates_per_iteraton 64" in err
+
+
+def test_pack_can_take_only_some_jobs_runs(tmp_path):
+  """--runs: a pack of the named jobs' run directories only (a last call bringing back one
+  run's checkpoint where the whole would not fit); an unknown name is refused."""
+  sitting(tmp_path)
+  for name in ("qr", "rh"):
+    run = tmp_path / "runs" / name
+    (run / "checkpoints" / "step_3").mkdir(parents=True)
+    (run / "checkpoints" / "step_3" / "data").write_bytes(os.urandom(100))
+    (run / "seed0").mkdir()
+    (run / "seed0" / "policy.npz").write_text("policy")
+  assert _packed(tmp_path, checkpoints=True, jobs=("qr",)) == {
+      "runs/qr/seed0/policy.npz", "runs/qr/checkpoints/step_3/data"}
+  assert _packed(tmp_path, jobs=("rh",)) == {"runs/rh/seed0/policy.npz"}
+  assert len(_packed(tmp_path, checkpoints=True)) == 4
+  with pytest.raises(gpu_jobs.JobsError, match="no run directory for xx"):
+    gpu_jobs.pack(tmp_path, tmp_path, jobs=("qr", "xx"))
