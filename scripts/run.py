@@ -187,12 +187,14 @@ def parse_args(argv=None) -> argparse.Namespace:
                           "action dimension (default: see --preset; the paper's "
                           f"{defaults.learner.mpo.epsilon_scale:g}, Acme's 1e-6): smaller "
                           "slows the scale's change, its collapse too")
-  train.add_argument("--policy_average_decay", type=float, default=0.0, metavar="D",
+  train.add_argument("--policy_average_decay", type=float, default=None, metavar="D",
                      help="also keep the policy's parameters averaged over updates (the plain "
                           "mean until update 1/(1-D), then an exponential average with decay "
                           "D; e.g. 0.999), evaluated beside the online policy at each "
                           "evaluation and at the end, and exported as average_policy.npz; "
-                          "acting and learning are unchanged (default 0: none, the paper's)")
+                          "acting and learning are unchanged (default: FORM 0.9995, "
+                          "mjx_form/imitation/settings.py, measured; experts and --preset "
+                          "paper 0, none)")
   train.add_argument("--sampled_q_bfloat16", action=argparse.BooleanOptionalAction,
                      default=None,
                      help="the target critic's Q of the sampled actions in bfloat16 (half of an "
@@ -385,10 +387,11 @@ def parse_args(argv=None) -> argparse.Namespace:
       parser.error(f"--{name} must be a positive integer, got {getattr(args, name)}")
   if args.final_eval_envs < 0:
     parser.error(f"--final_eval_envs must be >= 0, got {args.final_eval_envs}")
-  try:
-    grid.check_value("policy_average_decay", args.policy_average_decay)
-  except ValueError as e:
-    parser.error(f"--{e}")
+  if args.policy_average_decay is not None:
+    try:
+      grid.check_value("policy_average_decay", args.policy_average_decay)
+    except ValueError as e:
+      parser.error(f"--{e}")
   if args.epsilon_scale is not None:
     try:
       grid.check_value("epsilon_scale", args.epsilon_scale)  # (--grid's check of it)
@@ -408,7 +411,8 @@ def train_config(args: argparse.Namespace) -> TrainConfig:
   learner = dataclasses.replace(
       LearnerConfig(), num_action_samples=args.num_action_samples,
       target_update_period=period, clip_critic_actions=chosen["clip_critic_actions"],
-      sampled_q_bfloat16=bfloat16, policy_average_decay=args.policy_average_decay,
+      sampled_q_bfloat16=bfloat16, policy_average_decay=chosen.get("policy_average_decay", 0.0)
+      if args.policy_average_decay is None else args.policy_average_decay,
       mpo=dataclasses.replace(LearnerConfig().mpo, action_penalty=chosen["action_penalty"],
                               epsilon_scale=chosen["epsilon_scale"]))
   seed = args.seeds[0] if args.seeds else args.seed
@@ -487,6 +491,8 @@ def form_run_settings(args: argparse.Namespace) -> dict:
     chosen["target_update_period"] = args.target_update_period
   if args.sampled_q_bfloat16 is not None:
     chosen["sampled_q_bfloat16"] = args.sampled_q_bfloat16
+  if args.policy_average_decay is not None:
+    chosen["policy_average_decay"] = args.policy_average_decay
   return chosen
 
 
@@ -635,8 +641,8 @@ def main(argv=None) -> int:
             f", the best evaluation's in {os.path.join(directory, 'best_policy.npz')}"
             + (", by log pD in best_log_pd_policy.npz"
                if os.path.exists(os.path.join(directory, "best_log_pd_policy.npz")) else "")
-            + (f", the average policy in {runner.AVERAGE_FILE}" if args.policy_average_decay
-               else "")
+            + (f", the average policy in {runner.AVERAGE_FILE}" if os.path.exists(
+                os.path.join(directory, runner.AVERAGE_FILE)) else "")
             + (f", the imitator model in {form_lib.FormReward.export_file}" if os.path.exists(
                 os.path.join(directory, form_lib.FormReward.export_file)) else ""))
     return 0

@@ -605,7 +605,7 @@ def test_form_run_settings_take_the_task_entry_then_the_preset_then_the_flags(mo
   def chosen(*argv):
     return cli.form_run_settings(cli.parse_args(["--method", "form", *argv]))
   default = {"standardise_reward": True, "reward_clip": 3.0, "target_update_period": 25,
-             "sampled_q_bfloat16": True}
+             "sampled_q_bfloat16": True, "policy_average_decay": 0.9995}
   assert chosen("--task", "cheetah_run") == default
   assert chosen("--task", "walker_walk") == default
   monkeypatch.setitem(settings.PER_TASK_RUN, "walker_walk", {"reward_clip": 2.0})
@@ -614,7 +614,13 @@ def test_form_run_settings_take_the_task_entry_then_the_preset_then_the_flags(mo
   assert chosen("--task", "walker_walk", "--reward_clip", "0")["reward_clip"] == 0.0
   assert chosen("--task", "walker_walk", "--preset", "paper") == {
       "standardise_reward": False, "reward_clip": 0.0, "target_update_period": 200,
-      "sampled_q_bfloat16": False}
+      "sampled_q_bfloat16": False, "policy_average_decay": 0.0}
+  assert chosen("--task", "walker_walk", "--policy_average_decay", "0")[
+      "policy_average_decay"] == 0.0
+  assert cli.train_config(cli.parse_args(["--method", "form", "--task", "walker_walk"])
+                          ).learner.policy_average_decay == 0.9995
+  assert cli.train_config(cli.parse_args(["--method", "expert", "--task", "walker_walk"])
+                          ).learner.policy_average_decay == 0.0
   assert chosen("--task", "walker_walk", "--no-sampled_q_bfloat16")["sampled_q_bfloat16"] is False
   assert chosen("--task", "walker_walk", "--preset", "paper",
                 "--sampled_q_bfloat16")["sampled_q_bfloat16"] is True
@@ -819,7 +825,7 @@ def test_form_command_line_runs_every_stage(tmp_path, capsys):
   assert (first / "demonstrator.npz").read_bytes() == open(
       tasks.bundled_demonstrator("reacher_easy"), "rb").read()
   records = results.read_records(str(curve))
-  assert [r["kind"] for r in records] == ["learning_curve"] + ["final_return"] * 3
+  assert [r["kind"] for r in records] == ["learning_curve"] + ["final_return"] * 4
   assert all(r["method"] == "form" for r in records)
   assert all(np.isfinite(records[0][k]) for k in ("form_reward", "demonstrator_log_prob",
                                                   "imitator_batch_log_prob", "eval_return",
@@ -836,15 +842,17 @@ def test_form_command_line_runs_every_stage(tmp_path, capsys):
   assert records[0]["settings"]["reward"]["reward_clip"] == 3.0
   assert records[0]["settings"]["learner"]["target_update_period"] == 25
   assert records[0]["learner_preset"] == "custom"
-  assert [r["policy"] for r in records[1:]] == ["final", "best", "best_log_pd"]
+  # (and the policy averaged over updates, FORM's default: settings.DEFAULT_RUN)
+  assert [r["policy"] for r in records[1:]] == ["final", "best", "best_log_pd", "average"]
+  assert re.search(r"eval -?[0-9.]+ \(log pD -?[0-9.]+\)  average policy -?[0-9.]+", out)
   assert records[1]["episodes"] == final_episodes and np.isfinite(records[1]["final_return"])
   # One evaluation, at the end: both best policies are the final one (the same arrays), whose
   # fresh evaluation they repeat rather than run again.
-  assert [r.get("same_policy_as") for r in records[1:]] == [None, "final", "final"]
-  assert len({(r["final_return"], r["eval_demonstrator_log_prob"]) for r in records[1:]}) == 1
+  assert [r.get("same_policy_as") for r in records[1:]] == [None, "final", "final", None]
+  assert len({(r["final_return"], r["eval_demonstrator_log_prob"]) for r in records[1:4]}) == 1
   assert re.search(r"the best policy by log pD holds the final policy's arrays: -?[0-9.]+ \+- "
                    r"[0-9.]+ \(log pD -?[0-9.]+\), not evaluated again", out)
-  shas = {r["policy_sha256"] for r in records[1:]}
+  shas = {r["policy_sha256"] for r in records[1:4]}
   assert shas == {policy_io.load_policy(first / "policy.npz")[1]["sha256"]}
   # The imitator model at the run's end, beside the policy (one update per learner step).
   imitator = effect_models.load_effect_model(first / "imitator.npz", task="reacher_easy")
@@ -898,9 +906,9 @@ def test_form_command_line_runs_every_stage(tmp_path, capsys):
   assert meta["demonstrations"]["episodes"] == k and meta["demonstrations"]["file"] == "demos.npz"
   assert meta["demonstrations"]["expert"]["policy_file"] == "reacher_easy.npz"
   assert demos.load_demonstrations(saved, task="reacher_easy").actions.shape == (k, 1000, 2)
-  records = results.read_records(str(curve))[5:]
+  records = results.read_records(str(curve))[6:]
   kinds = [r["kind"] for r in records]
-  assert kinds == ["effect_model", "learning_curve"] + ["final_return"] * 3
+  assert kinds == ["effect_model", "learning_curve"] + ["final_return"] * 4
   assert len(records[0]["heldout_log_likelihood"]) == 5 and records[0]["steps"] == 20
   assert records[0]["settings"]["max_seconds"] == 500.0  # about half of --max_seconds
   assert records[0]["stopped_by"] == "max_steps"
@@ -929,7 +937,8 @@ def test_form_command_line_runs_every_stage(tmp_path, capsys):
                                      "standardised", "--target_update_period", "50"))
   assert cli.form_run_settings(args) == {"standardise_reward": True, "reward_clip": 0.0,
                                          "target_update_period": 50,
-                                         "sampled_q_bfloat16": False}
+                                         "sampled_q_bfloat16": False,
+                                         "policy_average_decay": 0.0}
   assert cli.train_config(cli.parse_args(["--method", "expert"])).learner.target_update_period == 200
   # --turn_invariant: the shipped demonstrator (no period) does not fit, so one is trained with
   # the task's periods (reacher's shoulder), which the imitator model shares.
@@ -945,7 +954,7 @@ def test_form_command_line_runs_every_stage(tmp_path, capsys):
   np.testing.assert_allclose(kept.metadata["config"]["period"], period)
   assert "trained with other settings" in capsys.readouterr().out
   assert records[1]["learner_preset"] == "custom"
-  assert [r["policy"] for r in records[2:]] == ["final", "best", "best_log_pd"]
+  assert [r["policy"] for r in records[2:]] == ["final", "best", "best_log_pd", "average"]
   assert records[2]["episodes"] == final_episodes and np.isfinite(records[2]["final_return"])
 
   # Refusals: exit code 2, the file and the mismatch named, nothing written. (A run given a

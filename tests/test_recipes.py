@@ -50,7 +50,7 @@ def test_default_preset_is_the_task_recipe_else_the_paper():
   assert recipes.expert_settings("walker_run") == {
       "policy_head": "paper", "action_noise_correlation": 0.0, "target_update_period": 25,
       "sampled_q_bfloat16": True, "clip_critic_actions": True, "action_penalty": False,
-      "epsilon_scale": 1e-5}
+      "epsilon_scale": 1e-6}
   assert recipes.expert_settings("reacher_hard") == {
       "policy_head": "paper", "action_noise_correlation": 0.0, "target_update_period": 25,
       "sampled_q_bfloat16": True, "clip_critic_actions": False, "action_penalty": True,

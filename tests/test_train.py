@@ -740,7 +740,7 @@ def test_average_policy_is_evaluated_exported_and_recorded(tmp_path, capsys):
   assert runner.learner_preset(config) == runner.learner_preset(CONFIG)  # (no update changes)
   assert cli.main(args) == 0
   out = capsys.readouterr().out
-  assert "(average policy " in out and "fresh evaluation of the average policy" in out
+  assert re.search(r"eval -?[0-9.]+  average policy -?[0-9.]+", out) and "fresh evaluation of the average policy" in out
   with open(run_dir / "progress.csv") as f:
     rows = list(csv.DictReader(f))
   assert len(rows) == 2 and all(r["eval_return_average"] != "" for r in rows)

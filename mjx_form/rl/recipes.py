@@ -64,9 +64,14 @@ PER_TASK: dict[str, dict] = {
     # the sampled Q in bf16 too, seeds 0-2 as one population: 595 / 599 / 611 at 9.2M, fresh
     # finals 662.5 / 692.3 / 700.3 at 15.4M (22 min on one H100; 2026-11-25_learning_curve_
     # h100_walker_run_t25_clip_bf16_seeds012). Ahead of the paper's at every step count,
-    # reaching its ~650-700 plateau 4-5M steps earlier; the bar is 904.5, not reached.
+    # reaching its ~650-700 plateau 4-5M steps earlier; the bar is 904.5, not reached. MPO's
+    # scale bound at Acme's 1e-6 instead of the paper's 1e-5, at 512 envs x 512 updates, four
+    # seeds as two populations of seeds x {1e-5, 1e-6} on H200s: fresh finals 724.8 / 716.3 /
+    # 776.5 / 462.3 (mean 670.0) against 684.3 / 810.5 / 809.1 / 805.0 (777.2), higher in 3 of 4
+    # seeds (seeds 0-1 at 10.4M steps, 2026-11-28_learning_curve_h200_walker_run_t25_clip_bf16_
+    # replay_ratio64_epsilon_scale_grid_seeds01; seeds 2-3 at 7.2M, ..._average_policy_seeds23_7m).
     "walker_run": {"target_update_period": 25, "clip_critic_actions": True,
-                   "sampled_q_bfloat16": True},
+                   "sampled_q_bfloat16": True, "epsilon_scale": 1e-6},
     # quadruped_walk. Same scale. The paper's settings: 203 at 6.1M, 187 at 8.7M, best 539.8 at
     # 13.8M (one seed, 2026-11-22 ..._512envs_128upi). T 25, critic clipping actions, sampled Q
     # in bf16, seeds 0-2: 140 / 253 / 551 at 6.1M, fresh finals 333.7 / 523.3 / 683.7 at 8.6M

@@ -503,10 +503,10 @@ def _progress_line(row: dict, total_iterations: int, steps_per_iteration: int) -
           + (f"  ~{left:.0f}s left" if np.isfinite(left) else "")
           + f"  train return {_show(row['train_return'])}"
           + (f"  eval {row['eval_return']:.1f}" if "eval_return" in row else "")
-          + (f" (average policy {row['eval_return_average']:.1f})"
-             if "eval_return_average" in row else "")
           + (f" (log pD {row['eval_demonstrator_log_prob']:.1f})"
-             if "eval_demonstrator_log_prob" in row else ""))
+             if "eval_demonstrator_log_prob" in row else "")
+          + (f"  average policy {row['eval_return_average']:.1f}"
+             if "eval_return_average" in row else ""))
   if "form_reward" in row:
     clipped = row["form_reward_clipped"]
     line += (f"  form reward {row['form_reward']:.2f} (sd {row['form_reward_std']:.2f}"
