@@ -341,11 +341,11 @@ def _bytes(paths) -> int:
 def pack(folder: Path, out: Path, checkpoints: bool = False,
          jobs: tuple[str, ...] | None = None) -> list[Path]:
   """folder's runs (`jobs`: only those jobs' run directories, runs/NAME) in one .tgz, split
-  into parts of at most PART_BYTES under `out` (runs.tgz.part00, ...); returns the parts. Checkpoints are left out, except with
-  `checkpoints` each run's newest (lean ones, `--lean_checkpoints`, are a few MB), smallest
-  first, as many as keep the files under PACK_LIMIT; then each run's TensorBoard folder (`tb`,
-  the same values as its progress.csv: a six-member run's are ~18 MB), as many as fit. It names
-  those left out. JobsError, nothing packed, where the rest of the runs alone pass PACK_LIMIT."""
+  into parts of at most PART_BYTES under `out` (runs.tgz.part00, ...); returns the parts.
+  Checkpoints are left out, except with `checkpoints` each run's newest (lean ones,
+  `--lean_checkpoints`, are a few MB per member), smallest first, as many as keep the files
+  under PACK_LIMIT; then each run's TensorBoard folder (`tb`, the same values as its
+  progress.csv: a six-member run's are ~18 MB), as many as fit. It names those left out. JobsError, nothing packed, where the rest of the runs alone pass PACK_LIMIT."""
   runs = folder / "runs"
   if jobs is not None:
     missing = [j for j in jobs if not (runs / j).is_dir()]

@@ -6,8 +6,9 @@
       tasks/demonstrators/ (or --demonstrator, or is trained on the demonstrations), and MPO
       (Retrace) learns from the FORM reward only, in one compiled loop. Writes progress.csv,
       checkpoints, demonstrator.npz, policy.npz, best_policy.npz (by the task return),
-      best_log_pd_policy.npz (by the demonstrator's log pD, no task reward) and imitator.npz
-      (the imitator model beside policy.npz) to --run_dir.
+      best_log_pd_policy.npz (by the demonstrator's log pD, no task reward), average_policy.npz
+      (the policy averaged over updates, --policy_average_decay) and imitator.npz (the imitator
+      model beside policy.npz) to --run_dir.
   --method expert: the same learner on the task reward (to train experts).
   --method random: uniform random actions in N auto-resetting environments of one task,
       sharded over all devices; reports control steps per second (compile time apart).
@@ -465,6 +466,10 @@ def recipe_hint(args: argparse.Namespace, error: ValueError) -> str:
   if "init_policy" in error.keys:  # the run started from a policy file, or this one does
     return (" (a run that started from a policy resumes with --init_policy and that file; one "
             "that did not, without it)")
+  if "learner.policy_average_decay" in error.keys:
+    return (" (a FORM run started before FORM kept the average policy by default, 2026-11-28, "
+            "or with another --policy_average_decay, resumes with the value it was started "
+            "with: --policy_average_decay 0 for none)")
   if "reward.ensemble_log_pd" in error.keys:
     return (" (a run started with --ensemble_log_pd mean resumes with it; one started without "
             "it, without it)")

@@ -763,6 +763,10 @@ def test_form_flags_are_refused_for_other_methods(capsys, monkeypatch, tmp_path)
   assert "started with --ensemble_log_pd mean resumes with it" in cli.recipe_hint(
       cli.parse_args(["--resume"]), refused)
   assert cli.recipe_hint(cli.parse_args([]), refused) == ""
+  # so does one refused for another average-policy decay (FORM's default since 2026-11-28)
+  refused = checkpoint.CheckpointError("differs", ("learner.policy_average_decay",))
+  assert "--policy_average_decay 0 for none" in cli.recipe_hint(
+      cli.parse_args(["--resume"]), refused)
   # --resume reads the kept demonstrators; a demonstrator flag beside it would be ignored
   for flags in (["--demonstrator", "a.npz"], ["--train_demonstrator"],
                 ["--demonstrator_seed", "1"], ["--member_demonstrators"]):

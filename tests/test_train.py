@@ -5,6 +5,7 @@ import contextlib
 import csv
 import dataclasses
 import json
+import os
 import re
 import shutil
 import types
@@ -251,6 +252,7 @@ def test_settings_added_since_older_checkpoints_default_to_what_ran_before():
     (dict(policy_head="tanh"), "unknown policy head 'tanh'"),
     (dict(action_noise_correlation=1.0), "action_noise_correlation must be in \\[0, 1\\)"),
     (dict(action_noise_correlation=-0.1), "action_noise_correlation must be in"),
+    (dict(learner=LearnerConfig(policy_average_decay=1.0)), "policy_average_decay must be in"),
 ])
 def test_bad_settings_are_refused(change, message):
   with pytest.raises(ValueError, match=message):
@@ -737,10 +739,15 @@ def test_average_policy_is_evaluated_exported_and_recorded(tmp_path, capsys):
                    "0.5", "--results", str(curve))
   config = cli.train_config(cli.parse_args(args))
   assert config.learner.policy_average_decay == 0.5
-  assert runner.learner_preset(config) == runner.learner_preset(CONFIG)  # (no update changes)
+  # (the paper's learner with an average kept is still the paper's: no update changes)
+  assert runner.learner_preset(TrainConfig(learner=LearnerConfig(policy_average_decay=0.5))) == (
+      "paper")
+  assert runner.learner_preset(TrainConfig(learner=LearnerConfig(target_update_period=25))) == (
+      "custom")
   assert cli.main(args) == 0
   out = capsys.readouterr().out
-  assert re.search(r"eval -?[0-9.]+  average policy -?[0-9.]+", out) and "fresh evaluation of the average policy" in out
+  assert re.search(r"eval -?[0-9.]+  average policy -?[0-9.]+", out)
+  assert "fresh evaluation of the average policy" in out
   with open(run_dir / "progress.csv") as f:
     rows = list(csv.DictReader(f))
   assert len(rows) == 2 and all(r["eval_return_average"] != "" for r in rows)
@@ -755,3 +762,20 @@ def test_average_policy_is_evaluated_exported_and_recorded(tmp_path, capsys):
   finals = {r["policy"]: r for r in records if r["kind"] == "final_return"}
   assert set(finals) == {"final", "best", "average"}
   assert finals["average"]["settings"]["learner"]["policy_average_decay"] == 0.5
+
+
+def test_a_member_at_decay_zero_gets_no_average_policy_records(tmp_path):
+  """In a population where one member averages and one does not, only the averaging member's
+  evaluations, files and final records carry an average policy."""
+  run_dir, curve = tmp_path / "mixed", tmp_path / "curve.jsonl"
+  rows = runner.run(CONFIG, str(run_dir), CONFIG.env_steps_per_iteration, eval_every=1,
+                    final_eval_envs=2, results_path=str(curve), seeds=(0, 0),
+                    overrides=({"policy_average_decay": 0.0}, {"policy_average_decay": 0.5}),
+                    print_fn=lambda *_: None)
+  assert "eval_return_average" not in rows[0] and "eval_return_average" in rows[1]
+  dirs = runner.member_dirs(str(run_dir), (0, 0), ({"policy_average_decay": 0.0},
+                                                   {"policy_average_decay": 0.5}))
+  assert [os.path.exists(os.path.join(d, runner.AVERAGE_FILE)) for d in dirs] == [False, True]
+  finals = [(r["settings"]["learner"]["policy_average_decay"], r["policy"])
+            for r in results.read_records(str(curve)) if r["kind"] == "final_return"]
+  assert (0.5, "average") in finals and (0.0, "average") not in finals

@@ -123,7 +123,7 @@ def effect_model_config(task: str, env=None, **overrides) -> EffectModelConfig:
 #   reacher_hard, shipped demonstrator, seeds 0-2 x epsilon_scale 1e-5 / 1e-6, 52.8M steps: the
 #     average policy +54.5 (higher in 116 of 162 evaluations, every run's mean higher), the
 #     median change between neighbouring evaluations 15-53 against 61-114; fresh finals over
-#     256 episodes: 865.5 against the final policy's 866.8 (higher in 3 of 6);
+#     256 episodes: 865.5 against the final policy's 866.8 (higher in 2 of 6);
 #   reacher_easy, a three-draw mixture, seeds 0-5, 50.4M: +32.6 (122 of 156, every run), fresh
 #     finals 948.0 against 929.5 (higher in 4 of 6).
 # The final policy stays the headline, as the paper's; the average is the tables' own column.

@@ -117,7 +117,8 @@ def check_value(name: str, value) -> None:
     raise ValueError(f"policy_average_decay must be in [0, 1) (0: no average), got {value}")
   if name in KL_BOUNDS and not 0.0 < value < float("inf"):
     raise ValueError(f"{name} must be positive and finite, got {value}")
-  if (name in LEARNER and _kind(name) is not bool and name not in ("discount", "retrace_lambda", "policy_average_decay")
+  own_range = ("discount", "retrace_lambda", "policy_average_decay")  # (checked above)
+  if (name in LEARNER and _kind(name) is not bool and name not in own_range
       and not value > 0):
     raise ValueError(f"{name} must be positive, got {value}")
 

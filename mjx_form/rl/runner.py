@@ -213,12 +213,12 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
 
   `seeds`: run a population, one member per seed, in one compiled program (default:
   `config.seed` alone); `overrides`: each member's own settings (mjx_form.rl.grid). Each member
-  writes progress.csv, policy.npz and best_policy.npz (FORM: also best_log_pd_policy.npz) to
-  its own directory (`member_dirs`) and its own records (its seed and settings in them); one
-  checkpoint in `directory` holds every member.
+  writes progress.csv, policy.npz and best_policy.npz (FORM: also best_log_pd_policy.npz; with
+  `policy_average_decay` > 0 average_policy.npz) to its own directory (`member_dirs`) and its
+  own records (its seed and settings in them); one checkpoint in `directory` holds every member.
   `reward_source`: where the learner's rewards come from (default: the task reward, by
   `config.reward_source`); its `settings()` are part of the run's checked configuration.
-  `final_eval_envs`: once training is finished, the final and the best policies are evaluated
+  `final_eval_envs`: once training is finished, the final, average and best policies are evaluated
   afresh on this many episodes and written as `kind: final_return` records (0: not); a run
   stopped by `max_seconds` gets them too, where it stopped (`finished: false` in them: a
   time-budgeted run's result), and again at its end if resumed.
@@ -292,6 +292,10 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
   scored = ("eval_demonstrator_log_prob",) if trainer.evaluation_inputs(state) else ()
   # The policy averaged over updates (`policy_average_decay`) is evaluated beside the online one.
   averages = state.learner.average_policy is not None
+  # (in a population, members at decay 0 beside averaging ones keep a copy of their policy:
+  # not evaluated, exported or recorded as an average)
+  averaging = [averages and trainer.member_config(i).learner.policy_average_decay > 0
+               for i in range(trainer.members)]
   average_columns = tuple(f"{k}_average" for k in ("eval_return", "eval_return_std", *scored)
                           ) if averages else ()
   logs = [CsvLog(d, _OPTIONAL_COLUMNS + scored + average_columns) for d in dirs]
@@ -355,7 +359,7 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
         row.update(eval_return=float(returns[i].mean()), eval_return_std=float(returns[i].std()))
         if scores is not None:  # (FORM: log pD of the evaluation episodes, no task reward)
           row["eval_demonstrator_log_prob"] = float(scores[i].mean())
-        if averages:
+        if averaging[i]:
           row.update(eval_return_average=float(average_returns[i].mean()),
                      eval_return_std_average=float(average_returns[i].std()))
           if average_scores is not None:
@@ -391,26 +395,26 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
   if exported:
     for i, d in enumerate(dirs):
       export_policy(trainer, state, i, os.path.join(d, "policy.npz"), rows[i])
-      if averages:
+      if averaging[i]:
         export_policy(trainer, state, i, os.path.join(d, AVERAGE_FILE), _average_row(rows[i]),
                       params=state.learner.average_policy)
       export_source(trainer, state, i, d, rows[i])
   if final_eval_envs and (stopped or int(state.iteration) == total_iterations):
     final_paths = [os.path.join(d, "policy.npz") for d in dirs] if exported else None
-    kept_paths = {**best_paths, **({"average": [os.path.join(d, AVERAGE_FILE) for d in dirs]}
-                                   if averages else {})}
-    _final_evaluation(trainer, state, kept_paths, rows, final_eval_envs, curve,
+    _final_evaluation(trainer, state, best_paths, rows, final_eval_envs, curve,
                       total_env_steps, labels, print_fn, finished=not stopped,
-                      final_paths=final_paths)
+                      final_paths=final_paths, averaging=averaging)
   return rows
 
 
 def _final_evaluation(trainer: Trainer, state, best_paths: dict[str, list[str]],
                       rows: list[dict], episodes: int, curve, total_env_steps: int,
                       labels: list[str], print_fn, finished: bool = True,
-                      final_paths: list[str] | None = None) -> None:
-  """Every member's final policy (the state's; exported to `final_paths`, where given) and each
-  of its kept ones (`best_paths`: {BEST name or "average": each member's file}) on `episodes` fresh
+                      final_paths: list[str] | None = None,
+                      averaging: list[bool] | None = None) -> None:
+  """Every member's final policy (the state's; exported to `final_paths`, where given), its
+  average policy (the state's, for the members `averaging` says keep one) and each of its best
+  ones (`best_paths`: {BEST name: each member's file}) on `episodes` fresh
   episodes: kind final_return (`finished`: False where `max_seconds` stopped the run before
   `total_env_steps`). A best policy whose files hold, for every member, the arrays of one
   evaluated before (often: the best by log pD is the best by return) is not evaluated again:
@@ -429,18 +433,25 @@ def _final_evaluation(trainer: Trainer, state, best_paths: dict[str, list[str]],
                "evaluated afresh")
     else:
       policies.append((name, paths, sha256(paths)))
+  if any(averaging or ()):  # (the exported files' sha256s where every member wrote one now)
+    files = ([os.path.join(os.path.dirname(p), AVERAGE_FILE) for p in final_paths]
+             if final_paths else [])
+    policies.append(("average", None, sha256(files) if files and all(averaging) else None))
   done = {}  # each member's sha256s -> (name, returns [P, n], scores [P, n] or None)
   for name, paths, shas in policies:
     same = done.get(shas) if shas is not None else None
     if same is not None:
       first, returns, scores = same
     else:
+      held = state.learner.average_policy if name == "average" else state.learner.policy
       policy, norm = (_stacked(trainer, state, paths) if paths is not None
-                      else (state.learner.policy, state.normalizer))
+                      else (held, state.normalizer))
       returns, scores = _evaluated(trainer, state, policy, norm, keys, num_envs=episodes)
       if shas is not None:
         done[shas] = (name, returns, scores)
     for i in range(trainer.members):
+      if name == "average" and not averaging[i]:
+        continue
       rows[i][f"{name}_policy_return"] = float(returns[i].mean())
       scored = ({} if scores is None
                 else {"eval_demonstrator_log_prob": float(scores[i].mean())})
