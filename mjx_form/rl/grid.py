@@ -16,10 +16,11 @@ if any member penalises, and stays at its initial value in a member that does no
 `wrap_angles`: every member's normaliser has a period if any member wraps, zeros in a member
 that does not, which wraps nothing; the policy averaged over updates likewise: every member
 keeps one if any member's `policy_average_decay` is above 0, a member at 0 keeps a copy of its
-policy; `angle_features` likewise: every member's normaliser has
-`angles` if any member sees cos and sin, zero rows in a member that does not. That member's
-networks take the 2K extra inputs, always 0, so it computes what a single run without angle
-features computes except for its first layers' initial weights, drawn for the larger input.)
+policy (and gets no average's evaluations or files); `angle_features` likewise: every member's
+normaliser has `angles` if any member sees cos and sin, zero rows in a member that does not.
+That member's networks take the 2K extra inputs, always 0, so it computes what a single run
+without angle features computes except for its first layers' initial weights, drawn for the
+larger input.)
 
 A member is a seed and its overrides, e.g. (0, {"target_update_period": 25}); a grid
 (`expand`) is every combination of the seeds and the listed values.

@@ -218,8 +218,8 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
   own records (its seed and settings in them); one checkpoint in `directory` holds every member.
   `reward_source`: where the learner's rewards come from (default: the task reward, by
   `config.reward_source`); its `settings()` are part of the run's checked configuration.
-  `final_eval_envs`: once training is finished, the final, average and best policies are evaluated
-  afresh on this many episodes and written as `kind: final_return` records (0: not); a run
+  `final_eval_envs`: once training is finished, the final, average and best policies are
+  evaluated afresh on this many episodes and written as `kind: final_return` records (0: not); a run
   stopped by `max_seconds` gets them too, where it stopped (`finished: false` in them: a
   time-budgeted run's result), and again at its end if resumed.
   `max_seconds`: stop once `seconds_before` (what the command spent before this call:
@@ -550,6 +550,7 @@ def _average_row(row: dict) -> dict:
     if f"{key}_average" in row:
       out[key] = row[f"{key}_average"]
   return out
+
 
 # How a population lies on several devices, as the run's first line says it.
 _LAYOUT_WORDS = {"members": "whole members per device",
