@@ -345,7 +345,8 @@ def pack(folder: Path, out: Path, checkpoints: bool = False,
   Checkpoints are left out, except with `checkpoints` each run's newest (lean ones,
   `--lean_checkpoints`, are a few MB per member), smallest first, as many as keep the files
   under PACK_LIMIT; then each run's TensorBoard folder (`tb`, the same values as its
-  progress.csv: a six-member run's are ~18 MB), as many as fit. It names those left out. JobsError, nothing packed, where the rest of the runs alone pass PACK_LIMIT."""
+  progress.csv: a six-member run's are ~18 MB), as many as fit. It names those left out.
+  JobsError, nothing packed, where the rest of the runs alone pass PACK_LIMIT."""
   runs = folder / "runs"
   if jobs is not None:
     missing = [j for j in jobs if not (runs / j).is_dir()]
@@ -397,8 +398,7 @@ def poll(folder: Path, wait_s: float, out: Path | None, final: bool, lines: int 
   """Waits until every job has ended or `wait_s` has passed; prints each job's state and last
   log lines; writes the records, logs and status to `out`; packs the runs there (with their
   newest checkpoints if `checkpoints`; `jobs`: only theirs) once every job has ended or `final`.
-  Returns whether
-  every job has ended."""
+  Returns whether every job has ended."""
   if not (folder / "status.json").exists():
     raise JobsError(f"{folder} holds no sitting (no status.json): run `start` first")
   end = time.time() + wait_s

@@ -388,16 +388,12 @@ def parse_args(argv=None) -> argparse.Namespace:
       parser.error(f"--{name} must be a positive integer, got {getattr(args, name)}")
   if args.final_eval_envs < 0:
     parser.error(f"--final_eval_envs must be >= 0, got {args.final_eval_envs}")
-  if args.policy_average_decay is not None:
-    try:
-      grid.check_value("policy_average_decay", args.policy_average_decay)
-    except ValueError as e:
-      parser.error(f"--{e}")
-  if args.epsilon_scale is not None:
-    try:
-      grid.check_value("epsilon_scale", args.epsilon_scale)  # (--grid's check of it)
-    except ValueError as e:
-      parser.error(f"--{e}")
+  for name in ("policy_average_decay", "epsilon_scale"):  # (--grid's checks of them)
+    if getattr(args, name) is not None:
+      try:
+        grid.check_value(name, getattr(args, name))
+      except ValueError as e:
+        parser.error(f"--{e}")
   return args
 
 

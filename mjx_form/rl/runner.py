@@ -291,11 +291,11 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
     os.makedirs(d, exist_ok=True)
   scored = ("eval_demonstrator_log_prob",) if trainer.evaluation_inputs(state) else ()
   # The policy averaged over updates (`policy_average_decay`) is evaluated beside the online one.
-  averages = state.learner.average_policy is not None
-  # (in a population, members at decay 0 beside averaging ones keep a copy of their policy:
-  # not evaluated, exported or recorded as an average)
-  averaging = [averages and trainer.member_config(i).learner.policy_average_decay > 0
+  # (In a population, members at decay 0 beside averaging ones keep a copy of their policy: not
+  # evaluated, exported or recorded as an average.)
+  averaging = [trainer.member_config(i).learner.policy_average_decay > 0
                for i in range(trainer.members)]
+  averages = any(averaging)  # (the state keeps average policies: Trainer._init_learner)
   average_columns = tuple(f"{k}_average" for k in ("eval_return", "eval_return_std", *scored)
                           ) if averages else ()
   logs = [CsvLog(d, _OPTIONAL_COLUMNS + scored + average_columns) for d in dirs]

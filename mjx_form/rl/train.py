@@ -123,9 +123,7 @@ class TrainConfig:
                        "observation is kept only where an unroll ends")
     if not 0.0 <= self.normalizer_decay < 1.0:
       raise ValueError(f"normalizer_decay must be in [0, 1), got {self.normalizer_decay}")
-    if not 0.0 <= self.learner.policy_average_decay < 1.0:
-      raise ValueError("policy_average_decay must be in [0, 1) (0: no average), got "
-                       f"{self.learner.policy_average_decay}")
+    grid.check_value("policy_average_decay", self.learner.policy_average_decay)
     if not 0.0 <= self.action_noise_correlation < 1.0:
       raise ValueError("action_noise_correlation must be in [0, 1), got "
                        f"{self.action_noise_correlation}")
