@@ -237,6 +237,7 @@ def parse_args(argv=None) -> argparse.Namespace:
   train.add_argument("--results", default=None,
                      help="append kind=learning_curve records (one per evaluation) to this "
                           ".jsonl file (default <run_dir>/learning_curve.jsonl)")
+  learner_flags = [action.dest for action in train._group_actions]  # random trains nothing
   form = parser.add_argument_group(
       "FORM (--method form): where the demonstrator comes from, and its settings")
   form.add_argument("--expert", help="the expert's policy.npz to record demonstrations from "
@@ -339,8 +340,11 @@ def parse_args(argv=None) -> argparse.Namespace:
     return args
   if args.log_every is None:
     args.log_every = 50 if args.method == "random" else 1
-  if args.method == "random" and (args.seeds or args.grid or args.preset):
-    parser.error("--seeds, --grid and --preset apply to --method form and expert")
+  if args.method == "random":
+    given = [f"--{name}" for name in ["seeds", "grid"] + learner_flags
+             if getattr(args, name) != parser.get_default(name)]
+    if given:
+      parser.error(f"{', '.join(given)} apply to --method form and expert")
   args.grid = _grid(parser, args.grid, args.method)
   if args.init_policy and args.method != "expert":
     parser.error("--init_policy applies to --method expert (a FORM run imitates from "
