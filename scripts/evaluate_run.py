@@ -4,7 +4,8 @@ final_return` records, as the run writes them itself with `--final_eval_envs`.
 
 For a run that ended without them (its machine taken back before its end, or stopped by
 `--max_seconds` before runs evaluated there too): each member's `policy.npz` and
-`best_policy.npz` (and `best_log_pd_policy.npz` where the run kept one) are evaluated over
+`best_policy.npz` (and `best_log_pd_policy.npz`, `average_policy.npz` and
+`best_log_pd_average_policy.npz` where the run kept them) are evaluated over
 `--episodes` fresh episodes (policy mean action, as the run's own evaluation), here, e.g. on
 the CPU. Each record copies the member's learning-curve
 record where its final policy was exported, the run's end (task, method, seed, settings, the
@@ -118,10 +119,12 @@ def main(argv=None) -> int:
     for d, own_settings in zip(dirs, overrides):
       reward_overrides = grid.split(own_settings)[2]
       end = None  # the final policy's record: where the run ended, every record is placed
-      for name, file in (("final", "policy.npz"), *((n, f) for n, _, f in runner.BEST)):
+      for name, file in (("final", "policy.npz"), *((n, f) for n, _, f in runner.BEST),
+                         ("average", runner.AVERAGE_FILE),
+                         *((n, f) for n, _, f in runner.AVERAGE_BEST)):
         path = os.path.join(d, file)
-        if name != "final" and not os.path.exists(path):  # (FORM runs since 2026-11-28 keep
-          continue                                        # best_log_pd_policy.npz; others not)
+        if name != "final" and not os.path.exists(path):  # (by log pD: FORM runs; average:
+          continue                                        # runs with --policy_average_decay)
         returns, meta = evaluate(path, env, args.episodes, args.chunk, args.seed)
         own = member_record(records, meta, path, reward_overrides)  # the policy's point
         end = end or own

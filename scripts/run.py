@@ -7,8 +7,9 @@
       (Retrace) learns from the FORM reward only, in one compiled loop. Writes progress.csv,
       checkpoints, demonstrator.npz, policy.npz, best_policy.npz (by the task return),
       best_log_pd_policy.npz (by the demonstrator's log pD, no task reward), average_policy.npz
-      (the policy averaged over updates, --policy_average_decay) and imitator.npz (the imitator
-      model beside policy.npz) to --run_dir.
+      (the policy averaged over updates, --policy_average_decay) with its best by log pD
+      (best_log_pd_average_policy.npz) and imitator.npz (the imitator model beside policy.npz)
+      to --run_dir.
   --method expert: the same learner on the task reward (to train experts).
   --method random: uniform random actions in N auto-resetting environments of one task,
       sharded over all devices; reports control steps per second (compile time apart).
@@ -648,6 +649,8 @@ def main(argv=None) -> int:
                if os.path.exists(os.path.join(directory, "best_log_pd_policy.npz")) else "")
             + (f", the average policy in {runner.AVERAGE_FILE}" if os.path.exists(
                 os.path.join(directory, runner.AVERAGE_FILE)) else "")
+            + "".join(f" (by log pD in {file})" for _, _, file in runner.AVERAGE_BEST
+                      if os.path.exists(os.path.join(directory, file)))
             + (f", the imitator model in {form_lib.FormReward.export_file}" if os.path.exists(
                 os.path.join(directory, form_lib.FormReward.export_file)) else ""))
     return 0

@@ -829,7 +829,7 @@ def test_form_command_line_runs_every_stage(tmp_path, capsys):
   assert (first / "demonstrator.npz").read_bytes() == open(
       tasks.bundled_demonstrator("reacher_easy"), "rb").read()
   records = results.read_records(str(curve))
-  assert [r["kind"] for r in records] == ["learning_curve"] + ["final_return"] * 4
+  assert [r["kind"] for r in records] == ["learning_curve"] + ["final_return"] * 5
   assert all(r["method"] == "form" for r in records)
   assert all(np.isfinite(records[0][k]) for k in ("form_reward", "demonstrator_log_prob",
                                                   "imitator_batch_log_prob", "eval_return",
@@ -846,13 +846,20 @@ def test_form_command_line_runs_every_stage(tmp_path, capsys):
   assert records[0]["settings"]["reward"]["reward_clip"] == 3.0
   assert records[0]["settings"]["learner"]["target_update_period"] == 25
   assert records[0]["learner_preset"] == "custom"
-  # (and the policy averaged over updates, FORM's default: settings.DEFAULT_RUN)
-  assert [r["policy"] for r in records[1:]] == ["final", "best", "best_log_pd", "average"]
+  # (and the policy averaged over updates, FORM's default: settings.DEFAULT_RUN, with its own
+  # best by log pD)
+  assert [r["policy"] for r in records[1:]] == ["final", "best", "best_log_pd", "average",
+                                                "best_log_pd_average"]
   assert re.search(r"eval -?[0-9.]+ \(log pD -?[0-9.]+\)  average policy -?[0-9.]+", out)
   assert records[1]["episodes"] == final_episodes and np.isfinite(records[1]["final_return"])
   # One evaluation, at the end: both best policies are the final one (the same arrays), whose
-  # fresh evaluation they repeat rather than run again.
-  assert [r.get("same_policy_as") for r in records[1:]] == [None, "final", "final", None]
+  # fresh evaluation they repeat rather than run again; so is the average's best the average.
+  assert [r.get("same_policy_as") for r in records[1:]] == [None, "final", "final", None,
+                                                            "average"]
+  chosen = policy_io.load_policy(first / "best_log_pd_average_policy.npz")[1]
+  assert chosen["sha256"] == policy_io.load_policy(first / "average_policy.npz")[1]["sha256"]
+  assert (chosen["eval_return"], chosen["eval_demonstrator_log_prob"]) == (
+      records[0]["eval_return_average"], records[0]["eval_demonstrator_log_prob_average"])
   assert len({(r["final_return"], r["eval_demonstrator_log_prob"]) for r in records[1:4]}) == 1
   assert re.search(r"the best policy by log pD holds the final policy's arrays: -?[0-9.]+ \+- "
                    r"[0-9.]+ \(log pD -?[0-9.]+\), not evaluated again", out)
@@ -868,6 +875,17 @@ def test_form_command_line_runs_every_stage(tmp_path, capsys):
                                "--final_eval_envs", "0", "--results", str(curve))) == 0
   assert "resumed from iteration 1" in capsys.readouterr().out
   assert checkpoint.latest_step(str(first / "checkpoints")) == 2
+  # (the average's best by log pD, resumed from its file, is the higher of its two evaluations)
+  points = [r for r in results.read_records(str(curve)) if r["kind"] == "learning_curve"]
+  assert policy_io.load_policy(first / "best_log_pd_average_policy.npz")[1][
+      "eval_demonstrator_log_prob"] == max(r["eval_demonstrator_log_prob_average"] for r in points)
+  # scripts/evaluate_run.py scores every policy the run kept, the average's too.
+  afterwards = tmp_path / "afterwards.jsonl"
+  afterwards.write_text("".join(json.dumps(r) + "\n" for r in points))
+  assert load_script("evaluate_run").main(["--run_dir", str(first), "--curve", str(afterwards),
+                                           "--episodes", "2", "--chunk", "2"]) == 0
+  assert [r["policy"] for r in results.read_records(str(afterwards))[len(points):]] == [
+      "final", "best", "best_log_pd", "average", "best_log_pd_average"]
   resumed = effect_models.load_effect_model(first / "imitator.npz", task="reacher_easy")
   assert resumed.metadata["training"]["steps"] == 2 * records[0]["updates"]  # rewritten
   # The best policies over both processes' evaluations: by their task return, and by their
@@ -910,9 +928,9 @@ def test_form_command_line_runs_every_stage(tmp_path, capsys):
   assert meta["demonstrations"]["episodes"] == k and meta["demonstrations"]["file"] == "demos.npz"
   assert meta["demonstrations"]["expert"]["policy_file"] == "reacher_easy.npz"
   assert demos.load_demonstrations(saved, task="reacher_easy").actions.shape == (k, 1000, 2)
-  records = results.read_records(str(curve))[6:]
+  records = results.read_records(str(curve))[7:]  # (after the first run's and its resume's)
   kinds = [r["kind"] for r in records]
-  assert kinds == ["effect_model", "learning_curve"] + ["final_return"] * 4
+  assert kinds == ["effect_model", "learning_curve"] + ["final_return"] * 5
   assert len(records[0]["heldout_log_likelihood"]) == 5 and records[0]["steps"] == 20
   assert records[0]["settings"]["max_seconds"] == 500.0  # about half of --max_seconds
   assert records[0]["stopped_by"] == "max_steps"
@@ -958,7 +976,8 @@ def test_form_command_line_runs_every_stage(tmp_path, capsys):
   np.testing.assert_allclose(kept.metadata["config"]["period"], period)
   assert "trained with other settings" in capsys.readouterr().out
   assert records[1]["learner_preset"] == "custom"
-  assert [r["policy"] for r in records[2:]] == ["final", "best", "best_log_pd", "average"]
+  assert [r["policy"] for r in records[2:]] == ["final", "best", "best_log_pd", "average",
+                                                "best_log_pd_average"]
   assert records[2]["episodes"] == final_episodes and np.isfinite(records[2]["final_return"])
 
   # Refusals: exit code 2, the file and the mismatch named, nothing written. (A run given a

@@ -28,6 +28,9 @@ Run directory layout:
   average_policy.npz  (`policy_average_decay` > 0) the policy averaged over updates
                       (mjx_form.rl.learner), written with policy.npz; each evaluation scores it
                       too (eval_return_average), on the same starts
+  best_log_pd_average_policy.npz  (FORM, with an average) the average policy of the evaluation
+                      whose episodes the demonstrator scores highest: the same choice, without
+                      the task reward, among the average's evaluations
   imitator.npz        (FORM) the imitator model beside policy.npz, written with it: what the
                       reward subtracted (log pI) at the run's end, as an effect-model file
                       (mjx_form.files.effect_models; a run refuses it as a demonstrator)
@@ -302,7 +305,8 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
   wall_offset = max(log.rewind(int(state.iteration)) for log in logs) if resume else 0.0
   curve = results.ResultWriter(results_path) if results_path else None
 
-  kept = [b for b in BEST if b[1] == "eval_return" or b[1] in scored]  # (name, key, file)
+  kept = [b for b in BEST + AVERAGE_BEST  # (name, key, file)
+          if b[1] == "eval_return" or b[1] in scored + average_columns]
   best_paths = {name: [os.path.join(d, file) for d in dirs] for name, _, file in kept}
   best_values = {name: [_resumed_best(path, key, first) if resume else -np.inf
                         for path, first in zip(best_paths[name], best_paths["best"])]
@@ -364,10 +368,14 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
                      eval_return_std_average=float(average_returns[i].std()))
           if average_scores is not None:
             row["eval_demonstrator_log_prob_average"] = float(average_scores[i].mean())
-        for name, key, _ in kept:
-          if row[key] > best_values[name][i]:
+        for name, key, _ in kept:  # (a member at decay 0 has no average's key: keeps none)
+          if row.get(key, -np.inf) > best_values[name][i]:
             best_values[name][i] = row[key]
-            export_policy(trainer, state, i, best_paths[name][i], row)
+            if name in _AVERAGE_BEST_NAMES:
+              export_policy(trainer, state, i, best_paths[name][i], _average_row(row),
+                            params=state.learner.average_policy)
+            else:
+              export_policy(trainer, state, i, best_paths[name][i], row)
       # Wall clock of the run so far (compilation and evaluation included); eval_s is the part
       # spent in evaluation in this process.
       row.update(wall_s=wall, eval_s=eval_seconds)
@@ -423,6 +431,7 @@ def _final_evaluation(trainer: Trainer, state, best_paths: dict[str, list[str]],
   keys = trainer.keys(2)
   sha256 = lambda paths: tuple(policy_io.load_policy(p)[1]["sha256"] for p in paths)
   policies = [("final", None, sha256(final_paths) if final_paths else None)]  # (name, files, shas)
+  chosen_from_average = []  # (evaluated after the average policy, which they may repeat)
   for name, paths in best_paths.items():
     # (a member may have none: its run started before the file existed, or its evaluations'
     # log pD was never finite)
@@ -432,11 +441,13 @@ def _final_evaluation(trainer: Trainer, state, best_paths: dict[str, list[str]],
                f"{', '.join(label for label, _ in missing)}: the {_POLICY_WORDS[name]} is not "
                "evaluated afresh")
     else:
-      policies.append((name, paths, sha256(paths)))
+      (chosen_from_average if name in _AVERAGE_BEST_NAMES else policies).append(
+          (name, paths, sha256(paths)))
   if any(averaging or ()):  # (the exported files' sha256s where every member wrote one now)
     files = ([os.path.join(os.path.dirname(p), AVERAGE_FILE) for p in final_paths]
              if final_paths else [])
     policies.append(("average", None, sha256(files) if files and all(averaging) else None))
+  policies += chosen_from_average
   done = {}  # each member's sha256s -> (name, returns [P, n], scores [P, n] or None)
   for name, paths, shas in policies:
     same = done.get(shas) if shas is not None else None
@@ -536,9 +547,15 @@ def _progress_line(row: dict, total_iterations: int, steps_per_iteration: int) -
 # the choice an imitator can make without the task reward.
 BEST = (("best", "eval_return", "best_policy.npz"),
         ("best_log_pd", "eval_demonstrator_log_prob", "best_log_pd_policy.npz"))
+# The same choice by log pD among the evaluations of the policy averaged over updates (runs
+# that keep one): its file holds the average's parameters and evaluation (`_average_row`).
+AVERAGE_BEST = (("best_log_pd_average", "eval_demonstrator_log_prob_average",
+                 "best_log_pd_average_policy.npz"),)
+_AVERAGE_BEST_NAMES = {name for name, _, _ in AVERAGE_BEST}
 # How progress lines name the policies of the final evaluation.
 _POLICY_WORDS = {"final": "final policy", "best": "best policy",
-                 "best_log_pd": "best policy by log pD", "average": "average policy"}
+                 "best_log_pd": "best policy by log pD", "average": "average policy",
+                 "best_log_pd_average": "best average policy by log pD"}
 # The policy averaged over updates, exported beside policy.npz (`policy_average_decay` > 0).
 AVERAGE_FILE = "average_policy.npz"
 
@@ -562,8 +579,8 @@ def _resumed_best(path: str, key: str, best_path: str) -> float:
   far: -inf if none, unless the run kept a best policy by the return (`best_path`) and not this
   one, i.e. it started before this file existed: then +inf, so that it keeps none (its
   evaluations before the resume would not count)."""
-  if os.path.exists(path):
-    return float(policy_io.load_policy(path)[1][key])
+  if os.path.exists(path):  # (an average's file keeps its evaluation under the online key)
+    return float(policy_io.load_policy(path)[1][key.removesuffix("_average")])
   return np.inf if path != best_path and os.path.exists(best_path) else -np.inf
 
 
