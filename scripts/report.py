@@ -1,6 +1,8 @@
 #!/usr/bin/env python3
 """Writes the generated tables of README.md and benchmarks/NOTES.md from
-benchmarks/results/*.jsonl and the shipped experts in tasks/experts/*.npz.
+benchmarks/results/*.jsonl (with their packed curves, *.curve.jsonl.gz) and the shipped experts
+in tasks/experts/*.npz. `--check` writes nothing and exits 1 where a table differs or a result
+file holds FORM learning-curve rows not packed (scripts/pack_results.py).
 
   python scripts/report.py           # rewrite the tables in both files
   python scripts/report.py --check   # exit 1 if either file is not what the results give
@@ -44,11 +46,21 @@ TASK_ORDER = ["reacher_easy", "reacher_hard", "cheetah_run", "quadruped_walk", "
 
 
 def read_records(folder: str = RESULTS) -> list[dict]:
-  """Every record of the folder's `.jsonl` files, whole (compact rows filled in), each with the
-  name of its file as `_file`."""
-  return [{**record, "_file": os.path.basename(path)}
-          for path in sorted(glob.glob(os.path.join(folder, "*.jsonl")))
-          for record in results.read_records(path)]
+  """Every record of the folder's `.jsonl` files and packed curves (`.curve.jsonl.gz`,
+  mjx_form/files/results.py), whole (compact rows filled in), each with the name of its run's
+  `.jsonl` file as `_file` and of the file it was read from as `_source`."""
+  paths = sorted(glob.glob(os.path.join(folder, "*.jsonl"))
+                 + glob.glob(os.path.join(folder, "*" + results.CURVE_SUFFIX)))
+  return [{**record, "_file": os.path.basename(path).removesuffix(results.CURVE_SUFFIX)
+           .removesuffix(".jsonl") + ".jsonl", "_source": os.path.basename(path)}
+          for path in paths for record in results.read_records(path)]
+
+
+def unpacked_files(records: list[dict]) -> list[str]:
+  """The `.jsonl` files (of `read_records`' records) that hold rows `scripts/pack_results.py`
+  moves to a packed curve."""
+  return sorted({r["_source"] for r in records
+                 if r["_source"].endswith(".jsonl") and results.is_packed_row(r)})
 
 
 def _newest(records: list[dict], key) -> dict:
@@ -1079,8 +1091,11 @@ def main(argv=None) -> int:
   if stale:
     print(f"{', '.join(stale)}: tables differ from benchmarks/results/: run scripts/report.py",
           file=sys.stderr)
-    return 1
-  return 0
+  unpacked = unpacked_files(records)
+  if unpacked:  # (they travel to the GPU machine at five times the size)
+    print(f"{', '.join(unpacked)}: FORM learning-curve rows not packed: run "
+          "scripts/pack_results.py", file=sys.stderr)
+  return 1 if stale or unpacked else 0
 
 
 if __name__ == "__main__":

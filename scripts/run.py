@@ -238,7 +238,6 @@ def parse_args(argv=None) -> argparse.Namespace:
   train.add_argument("--results", default=None,
                      help="append kind=learning_curve records (one per evaluation) to this "
                           ".jsonl file (default <run_dir>/learning_curve.jsonl)")
-  learner_flags = [action.dest for action in train._group_actions]  # random trains nothing
   form = parser.add_argument_group(
       "FORM (--method form): where the demonstrator comes from, and its settings")
   form.add_argument("--expert", help="the expert's policy.npz to record demonstrations from "
@@ -336,6 +335,7 @@ def parse_args(argv=None) -> argparse.Namespace:
                      help="episodes of the fresh evaluation of the final and the best policy "
                           "once training is finished or stopped by --max_seconds (0: none; "
                           "after the time budget, compiling it included)")
+  learner_flags = [action.dest for action in train._group_actions]  # random trains nothing
   args = parser.parse_args(argv)
   if args.list:
     return args

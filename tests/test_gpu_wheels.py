@@ -1,7 +1,10 @@
 """scripts/gpu_wheels.py: the wheels a GPU sitting carries, without what it never imports."""
 
+import os
+import subprocess
 import zipfile
 
+import pytest
 from conftest import load_script
 
 
@@ -35,3 +38,20 @@ def test_main_names_a_missing_wheel(tmp_path, capsys):
   gpu_wheels = load_script("gpu_wheels")
   assert gpu_wheels.main(["--source", str(tmp_path), "--out", str(tmp_path / "out")]) == 2
   assert "wheels.sh" in capsys.readouterr().err
+
+
+def test_the_tree_that_travels_to_the_gpu_leaves_room_for_a_checkpoint():
+  """What a GPU call sends (tracked and untracked-not-ignored files) plus the slim wheels
+  (~9.7 MiB) must stay under the device's 64 MiB, with room for a population's lean checkpoint
+  carried in to resume (three quadruped_run members: 19 MiB). Packed curves keep the results
+  small (scripts/pack_results.py); when this fails, slim the tree before the next sitting."""
+  root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+  listed = subprocess.run(["git", "ls-files", "-z", "--cached", "--others", "--exclude-standard"],
+                          cwd=root, capture_output=True)
+  if listed.returncode != 0:
+    pytest.skip("not a git checkout")
+  paths = [p for p in listed.stdout.decode().split("\0") if p]
+  size = sum(os.path.getsize(os.path.join(root, p)) for p in paths
+             if os.path.isfile(os.path.join(root, p)))
+  assert size <= 36 * 2**20, (f"the tree that travels is {size / 2**20:.1f} MiB: with the "
+                              "wheels it leaves less than 18 MiB for a checkpoint")

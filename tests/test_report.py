@@ -206,11 +206,11 @@ def test_default_form_variant_is_what_a_default_run_records():
   # a committed record of a run with the defaults (H200, seeds 0-2, 2026-11-24)
   name = ("2026-11-24_learning_curve_h200_cheetah_run_form_std_t25_reward_clip3_bf16_sampled_q"
           "_seeds012_41m")
-  record = json.loads(open(os.path.join(report.RESULTS, name + ".jsonl")).readline())
+  record = results.run_records(os.path.join(report.RESULTS, name + ".jsonl"))[0]  # (packed)
   assert report._form_variant(record) == report._default_form_variant("cheetah_run")
   # a task whose entry sets the actor: hopper_stand's T-100 members of its first FORM run
   name = "2026-11-26_learning_curve_h100_hopper_stand_form_acme_noise09_wrap_t25_t100_seeds01"
-  runs = results.read_records(os.path.join(report.RESULTS, name + ".jsonl"))
+  runs = results.run_records(os.path.join(report.RESULTS, name + ".jsonl"))
   variants = {report._form_variant(r) for r in runs if r["kind"] == "learning_curve"}
   assert report._default_form_variant("hopper_stand") in variants and len(variants) == 2
   assert "acme policy head, actor noise correlated 0.9, angles wrapped" in (
@@ -767,3 +767,23 @@ def test_sweep_table_takes_speed_ups_over_parity_not_over_a_runs_first_candidate
                     settings={"solver": {}, "num_envs": 64})]
   assert rows([parity, *elsewhere, *newer])[1:] == ["| walker_walk | 10/10 | 60k | 3.00 |",
                                                     "| walker_walk | 10/4 | 90k | 4.50 |"]
+
+
+def test_packed_curves_are_read_with_their_run_and_unpacked_ones_are_named(tmp_path):
+  """report.read_records reads a run's packed curve as rows of the run's file (`_file`);
+  unpacked FORM curve rows are named (`--check` fails on them); scripts/pack_results.py packs
+  them."""
+  import pack_results as pack
+  a, b = str(tmp_path / "a.jsonl"), str(tmp_path / "b.jsonl")
+  for path in (a, b):
+    writer = results.ResultWriter(path)
+    writer.write(kind="learning_curve", method="form", settings={"x": 1})
+    writer.write(kind="final_return", method="form", settings={"x": 1})
+  results.pack_curve(a)
+  records = report.read_records(str(tmp_path))
+  assert sorted((r["_file"], r["_source"], r["kind"]) for r in records) == [
+      ("a.jsonl", "a.curve.jsonl.gz", "learning_curve"), ("a.jsonl", "a.jsonl", "final_return"),
+      ("b.jsonl", "b.jsonl", "final_return"), ("b.jsonl", "b.jsonl", "learning_curve")]
+  assert report.unpacked_files(records) == ["b.jsonl"]
+  assert pack.main([a, b]) == 0
+  assert report.unpacked_files(report.read_records(str(tmp_path))) == []

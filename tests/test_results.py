@@ -127,3 +127,48 @@ def test_broken_files_are_refused_naming_the_line(tmp_path):
     path.write_text(text)
     with pytest.raises(results.ResultFileError, match=message):
       results.read_records(str(path))
+
+
+def test_pack_curve_moves_form_curves_to_a_gzip_companion_and_reads_back_the_same(tmp_path):
+  """pack_curve: a FORM run's learning-curve rows go to <name>.curve.jsonl.gz (gzip, the same
+  bytes for the same rows), every other row stays; run_records gives the file as written;
+  packing again, or rows appended later, keep every row once; a file of curve rows alone is
+  replaced by its packed curve; a file that is not .jsonl is refused."""
+  path = str(tmp_path / "run.jsonl")
+  settings = {"seed": 0, "lr": 1e-4}
+  at = lambda second: f"2026-11-29T00:00:{second:02d}+00:00"
+  written = [{"kind": "effect_model", "method": "form", "settings": settings, "time": at(0)},
+             *[{"kind": "learning_curve", "method": "form", "env_steps": step,
+                "settings": settings, "time": at(1 + step)} for step in range(3)],
+             # (an expert's curve stays in the file)
+             {"kind": "learning_curve", "method": "expert", "env_steps": 0,
+              "settings": settings, "time": at(4)},
+             {"kind": "final_return", "method": "form", "settings": settings, "time": at(5)}]
+  with open(path, "w") as f:
+    f.writelines(json.dumps(r) + "\n" for r in results.compact_records(written))
+  writer = results.ResultWriter(path)
+  assert results.pack_curve(path) == 3
+  curve = tmp_path / "run.curve.jsonl.gz"
+  assert curve.read_bytes()[:2] == b"\x1f\x8b" and results.curve_path(path) == str(curve)
+  assert [r["kind"] for r in results.read_records(path)] == [
+      "effect_model", "learning_curve", "final_return"]
+  assert [r["env_steps"] for r in results.read_records(str(curve))] == [0, 1, 2]
+  assert results.run_records(path) == written  # (whole: compact rows refilled in each file)
+  first_bytes = curve.read_bytes()
+  assert results.pack_curve(path) == 0 and curve.read_bytes() == first_bytes
+  # Rows a resumed run appends later join the packed ones, after them.
+  writer.write(compact=True, kind="learning_curve", method="form", env_steps=3,
+               settings=settings)
+  written = results.run_records(path)  # (the new row still in the file)
+  assert results.pack_curve(path) == 1
+  assert [r["env_steps"] for r in results.read_records(str(curve))] == [0, 1, 2, 3]
+  assert sorted(map(json.dumps, results.run_records(path))) == sorted(map(json.dumps, written))
+  # A stopped run's file (curve rows only) is replaced by its packed curve.
+  alone = str(tmp_path / "stopped.jsonl")
+  results.ResultWriter(alone).write(kind="learning_curve", method="form", settings=settings)
+  assert results.pack_curve(alone) == 1 and not os.path.exists(alone)
+  assert [r["kind"] for r in results.run_records(alone)] == ["learning_curve"]
+  with pytest.raises(FileNotFoundError, match="no such result file"):
+    results.run_records(str(tmp_path / "none.jsonl"))
+  with pytest.raises(results.ResultFileError, match="not a .jsonl result file"):
+    results.pack_curve(str(curve))

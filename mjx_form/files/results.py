@@ -11,19 +11,28 @@ shared fields an earlier row of the file has in full leaves them out and names t
 digest instead, `"shared_sha256": "<16 hex digits>"` (`shared_digest`); `read_records` puts them
 back from that earlier row, so readers see every record whole. A digest, not a line number:
 rows deleted, files joined or appended by other writers cannot make it point at another row.
+
+Packed curves: a FORM run's learning curve is most of the committed results' bytes (two thirds
+in 2026-11), and the tree that travels to the GPU machine has a size limit. `pack_curve` moves a
+result file's FORM `learning_curve` rows into a gzip-compressed companion, `<name>.curve.jsonl.gz`
+(JSON Lines, compact rows, read with `read_records`), and leaves its other rows (final returns,
+effect models) in `<name>.jsonl`; `run_records` reads both back as one file.
 """
 
 from __future__ import annotations
 
 import contextlib
 import datetime
+import gzip
 import hashlib
+import io
 import json
 import os
 import sys
 
 SHARED_FIELDS = ("settings", "versions", "xla_flags", "physics_matmul_precision")
 REFERENCE = "shared_sha256"  # a compact row's name for its shared fields
+CURVE_SUFFIX = ".curve.jsonl.gz"  # a result file's packed FORM learning curve
 
 
 class ResultFileError(ValueError):
@@ -61,10 +70,11 @@ def compact_records(records: list[dict]) -> list[dict]:
 
 
 def read_records(path: str) -> list[dict]:
-  """The records of a `.jsonl` result file, compact rows made whole (blank lines skipped)."""
+  """The records of a `.jsonl` result file (or a gzip-compressed one, `.gz`), compact rows made
+  whole (blank lines skipped)."""
   shared_by_digest: dict[str, dict] = {}
   out = []
-  with open(path) as f:
+  with (gzip.open(path, "rt") if path.endswith(".gz") else open(path)) as f:
     for n, text in enumerate(f, 1):
       if not text.strip():
         continue
@@ -84,6 +94,65 @@ def read_records(path: str) -> list[dict]:
         shared_by_digest.setdefault(shared_digest(record), _shared(record))
       out.append(record)
   return out
+
+
+def curve_path(path: str) -> str:
+  """The packed curve beside the result file `path` (`X.jsonl` -> `X.curve.jsonl.gz`)."""
+  return path.removesuffix(".jsonl") + CURVE_SUFFIX
+
+
+def run_records(path: str) -> list[dict]:
+  """The records of the result file `path` and of its packed curve, where it has one, in the
+  order they were written (by time stamp; a curve's rows first among equal ones)."""
+  curve = curve_path(path)
+  parts = [p for p in (curve, path) if os.path.exists(p)]
+  if not parts:
+    raise FileNotFoundError(f"{path}: no such result file (nor {os.path.basename(curve)})")
+  rows = [r for p in parts for r in read_records(p)]
+  return sorted(rows, key=lambda r: r.get("time", ""))
+
+
+def is_packed_row(record: dict) -> bool:
+  """A row that `pack_curve` moves to a packed curve: a FORM run's learning-curve row."""
+  return record.get("kind") == "learning_curve" and record.get("method") == "form"
+
+
+def _write_lines(path: str, records: list[dict]) -> None:
+  """`records` (compact rows) to `path` through a temporary file: gzip without a time stamp or
+  name where `path` ends in `.gz` (the same rows give the same bytes), else plain text."""
+  text = "".join(json.dumps(r) + "\n" for r in compact_records(records)).encode("utf-8")
+  if path.endswith(".gz"):
+    buffer = io.BytesIO()
+    with gzip.GzipFile(filename="", mode="wb", fileobj=buffer, mtime=0) as f:
+      f.write(text)
+    text = buffer.getvalue()
+  with open(path + ".tmp", "wb") as f:
+    f.write(text)
+  os.replace(path + ".tmp", path)
+
+
+def pack_curve(path: str) -> int:
+  """Moves the FORM learning-curve rows of the result file `path` (`.jsonl`) to its packed
+  curve (after the rows it holds already), keeps its other rows in `path` (removed where none
+  are left); returns how many rows moved. Each file is written whole before it replaces the
+  old one and read back first: nothing is lost where it fails."""
+  if not path.endswith(".jsonl"):
+    raise ResultFileError(f"{path}: not a .jsonl result file")
+  records = read_records(path)
+  moving = [r for r in records if is_packed_row(r)]
+  if not moving:
+    return 0
+  curve = curve_path(path)
+  packed = (read_records(curve) if os.path.exists(curve) else []) + moving
+  kept = [r for r in records if not is_packed_row(r)]
+  _write_lines(curve, packed)
+  if read_records(curve) != packed:  # (before the rows leave `path`)
+    raise ResultFileError(f"{curve}: the packed curve does not read back as written")
+  if kept:
+    _write_lines(path, kept)
+  else:
+    os.remove(path)
+  return len(moving)
 
 
 def versions() -> dict:
