@@ -87,12 +87,16 @@ def parse_jobs(text: str, num_gpus: int) -> list[dict]:
 
 
 def _run_script_args(cmd: str) -> list[str] | None:
-  """The arguments of a job that is one `python .../scripts/run.py ...` command, else None."""
+  """The arguments of a job that is one `python .../scripts/run.py ...` command, alone or last
+  after `&&` (`cp -r runs/X $RUNS/X && python scripts/run.py ... --resume`), else None."""
   try:
     words = shlex.split(cmd)
   except ValueError:
     return None
-  if any(w in ("&&", "||", ";", "|") for w in words) or len(words) < 2:
+  if any(w in ("||", ";", "|") for w in words):
+    return None
+  words = words[len(words) - words[::-1].index("&&"):] if "&&" in words else words
+  if len(words) < 2:
     return None
   return words[2:] if words[1].replace("\\", "/").endswith("scripts/run.py") else None
 
