@@ -48,9 +48,10 @@ class RunFilesError(ValueError):
 
 
 def _read_json_lines(path: str) -> list[dict]:
-  """The file's records, whole (compact rows filled in: mjx_form/files/results.py)."""
+  """The file's records, whole (compact rows filled in), with its packed curve's where it has
+  one (mjx_form/files/results.py)."""
   try:
-    out = results.read_records(path)
+    out = results.run_records(path)
   except results.ResultFileError as e:
     raise RunFilesError(str(e)) from None
   for number, record in enumerate(out, 1):

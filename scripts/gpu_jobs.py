@@ -95,7 +95,8 @@ def _run_script_args(cmd: str) -> list[str] | None:
     return None
   if any(w in ("||", ";", "|") for w in words):
     return None
-  words = words[len(words) - words[::-1].index("&&"):] if "&&" in words else words
+  if "&&" in words:  # (the command after the last one)
+    words = words[len(words) - 1 - words[::-1].index("&&") + 1:]
   if len(words) < 2:
     return None
   return words[2:] if words[1].replace("\\", "/").endswith("scripts/run.py") else None

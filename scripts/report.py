@@ -1,8 +1,9 @@
 #!/usr/bin/env python3
 """Writes the generated tables of README.md and benchmarks/NOTES.md from
 benchmarks/results/*.jsonl (with their packed curves, *.curve.jsonl.gz) and the shipped experts
-in tasks/experts/*.npz. `--check` writes nothing and exits 1 where a table differs or a result
-file holds FORM learning-curve rows not packed (scripts/pack_results.py).
+in tasks/experts/*.npz. `--check` writes nothing and exits 1 where a table differs; either way
+it exits 1 where a result file holds FORM learning-curve rows not packed
+(scripts/pack_results.py).
 
   python scripts/report.py           # rewrite the tables in both files
   python scripts/report.py --check   # exit 1 if either file is not what the results give
@@ -51,8 +52,9 @@ def read_records(folder: str = RESULTS) -> list[dict]:
   `.jsonl` file as `_file` and of the file it was read from as `_source`."""
   paths = sorted(glob.glob(os.path.join(folder, "*.jsonl"))
                  + glob.glob(os.path.join(folder, "*" + results.CURVE_SUFFIX)))
-  return [{**record, "_file": os.path.basename(path).removesuffix(results.CURVE_SUFFIX)
-           .removesuffix(".jsonl") + ".jsonl", "_source": os.path.basename(path)}
+  return [{**record, "_file": os.path.basename(
+               results.run_path(path) if path.endswith(results.CURVE_SUFFIX) else path),
+           "_source": os.path.basename(path)}
           for path in paths for record in results.read_records(path)]
 
 

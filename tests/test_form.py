@@ -882,9 +882,10 @@ def test_form_command_line_runs_every_stage(tmp_path, capsys):
   # scripts/evaluate_run.py scores every policy the run kept, the average's too.
   afterwards = tmp_path / "afterwards.jsonl"
   afterwards.write_text("".join(json.dumps(r) + "\n" for r in points))
+  results.pack_curve(str(afterwards))  # (as committed: the curve alone, packed)
   assert load_script("evaluate_run").main(["--run_dir", str(first), "--curve", str(afterwards),
                                            "--episodes", "2", "--chunk", "2"]) == 0
-  assert [r["policy"] for r in results.read_records(str(afterwards))[len(points):]] == [
+  assert [r["policy"] for r in results.read_records(str(afterwards))] == [
       "final", "best", "best_log_pd", "average", "best_log_pd_average"]
   resumed = effect_models.load_effect_model(first / "imitator.npz", task="reacher_easy")
   assert resumed.metadata["training"]["steps"] == 2 * records[0]["updates"]  # rewritten
@@ -1265,3 +1266,24 @@ def test_effect_max_scale_flag_reaches_the_effect_models(capsys):
   with pytest.raises(SystemExit):
     cli.parse_args(["--method", "expert", "--effect_max_scale", "1"])
   assert "--effect_max_scale apply to --method form only" in capsys.readouterr().err
+
+
+def test_the_averages_best_resumes_from_its_file_and_only_averaging_members_keep_one(tmp_path):
+  """best_log_pd_average_policy.npz: a resumed run reads its evaluation's log pD back (the file
+  keeps it under the online policy's key); a run started before the file existed keeps none
+  (+inf); in a population only the members that average are expected to have one."""
+  from mjx_form.rl import runner
+  name, key, file = runner.AVERAGE_BEST[0]
+  chosen, best, absent = tmp_path / file, tmp_path / "best_policy.npz", tmp_path / "none.npz"
+  meta = {"task": "reacher_easy", "observation_size": 6, "action_size": 2}
+  assert runner._resumed_best(str(chosen), key, str(best)) == -np.inf  # (a new run)
+  policy_io.save_policy(best, {"w": np.zeros(2, np.float32)}, {**meta, "eval_return": 1.0})
+  assert runner._resumed_best(str(chosen), key, str(best)) == np.inf  # (started before it)
+  policy_io.save_policy(chosen, {"w": np.zeros(2, np.float32)},
+                        {**meta, "eval_return": 2.0, "eval_demonstrator_log_prob": 7.5})
+  assert runner._resumed_best(str(chosen), key, str(best)) == 7.5
+  assert runner._member_files(name, [str(chosen), str(absent)], [True, False]) == (
+      [True, False], [])  # (member 1 keeps no average: its file is not missed)
+  assert runner._member_files(name, [str(absent), str(chosen)], [True, True]) == ([True, True], [0])
+  assert runner._member_files("best_log_pd", [str(chosen), str(absent)], [True, False]) == (
+      [True, True], [1])  # (the online policy's bests: every member)

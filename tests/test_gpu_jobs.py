@@ -210,12 +210,13 @@ def test_check_parses_run_jobs_as_run_does_and_names_a_bad_one(tmp_path, capsys)
       "--grid ensemble_log_pd=mixture,mean\n"
       "ls: ls -la $RES\n"
       "rr: cp -r runs/rx $RUNS/rx && python scripts/run.py --task reacher_hard --method expert "
-      "--run_dir $RUNS/rx --resume\n")
+      "--run_dir $RUNS/rx --resume\n"
+      "rl: python scripts/run.py --task reacher_hard --method expert && ls $RES\n")
   assert gpu_jobs.main(["check", str(jobs), "--deadline", "900"]) == 0
   out = [line for line in capsys.readouterr().out.splitlines()  # (not MuJoCo's import notes)
          if line.startswith(("rx:", "fx:", "fc:", "fl:", "fw:", "fd:", "fe:", "fm:", "fp:",
-                             "ft:", "fn:", "fg:", "ls:", "rr:"))]
-  assert len(out) == 14 and out[0].startswith(
+                             "ft:", "fn:", "fg:", "ls:", "rr:", "rl:"))]
+  assert len(out) == 15 and out[0].startswith(
       "rx: reacher_hard expert, seeds 0,1; grid target_update_period=25,100")
   for part in ("512 envs x 256 updates (replay ratio 32)", "T 25", "action penalty True",
                "average policy decay 0,",
@@ -248,6 +249,7 @@ def test_check_parses_run_jobs_as_run_does_and_names_a_bad_one(tmp_path, capsys)
           "says;" in out[11]), out
   assert out[12] == "ls: not a run.py command, not checked: ls -la $RES"
   assert out[13].startswith("rr: reacher_hard expert, seeds 0;")  # (run.py, after the copy)
+  assert out[14].startswith("rl: not a run.py command, not checked:")  # (run.py not last)
   for bad, said in (("--task walker_walk --method form --turn_invariant", "unbounded"),
                     ("--task reacher_easy --method form --demonstrator "
                      "tasks/demonstrators/reacher_hard.npz", "reacher_hard"),

@@ -41,17 +41,19 @@ def test_main_names_a_missing_wheel(tmp_path, capsys):
 
 
 def test_the_tree_that_travels_to_the_gpu_leaves_room_for_a_checkpoint():
-  """What a GPU call sends (tracked and untracked-not-ignored files) plus the slim wheels
-  (~9.7 MiB) must stay under the device's 64 MiB, with room for a population's lean checkpoint
-  carried in to resume (three quadruped_run members: 19 MiB). Packed curves keep the results
+  """What a GPU call sends (tracked and untracked-not-ignored files: they all travel) plus the
+  slim wheels must stay under the device's 64 MiB with room for a population's lean checkpoint
+  carried in to resume: session 52's quadruped_run run of three members, slimmed to its
+  checkpoint, config.json and progress.csv files, is 19.6 MiB. Packed curves keep the results
   small (scripts/pack_results.py); when this fails, slim the tree before the next sitting."""
+  wheels_mib, checkpoint_mib = 9.8, 19.6  # (.whl-gpu: 10,175,805 bytes; the run: 20,495,033)
   root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
   listed = subprocess.run(["git", "ls-files", "-z", "--cached", "--others", "--exclude-standard"],
                           cwd=root, capture_output=True)
   if listed.returncode != 0:
     pytest.skip("not a git checkout")
-  paths = [p for p in listed.stdout.decode().split("\0") if p]
-  size = sum(os.path.getsize(os.path.join(root, p)) for p in paths
-             if os.path.isfile(os.path.join(root, p)))
-  assert size <= 36 * 2**20, (f"the tree that travels is {size / 2**20:.1f} MiB: with the "
-                              "wheels it leaves less than 18 MiB for a checkpoint")
+  paths = [os.path.join(root, p) for p in listed.stdout.decode().split("\0") if p]
+  size = sum(os.path.getsize(p) for p in paths if os.path.isfile(p)) / 2**20
+  limit = 64 - wheels_mib - checkpoint_mib
+  assert size <= limit, (f"the tree that travels is {size:.2f} MiB, over {limit:.1f}: with the "
+                         f"wheels it leaves less than {checkpoint_mib} MiB for a checkpoint")

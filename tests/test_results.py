@@ -156,6 +156,13 @@ def test_pack_curve_moves_form_curves_to_a_gzip_companion_and_reads_back_the_sam
   assert results.run_records(path) == written  # (whole: compact rows refilled in each file)
   first_bytes = curve.read_bytes()
   assert results.pack_curve(path) == 0 and curve.read_bytes() == first_bytes
+  # The sitting's whole file copied in again: its curve rows are packed already, not twice.
+  original = "".join(json.dumps(r) + "\n" for r in results.compact_records(written))
+  with open(path, "w") as f:
+    f.write(original)
+  assert results.pack_curve(path) == 3 and curve.read_bytes() == first_bytes
+  assert results.run_records(path) == written
+  assert results.run_path(str(curve)) == path
   # Rows a resumed run appends later join the packed ones, after them.
   writer.write(compact=True, kind="learning_curve", method="form", env_steps=3,
                settings=settings)
@@ -163,6 +170,14 @@ def test_pack_curve_moves_form_curves_to_a_gzip_companion_and_reads_back_the_sam
   assert results.pack_curve(path) == 1
   assert [r["env_steps"] for r in results.read_records(str(curve))] == [0, 1, 2, 3]
   assert sorted(map(json.dumps, results.run_records(path))) == sorted(map(json.dumps, written))
+  # Rows of the same second: the curve's first (it was written before the final returns).
+  tied = str(tmp_path / "tied.jsonl")
+  with open(tied, "w") as f:
+    f.writelines(json.dumps({**r, "time": at(0)}) + "\n" for r in written)
+  results.pack_curve(tied)
+  assert [(r["kind"], r["method"]) for r in results.run_records(tied)] == [
+      ("learning_curve", "form")] * 4 + [("effect_model", "form"), ("learning_curve", "expert"),
+                                         ("final_return", "form")]
   # A stopped run's file (curve rows only) is replaced by its packed curve.
   alone = str(tmp_path / "stopped.jsonl")
   results.ResultWriter(alone).write(kind="learning_curve", method="form", settings=settings)

@@ -101,6 +101,11 @@ def curve_path(path: str) -> str:
   return path.removesuffix(".jsonl") + CURVE_SUFFIX
 
 
+def run_path(curve: str) -> str:
+  """The result file of the packed curve `curve` (`X.curve.jsonl.gz` -> `X.jsonl`)."""
+  return curve.removesuffix(CURVE_SUFFIX) + ".jsonl"
+
+
 def run_records(path: str) -> list[dict]:
   """The records of the result file `path` and of its packed curve, where it has one, in the
   order they were written (by time stamp; a curve's rows first among equal ones)."""
@@ -133,9 +138,10 @@ def _write_lines(path: str, records: list[dict]) -> None:
 
 def pack_curve(path: str) -> int:
   """Moves the FORM learning-curve rows of the result file `path` (`.jsonl`) to its packed
-  curve (after the rows it holds already), keeps its other rows in `path` (removed where none
-  are left); returns how many rows moved. Each file is written whole before it replaces the
-  old one and read back first: nothing is lost where it fails."""
+  curve (after the rows it holds already; a row it holds already, e.g. from a sitting's file
+  copied in again, is not added twice), keeps its other rows in `path` (removed where none are
+  left); returns how many rows it took out of `path`. Each file is written whole before it
+  replaces the old one, the curve read back first: nothing is lost where it fails."""
   if not path.endswith(".jsonl"):
     raise ResultFileError(f"{path}: not a .jsonl result file")
   records = read_records(path)
@@ -143,7 +149,9 @@ def pack_curve(path: str) -> int:
   if not moving:
     return 0
   curve = curve_path(path)
-  packed = (read_records(curve) if os.path.exists(curve) else []) + moving
+  packed = read_records(curve) if os.path.exists(curve) else []
+  held = {json.dumps(r, sort_keys=True) for r in packed}
+  packed += [r for r in moving if json.dumps(r, sort_keys=True) not in held]
   kept = [r for r in records if not is_packed_row(r)]
   _write_lines(curve, packed)
   if read_records(curve) != packed:  # (before the rows leave `path`)

@@ -422,7 +422,7 @@ def _final_evaluation(trainer: Trainer, state, best_paths: dict[str, list[str]],
                       averaging: list[bool] | None = None) -> None:
   """Every member's final policy (the state's; exported to `final_paths`, where given), its
   average policy (the state's, for the members `averaging` says keep one) and each of its best
-  ones (`best_paths`: {BEST name: each member's file}) on `episodes` fresh
+  ones (`best_paths`: {BEST or AVERAGE_BEST name: each member's file}) on `episodes` fresh
   episodes: kind final_return (`finished`: False where `max_seconds` stopped the run before
   `total_env_steps`). A best policy whose files hold, for every member, the arrays of one
   evaluated before (often: the best by log pD is the best by return) is not evaluated again:
@@ -433,14 +433,15 @@ def _final_evaluation(trainer: Trainer, state, best_paths: dict[str, list[str]],
   policies = [("final", None, sha256(final_paths) if final_paths else None)]  # (name, files, shas)
   chosen_from_average = []  # (evaluated after the average policy, which they may repeat)
   for name, paths in best_paths.items():
-    # (a member may have none: its run started before the file existed, or its evaluations'
-    # log pD was never finite)
-    missing = [(label, p) for label, p in zip(labels, paths) if not os.path.exists(p)]
+    keeps, missing = _member_files(name, paths, averaging)
     if missing:
-      print_fn(f"no {os.path.basename(missing[0][1])} for "
-               f"{', '.join(label for label, _ in missing)}: the {_POLICY_WORDS[name]} is not "
+      print_fn(f"no {os.path.basename(paths[missing[0]])} for "
+               f"{', '.join(labels[i] for i in missing)}: the {_POLICY_WORDS[name]} is not "
                "evaluated afresh")
-    else:
+    elif any(keeps):
+      # (members that keep no average stand in with the file of one that does: evaluated,
+      # not recorded)
+      paths = [p if keep else paths[keeps.index(True)] for p, keep in zip(paths, keeps)]
       (chosen_from_average if name in _AVERAGE_BEST_NAMES else policies).append(
           (name, paths, sha256(paths)))
   if any(averaging or ()):  # (the exported files' sha256s where every member wrote one now)
@@ -461,7 +462,7 @@ def _final_evaluation(trainer: Trainer, state, best_paths: dict[str, list[str]],
       if shas is not None:
         done[shas] = (name, returns, scores)
     for i in range(trainer.members):
-      if name == "average" and not averaging[i]:
+      if (name == "average" or name in _AVERAGE_BEST_NAMES) and not averaging[i]:
         continue
       rows[i][f"{name}_policy_return"] = float(returns[i].mean())
       scored = ({} if scores is None
@@ -482,6 +483,18 @@ def _final_evaluation(trainer: Trainer, state, best_paths: dict[str, list[str]],
                     **({"same_policy_as": same[0]} if same is not None else {}),
                     env_steps=rows[i]["env_steps"], wall_s=rows[i]["wall_s"], finished=finished,
                     settings=_record_settings(trainer, i, total_env_steps))
+
+
+def _member_files(name: str, paths: list[str], averaging: list[bool] | None
+                  ) -> tuple[list[bool], list[int]]:
+  """For the kept policy `name` (each member's file in `paths`): whether each member keeps one
+  (every member; for the average's bests, `AVERAGE_BEST`, the members that average) and the
+  members that should and have none (a run started before the file existed, or whose
+  evaluations' log pD was never finite)."""
+  keeps = [name not in _AVERAGE_BEST_NAMES or bool(averaging and averaging[i])
+           for i in range(len(paths))]
+  return keeps, [i for i, (keep, p) in enumerate(zip(keeps, paths))
+                 if keep and not os.path.exists(p)]
 
 
 def _stacked(trainer: Trainer, state, paths: list[str]):
@@ -575,11 +588,12 @@ _LAYOUT_WORDS = {"members": "whole members per device",
 
 
 def _resumed_best(path: str, key: str, best_path: str) -> float:
-  """The evaluation's `key` (a BEST entry's) of the policy a resumed run exported to `path` so
-  far: -inf if none, unless the run kept a best policy by the return (`best_path`) and not this
-  one, i.e. it started before this file existed: then +inf, so that it keeps none (its
-  evaluations before the resume would not count)."""
-  if os.path.exists(path):  # (an average's file keeps its evaluation under the online key)
+  """The evaluation's `key` (a BEST or AVERAGE_BEST entry's) of the policy a resumed run
+  exported to `path` so far: -inf if none, unless the run kept a best policy by the return
+  (`best_path`) and not this one, i.e. it started before this file existed: then +inf, so that
+  it keeps none (its evaluations before the resume would not count)."""
+  if os.path.exists(path):  # (an average's file keeps its evaluation under the online key:
+                            # `_average_row`)
     return float(policy_io.load_policy(path)[1][key.removesuffix("_average")])
   return np.inf if path != best_path and os.path.exists(best_path) else -np.inf
 
