@@ -37,6 +37,7 @@ EXPERTS = os.path.join(ROOT, "tasks", "experts")
 DEMONSTRATORS = os.path.join(ROOT, "tasks", "demonstrators")
 # Demonstrators shipped before (the runs that used them keep their demonstrations' return).
 FORMER_DEMONSTRATORS = os.path.join(ROOT, "benchmarks", "demonstrators")
+ARCHIVED_DEMONSTRATORS = os.path.join(FORMER_DEMONSTRATORS, "archived.json")  # (in git history)
 PAPER_EXPERT, PAPER_FORM = paper.EXPERT, paper.FORM
 RESULTS = os.path.join(ROOT, "benchmarks", "results")
 README = os.path.join(ROOT, "README.md")
@@ -553,15 +554,21 @@ def _demonstrator_metadata(folders: tuple[str, ...]) -> list[dict]:
           for path in sorted(p for f in folders for p in glob.glob(os.path.join(f, "*.npz")))]
 
 
-def _demonstration_returns(folders: tuple[str, ...] = (DEMONSTRATORS, FORMER_DEMONSTRATORS)
-                           ) -> dict[str, float]:
+def _demonstration_returns(folders: tuple[str, ...] = (DEMONSTRATORS, FORMER_DEMONSTRATORS),
+                           archived: str = ARCHIVED_DEMONSTRATORS) -> dict[str, float]:
   """{demonstrator sha256: mean return of the demonstrations it was trained on} of the shipped
-  demonstrators and the former ones kept in benchmarks/demonstrators/ (checksums verified)."""
+  demonstrators, the former ones kept in benchmarks/demonstrators/ (checksums verified) and
+  those archived in git history (`archived`, scripts/archive_demonstrators.py)."""
   out = {}
   for meta in _demonstrator_metadata(folders):
     expert = meta["demonstrations"].get("expert", {})
     if "mean_return" in expert:
       out[meta["sha256"]] = expert["mean_return"]
+  if os.path.exists(archived):
+    with open(archived) as f:
+      for entry in json.load(f):
+        if entry.get("demonstrations_mean_return") is not None:
+          out[entry["sha256"]] = entry["demonstrations_mean_return"]
   return out
 
 
