@@ -29,8 +29,9 @@ FOLDER = os.path.join(ROOT, "benchmarks", "demonstrators")
 INDEX = os.path.join(FOLDER, "archived.json")
 
 
-def read_index(path: str = INDEX) -> list[dict]:
-  """The archived demonstrators' entries ([] where none were archived)."""
+def read_index(path: str | None = None) -> list[dict]:
+  """The archived demonstrators' entries (default: INDEX's; [] where none were archived)."""
+  path = path or INDEX
   if not os.path.exists(path):
     return []
   with open(path) as f:

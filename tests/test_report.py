@@ -787,3 +787,43 @@ def test_packed_curves_are_read_with_their_run_and_unpacked_ones_are_named(tmp_p
   assert report.unpacked_files(records) == ["b.jsonl"]
   assert pack.main([a, b]) == 0
   assert report.unpacked_files(report.read_records(str(tmp_path))) == []
+
+
+def test_archived_demonstrators_leave_the_tree_and_keep_their_demonstrations_return(tmp_path):
+  """scripts/archive_demonstrators.py removes a committed demonstrator from the folder and
+  indexes it (checksum, demonstrations' mean return, commit); its restore command brings the
+  same bytes back from git; the report still reads its return; a file that differs from the
+  commit is refused, nothing removed."""
+  import shutil
+
+  import archive_demonstrators as archive
+  folder = tmp_path / "benchmarks" / "demonstrators"
+  folder.mkdir(parents=True)
+  name = "walker_walk_expert_136e17.npz"
+  shutil.copy(os.path.join(report.FORMER_DEMONSTRATORS, name), folder / name)
+  shutil.copy(os.path.join(report.FORMER_DEMONSTRATORS, name), folder / "changed.npz")
+  git = lambda *a: subprocess.run(["git", "-c", "user.name=t", "-c", "user.email=t@t", *a],
+                                  cwd=tmp_path, capture_output=True, check=True)
+  git("init", "-q")
+  git("add", ".")
+  git("commit", "-qm", "demonstrators")
+  (folder / "changed.npz").write_bytes((folder / "changed.npz").read_bytes() + b"\0")
+  original = (folder / name).read_bytes()
+  patched = dict(ROOT=str(tmp_path), FOLDER=str(folder), INDEX=str(folder / "archived.json"))
+  saved = {k: getattr(archive, k) for k in patched}
+  try:
+    for k, v in patched.items():
+      setattr(archive, k, v)
+    assert archive.main(["changed.npz"]) == 2 and (folder / "changed.npz").exists()
+    assert archive.main([name]) == 0 and not (folder / name).exists()
+    [entry] = archive.read_index(str(folder / "archived.json"))
+  finally:
+    for k, v in saved.items():
+      setattr(archive, k, v)
+  meta = report._demonstrator_metadata((report.FORMER_DEMONSTRATORS,))
+  kept = next(m for m in meta if m["sha256"] == entry["sha256"])
+  assert entry["demonstrations_mean_return"] == kept["demonstrations"]["expert"]["mean_return"]
+  subprocess.run(entry["restore"], shell=True, cwd=tmp_path, check=True)
+  assert (folder / name).read_bytes() == original
+  returns = report._demonstration_returns((), archived=str(folder / "archived.json"))
+  assert returns == {entry["sha256"]: entry["demonstrations_mean_return"]}
