@@ -910,7 +910,9 @@ def form_table(records: list[dict], expert_returns: dict[str, float] | None = No
            "log pD: by the demonstrator's log pD per transition of the evaluation's episodes, a "
            "choice made without the task reward (`best_log_pd_policy.npz`, runs since 2026-11-28; "
            "`-` before); average: the policy averaged over updates (`--policy_average_decay`, "
-           "`average_policy.npz`; `-` where a run kept none). Expert: the mean return "
+           "`average_policy.npz`; `-` where a run kept none), and its evaluation of highest "
+           "log pD (`best_log_pd_average_policy.npz`, runs since 2026-11-29). Expert: the mean "
+           "return "
            "of the demonstrations the run's demonstrator was trained on (1000 episodes of the "
            "shipped expert), else the shipped expert's return at export; fraction = FORM / "
            "expert; the paper's fraction is its FORM return over its expert's. Reward: `raw` = "
@@ -922,10 +924,11 @@ def form_table(records: list[dict], expert_returns: dict[str, float] | None = No
                "; configurations: how many the task has" if best_per_task else "") + ":",
            "",
            "| task | device | physics | envs | reward, T, effect models | seeds | episodes / seed | env steps "
-           "| wall clock (mean) | FORM return | best policy | by log pD | average policy | expert | "
+           "| wall clock (mean) | FORM return | best policy | by log pD | average policy | "
+           "average by log pD | expert | "
            "fraction | "
            "paper's fraction |" + (" configurations |" if best_per_task else ""),
-           "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"
+           "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"
            + ("---|" if best_per_task else "")]
   for key in sorted(groups, key=lambda k: (_order(k[0]), k[2], k[3], str(k))):
     task, physics, num_envs, env_steps, _, device, variant, _ = key
@@ -933,7 +936,8 @@ def form_table(records: list[dict], expert_returns: dict[str, float] | None = No
     mean, std = _mean_std([r["final_return"] for r in final])
     best_texts = [f"{_mean_std([r['final_return'] for r in chosen])[0]:.1f}" if chosen else "-"
                   for chosen in (best, groups[key].get("best_log_pd", []),
-                                 groups[key].get("average", []))]
+                                 groups[key].get("average", []),
+                                 groups[key].get("best_log_pd_average", []))]
     wall = _mean_std([r["wall_s"] for r in final])[0]
     episodes = sorted({r["episodes"] for r in final})
     shas = {r.get("settings", {}).get("reward", {}).get("demonstrator_sha256") for r in final}

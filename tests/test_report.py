@@ -63,6 +63,8 @@ def test_form_table_averages_the_final_policy_over_seeds():
       _final_return(0, 820.0, policy="best_log_pd"), _final_return(2, 640.0, policy="best_log_pd"),
       # and the policies averaged over updates theirs
       _final_return(0, 780.0, policy="average"), _final_return(1, 600.0, policy="average"),
+      # and the average's chosen by log pD theirs
+      _final_return(1, 610.0, policy="best_log_pd_average"),
       _final_return(2, 100.0, time="2026-11-30T00:00:00+00:00"),
       # another configuration is another row; expert runs are not FORM results
       _final_return(0, 300.0, num_envs=64),
@@ -72,12 +74,12 @@ def test_form_table_averages_the_final_policy_over_seeds():
   rows = [line for line in table.splitlines() if line.startswith("| cheetah_run")]
   assert len(rows) == 2, table
   # 512 envs: seeds 800, 700, 600 -> 700 +- 81.6 (population std), 700 / 875 = 0.80; best:
-  # (850 + 750) / 2; by log pD: (820 + 640) / 2; average: (780 + 600) / 2; paper: 827.9 / 930.5 = 0.89; wall clock: the
-  # seeds' mean, 700 s.
+  # (850 + 750) / 2; by log pD: (820 + 640) / 2; average: (780 + 600) / 2; its by log pD: 610;
+  # paper: 827.9 / 930.5 = 0.89; wall clock: the seeds' mean, 700 s.
   assert ("| cheetah_run | `gpu:X` | fast | 512 | raw, T - | 3 | 256 | 20.0M | 11.7 min | "
-          "700.0 +- 81.6 | 800.0 | 730.0 | 690.0 | 875.0 | 0.80 | 0.89 |") in rows, rows
+          "700.0 +- 81.6 | 800.0 | 730.0 | 690.0 | 610.0 | 875.0 | 0.80 | 0.89 |") in rows, rows
   assert ("| cheetah_run | `gpu:X` | fast | 64 | raw, T - | 1 | 256 | 20.0M | 10.0 min | 300.0 | "
-          "- | - | - | 875.0 | 0.34 | 0.89 |") in rows, rows  # one seed: no spread
+          "- | - | - | - | 875.0 | 0.34 | 0.89 |") in rows, rows  # one seed: no spread
   # A standardised reward or another target period is another row.
   variant = {"reward": {"standardise_reward": True}, "learner": {"target_update_period": 25}}
   table = report.form_table(records + [_final_return(0, 400.0, settings=variant)],
@@ -101,13 +103,13 @@ def test_form_table_averages_the_final_policy_over_seeds():
   assert "| 256 | 20.0M stopped | 10.0 min | 440.0 |" in table, table
   unknown = report.form_table([_final_return(0, 500.0)], expert_returns={},
                               demonstration_returns={})
-  assert "| 500.0 | - | - | - | - | - | 0.89 |" in unknown
+  assert "| 500.0 | - | - | - | - | - | - | 0.89 |" in unknown
   # The imitation target: the return of the demonstrations behind the run's demonstrator.
   behind = [_final_return(s, v, settings={"reward": {"demonstrator_sha256": "d1"}})
             for s, v in ((0, 900.0), (1, 850.0))]
   table = report.form_table(behind, expert_returns={"cheetah_run": 875.0},
                             demonstration_returns={"d1": 1000.0})
-  assert "| 875.0 +- 25.0 | - | - | - | 1000.0 | 0.88 | 0.89 |" in table, table
+  assert "| 875.0 +- 25.0 | - | - | - | - | 1000.0 | 0.88 | 0.89 |" in table, table
   # An ensemble's: the mean over its demonstrators' (the expert's return at export where one
   # is unknown); the variant names the ensemble.
   ensemble = {"reward": {"demonstrator_sha256": "d1+d2", "demonstrators": 2}}
@@ -115,7 +117,7 @@ def test_form_table_averages_the_final_policy_over_seeds():
   table = report.form_table(mixed, expert_returns={"cheetah_run": 875.0},
                             demonstration_returns={"d1": 1000.0, "d2": 950.0})
   assert "ensemble of 2 demonstrators" in table and "mean log pD" not in table
-  assert "| 875.0 +- 25.0 | - | - | - | 975.0 | 0.90 | 0.89 |" in table, table
+  assert "| 875.0 +- 25.0 | - | - | - | - | 975.0 | 0.90 | 0.89 |" in table, table
   averaged = [_final_return(s, v, settings={"reward": {**ensemble["reward"],
                                                             "ensemble_log_pd": "mean"}})
               for s, v in ((0, 900.0), (1, 850.0))]
@@ -123,7 +125,7 @@ def test_form_table_averages_the_final_policy_over_seeds():
       averaged, expert_returns={"cheetah_run": 875.0}, demonstration_returns={})
   table = report.form_table(mixed, expert_returns={"cheetah_run": 875.0},
                             demonstration_returns={"d1": 1000.0})
-  assert "| 875.0 +- 25.0 | - | - | - | 875.0 | 1.00 | 0.89 |" in table, table
+  assert "| 875.0 +- 25.0 | - | - | - | - | 875.0 | 1.00 | 0.89 |" in table, table
   # Members with a demonstrator each (a population comparing them): one row per demonstrator,
   # named in the variant, against its own demonstrations' return.
   own = [_final_return(s, v, settings={"reward": {"demonstrator_sha256": d,
@@ -132,9 +134,9 @@ def test_form_table_averages_the_final_policy_over_seeds():
   table = report.form_table(own, expert_returns={"cheetah_run": 875.0},
                             demonstration_returns={"d1aaaaaa": 1000.0, "d2bbbbbb": 950.0})
   assert ("| raw, T -, demonstrator d1aaaa of one per member | 1 | 256 | 20.0M | 10.0 min | "
-          "900.0 | - | - | - | 1000.0 | 0.90 |") in table, table
+          "900.0 | - | - | - | - | 1000.0 | 0.90 |") in table, table
   assert ("| raw, T -, demonstrator d2bbbb of one per member | 1 | 256 | 20.0M | 10.0 min | "
-          "850.0 | - | - | - | 950.0 | 0.89 |") in table, table
+          "850.0 | - | - | - | - | 950.0 | 0.89 |") in table, table
 
 
 def test_form_table_per_task_keeps_the_best_configuration_of_two_seeds_or_more():
@@ -147,7 +149,7 @@ def test_form_table_per_task_keeps_the_best_configuration_of_two_seeds_or_more()
   rows = [line for line in table.splitlines() if line.startswith("| ")][1:]  # past the header
   assert [row.split(" | ")[:4] for row in rows] == [
       ["| cheetah_run", "`gpu:X`", "fast", "256"], ["| walker_walk", "`gpu:X`", "fast", "512"]]
-  assert rows[0].endswith("| 770.0 +- 10.0 | - | - | - | 875.0 | 0.88 | 0.89 | 3 |"), rows
+  assert rows[0].endswith("| 770.0 +- 10.0 | - | - | - | - | 875.0 | 0.88 | 0.89 | 3 |"), rows
   assert rows[1].endswith("| 1 |"), rows
 
 
