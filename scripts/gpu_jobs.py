@@ -20,6 +20,9 @@ runs' TensorBoard folders come last, where there is room (progress.csv holds the
 in) and prints the settings it would train with, so that a mistyped flag or a setting other than
 the one meant shows on the CPU, not after minutes of a GPU sitting.
 
+Records copied to benchmarks/results/ after a sitting: pack FORM runs' learning curves with
+scripts/pack_results.py (`scripts/report.py --check` refuses them unpacked).
+
 --dir must lie outside the repository (the device refreshes its copy of the tree at each call).
 The jobs file has one job per line, `NAME: COMMAND` (blank lines and `#` comments skipped);
 `NAME gpus=N: COMMAND` gives a job N GPUs (default 1). Jobs start in order as soon as enough
