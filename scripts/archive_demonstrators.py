@@ -25,30 +25,36 @@ sys.path.insert(0, ROOT)
 
 from mjx_form.files import effect_models  # noqa: E402
 
-FOLDER = os.path.join(ROOT, "benchmarks", "demonstrators")
-INDEX = os.path.join(FOLDER, "archived.json")
+FOLDER = "benchmarks/demonstrators"  # (in the repository at `root`)
+INDEX = "archived.json"  # (in FOLDER)
 
 
-def read_index(path: str | None = None) -> list[dict]:
-  """The archived demonstrators' entries (default: INDEX's; [] where none were archived)."""
-  path = path or INDEX
+def read_index(root: str = ROOT) -> list[dict]:
+  """The archived demonstrators' entries of the repository at `root` ([] where none were)."""
+  path = os.path.join(root, FOLDER, INDEX)
   if not os.path.exists(path):
     return []
   with open(path) as f:
     return json.load(f)
 
 
-def main(argv=None) -> int:
+def main(argv=None, root: str = ROOT) -> int:
   parser = argparse.ArgumentParser(description=__doc__,
                                    formatter_class=argparse.RawDescriptionHelpFormatter)
   parser.add_argument("files", nargs="+", help="file names in benchmarks/demonstrators/")
   args = parser.parse_args(argv)
-  git = lambda *a: subprocess.run(["git", *a], cwd=ROOT, capture_output=True, text=True)
+  git = lambda *a: subprocess.run(["git", *a], cwd=root, capture_output=True, text=True)
   commit = git("rev-parse", "HEAD").stdout.strip()
-  entries = read_index()
-  for name in args.files:
-    relative = f"benchmarks/demonstrators/{os.path.basename(name)}"
-    path = os.path.join(ROOT, relative)
+  entries = read_index(root)
+  names = list(dict.fromkeys(os.path.basename(name) for name in args.files))
+  archived = {e["file"] for e in entries}
+  if archived & set(names):
+    print(f"error: already archived: {', '.join(sorted(archived & set(names)))}",
+          file=sys.stderr)
+    return 2
+  for name in names:
+    relative = f"{FOLDER}/{name}"
+    path = os.path.join(root, relative)
     try:
       meta = effect_models.load_effect_model(path).metadata
     except (OSError, ValueError) as e:
@@ -60,18 +66,19 @@ def main(argv=None) -> int:
             "first", file=sys.stderr)
       return 2
     entries.append({
-        "file": os.path.basename(name), "task": meta["task"], "sha256": meta["sha256"],
+        "file": name, "task": meta["task"], "sha256": meta["sha256"],
         "demonstrations_mean_return": meta["demonstrations"].get("expert", {}).get("mean_return"),
         "bytes": os.path.getsize(path), "commit": commit,
         "restore": f"git show {commit}:{relative} > {relative}"})
-  with open(INDEX + ".tmp", "w") as f:
+  index = os.path.join(root, FOLDER, INDEX)
+  with open(index + ".tmp", "w") as f:
     json.dump(entries, f, indent=1)
     f.write("\n")
-  os.replace(INDEX + ".tmp", INDEX)
-  for name in args.files:
-    os.remove(os.path.join(FOLDER, os.path.basename(name)))
-  print(f"{len(args.files)} demonstrators archived in {os.path.relpath(INDEX, ROOT)} "
-        f"({sum(e['bytes'] for e in entries[-len(args.files):]) / 1e6:.1f} MB)")
+  os.replace(index + ".tmp", index)
+  for name in names:
+    os.remove(os.path.join(root, FOLDER, name))
+  print(f"{len(names)} demonstrators archived in {FOLDER}/{INDEX} "
+        f"({sum(e['bytes'] for e in entries[-len(names):]) / 1e6:.1f} MB)")
   return 0
 
 

@@ -811,17 +811,11 @@ def test_archived_demonstrators_leave_the_tree_and_keep_their_demonstrations_ret
   git("commit", "-qm", "demonstrators")
   (folder / "changed.npz").write_bytes((folder / "changed.npz").read_bytes() + b"\0")
   original = (folder / name).read_bytes()
-  patched = dict(ROOT=str(tmp_path), FOLDER=str(folder), INDEX=str(folder / "archived.json"))
-  saved = {k: getattr(archive, k) for k in patched}
-  try:
-    for k, v in patched.items():
-      setattr(archive, k, v)
-    assert archive.main(["changed.npz"]) == 2 and (folder / "changed.npz").exists()
-    assert archive.main([name]) == 0 and not (folder / name).exists()
-    [entry] = archive.read_index(str(folder / "archived.json"))
-  finally:
-    for k, v in saved.items():
-      setattr(archive, k, v)
+  assert archive.main(["changed.npz"], root=str(tmp_path)) == 2
+  assert (folder / "changed.npz").exists() and not (folder / "archived.json").exists()
+  assert archive.main([name, name], root=str(tmp_path)) == 0 and not (folder / name).exists()
+  [entry] = archive.read_index(str(tmp_path))
+  assert archive.main([name], root=str(tmp_path)) == 2  # (archived already)
   meta = report._demonstrator_metadata((report.FORMER_DEMONSTRATORS,))
   kept = next(m for m in meta if m["sha256"] == entry["sha256"])
   assert entry["demonstrations_mean_return"] == kept["demonstrations"]["expert"]["mean_return"]
