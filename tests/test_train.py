@@ -779,3 +779,21 @@ def test_a_member_at_decay_zero_gets_no_average_policy_records(tmp_path):
   finals = [(r["settings"]["learner"]["policy_average_decay"], r["policy"])
             for r in results.read_records(str(curve)) if r["kind"] == "final_return"]
   assert (0.5, "average") in finals and (0.0, "average") not in finals
+  # The average's best by log pD (FORM's best_log_pd_average_policy.npz), which only the
+  # averaging member keeps: the final evaluation scores it (the other member's row stands in
+  # with it) and records it for that member alone, without saying that a file is missing.
+  name, _, file = runner.AVERAGE_BEST[0]
+  chosen = [os.path.join(d, file) for d in dirs]
+  shutil.copy(os.path.join(dirs[1], runner.AVERAGE_FILE), chosen[1])
+  trainer = Trainer(CONFIG, mesh_lib.make_mesh(), seeds=(0, 0), overrides=(
+      {"policy_average_decay": 0.0}, {"policy_average_decay": 0.5}))
+  lines, again = [], tmp_path / "again.jsonl"
+  runner._final_evaluation(trainer, trainer.init(trainer.keys()), {name: chosen}, rows, 2,
+                           results.ResultWriter(str(again)), 0, ["a", "b"], lines.append,
+                           averaging=[False, True])
+  records = results.read_records(str(again))
+  assert [(r["settings"]["learner"]["policy_average_decay"], r["policy"]) for r in records] == [
+      (0.0, "final"), (0.5, "final"), (0.5, "average"), (0.5, name)], records
+  assert not any("not evaluated afresh" in line for line in lines), lines
+  assert name + "_policy_return" in rows[1] and name + "_policy_return" not in rows[0]
+  assert records[-1]["policy_sha256"] == policy_io.load_policy(chosen[1])[1]["sha256"]
