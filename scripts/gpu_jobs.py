@@ -99,7 +99,7 @@ def _run_script_args(cmd: str) -> list[str] | None:
   if any(w in ("||", ";", "|") for w in words):
     return None
   if "&&" in words:  # (the command after the last one)
-    words = words[len(words) - 1 - words[::-1].index("&&") + 1:]
+    words = words[max(i for i, w in enumerate(words) if w == "&&") + 1:]
   if len(words) < 2:
     return None
   return words[2:] if words[1].replace("\\", "/").endswith("scripts/run.py") else None
