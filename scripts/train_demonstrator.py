@@ -15,14 +15,20 @@ same demonstrations (recorded with the first seed) and written to the folder --o
 log-likelihood per offset, steps, the held-out curve) to --results.
 
   python scripts/train_demonstrator.py --task reacher_hard --seeds 0,1,2,3,4,5 --out runs/draws/
+
+`--max_seconds` is the budget of the whole script from its start: recording the demonstrations
+(on a GPU, 1000 quadruped episodes take ~100 s with compilation) and every training; a grid's
+trainings share what is left equally, and each stops at its first evaluation past its share.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import itertools
 import os
 import sys
+import time
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
@@ -42,7 +48,18 @@ def _floats(text: str) -> list[float]:
     raise argparse.ArgumentTypeError(f"expected comma-separated numbers, got {text!r}") from None
 
 
+def training_budget(max_seconds: float | None, elapsed: float, trainings_left: int
+                    ) -> float | None:
+  """The seconds the next of `trainings_left` trainings may take, when `max_seconds` counts
+  from the script's start, `elapsed` seconds ago: an equal share of what is left (0 when none
+  is: the training then stops at its first evaluation)."""
+  if max_seconds is None:
+    return None
+  return max(0.0, (max_seconds - elapsed) / trainings_left)
+
+
 def main(argv=None) -> int:
+  started = time.perf_counter()  # --max_seconds counts from here
   parser = argparse.ArgumentParser(description=__doc__,
                                    formatter_class=argparse.RawDescriptionHelpFormatter)
   parser.add_argument("--task", required=True)
@@ -76,7 +93,8 @@ def main(argv=None) -> int:
   for name in ("max_steps", "batch_size", "window", "eval_every", "patience", "smoothing"):
     parser.add_argument(f"--{name}", type=int, default=getattr(defaults, name))
   parser.add_argument("--max_seconds", type=float, default=None,
-                      help="time budget of each training")
+                      help="time budget of the whole script, demonstrations' recording "
+                           "included; a grid's trainings share what is left")
   parser.add_argument("--seed", type=int, default=None, help="(default 0)")
   parser.add_argument("--seeds", default=None,
                       help="comma-separated seeds: draws trained side by side (one setting; "
@@ -85,6 +103,8 @@ def main(argv=None) -> int:
   args = parser.parse_args(argv)
   if args.task not in tasks.TASKS:
     parser.error(f"unknown task {args.task!r}; valid tasks: {', '.join(tasks.TASKS)}")
+  if args.max_seconds is not None and not args.max_seconds > 0:
+    parser.error(f"--max_seconds must be positive, got {args.max_seconds}")
   grid = list(itertools.product(args.beta_ar or [None], args.effect_l2 or [None]))
   if args.seeds is not None and args.seed is not None:
     parser.error("--seed and --seeds exclude each other")
@@ -135,19 +155,21 @@ def main(argv=None) -> int:
     obs, info = pipeline.demonstrations(env, artefacts, args.episodes, args.physics, seeds[0],
                                         say)
     training.check(len(obs), obs.shape[1] - 1)
+    share = lambda left: dataclasses.replace(training, max_seconds=training_budget(
+        args.max_seconds, time.perf_counter() - started, left))
     if len(seeds) > 1:
       os.makedirs(args.out, exist_ok=True)
-      files = pipeline.train_demonstrators(env, configs[0], obs, info, training, args.physics,
+      files = pipeline.train_demonstrators(env, configs[0], obs, info, share(1), args.physics,
                                            tuple(seeds), args.results, say, outs)
       for seed, file in zip(seeds, files):
         say(f"seed {seed}: held-out log-likelihood by offset: "
             f"{file.metadata['training']['heldout_log_likelihood']}")
       return 0
-    for config, out in zip(configs, outs):
+    for i, (config, out) in enumerate(zip(configs, outs)):
       say(f"training with beta_ar={config.beta_ar}, l2={config.l2} -> {out}")
       os.makedirs(os.path.dirname(os.path.abspath(out)), exist_ok=True)
-      file = pipeline.train_demonstrator(env, config, obs, info, training, args.physics,
-                                         seeds[0], args.results, say, out)
+      file = pipeline.train_demonstrator(env, config, obs, info, share(len(configs) - i),
+                                         args.physics, seeds[0], args.results, say, out)
       heldout = file.metadata["training"]["heldout_log_likelihood"]
       say(f"held-out log-likelihood by offset: {heldout}")
   except ValueError as e:

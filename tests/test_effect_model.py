@@ -3,6 +3,7 @@ objective's parts and demonstrator training, against numpy / scipy references.""
 
 import dataclasses
 import json
+import types
 
 import jax
 import jax.numpy as jnp
@@ -458,7 +459,8 @@ def test_train_demonstrator_script_trains_a_grid_and_refuses_bad_input(tmp_path,
                          (["--seeds", "3,x"], "bad", "comma-separated integers"),
                          (["--seeds", "3,7", "--beta_ar", "0.1,1"], "bad", "one setting"),
                          (["--seeds", "3,7", "--seed", "1"], "bad", "exclude each other"),
-                         (["--seeds", "3,7"], "taken.npz", "is a file")):
+                         (["--seeds", "3,7"], "taken.npz", "is a file"),
+                         (["--max_seconds", "0"], "bad", "--max_seconds must be positive")):
     with pytest.raises(SystemExit):
       script.main([*args, *bad, "--out", str(tmp_path / out)])
     assert said in capsys.readouterr().err
@@ -470,6 +472,37 @@ def test_train_demonstrator_script_trains_a_grid_and_refuses_bad_input(tmp_path,
     record = json.loads(open(records).readline())
     assert (record["seed"], record["settings"]["seed"]) == (5, 5)
     assert effect_models.load_effect_model(one).metadata["training"]["seed"] == 5
+
+
+def test_train_demonstrator_budget_counts_from_the_scripts_start(tmp_path, monkeypatch):
+  """--max_seconds covers the whole script: the time spent before a training (recording the
+  demonstrations) comes off it, and a grid's trainings share what is left (a clock the test
+  sets; the trainings themselves stubbed, only the budget each is given is looked at)."""
+  from conftest import load_script
+
+  from mjx_form.files import demos
+  script = load_script("train_demonstrator")
+  assert script.training_budget(None, 50.0, 2) is None
+  assert script.training_budget(100.0, 30.0, 2) == 35.0
+  assert script.training_budget(100.0, 130.0, 1) == 0.0  # out of time: stop at the first check
+  obs = np.zeros((4, 21, 6), np.float32)
+  saved = tmp_path / "demos.npz"
+  demos.save_demonstrations(saved, obs, metadata={
+      "task": "reacher_easy", "physics": "fast",
+      "observation_layout": [["position", 2], ["to_target", 2], ["velocity", 2]]})
+  clock = iter([0.0, 30.0, 70.0])  # the script's start, before each of its two trainings
+  monkeypatch.setattr(script, "time", types.SimpleNamespace(perf_counter=lambda: next(clock)))
+  given = []
+
+  def train(env, config, obs, info, training, *rest):
+    given.append(training.max_seconds)
+    return types.SimpleNamespace(metadata={"training": {"heldout_log_likelihood": [0.0]}})
+
+  monkeypatch.setattr(script.pipeline, "train_demonstrator", train)
+  assert script.main(["--task", "reacher_easy", "--demos", str(saved), "--window", "5",
+                      "--beta_ar", "0.1,1", "--max_seconds", "100",
+                      "--out", str(tmp_path / "grid")]) == 0
+  assert given == [35.0, 30.0]  # (100 - 30) / 2, then (100 - 70) / 1
 
 
 # --- angle increments ---------------------------------------------------------------------
