@@ -366,7 +366,8 @@ def learning_summary(records: list[dict], threshold: float = 800.0) -> str:
            f"settings, is in `benchmarks/NOTES.md`. Evaluation: mean task return of "
            f"{_eval_episodes(runs)} episodes (a run's `--eval_envs`) with the "
            f"policy's mean action; wall clock includes start-up (compiling, or loading from "
-           f"JAX's persistent compilation cache). Time to expert: the fastest run to a first "
+           f"JAX's persistent compilation cache; a run resumed from its checkpoint, `--resume`, "
+           f"adds up its processes' wall clocks, each start-up included). Time to expert: the fastest run to a first "
            f"evaluation at or above {paper.EXPERT_BAR}x the paper's expert return (runs that "
            f"started from a trained policy, `--init_policy`, count for the highest evaluation, "
            f"not for the times):", "",

@@ -8,6 +8,7 @@ import json
 import os
 import re
 import shutil
+import time
 import types
 
 import jax
@@ -488,10 +489,20 @@ def test_lean_checkpoints_hold_no_replay_and_resume(trainers, tmp_path):
   assert np.isfinite([row["final_policy_return"], row["best_policy_return"]]).all()
   assert (run_dir / "policy.npz").read_bytes() == policy
   assert len((run_dir / "progress.csv").read_text().splitlines()) == 2  # header, iteration 1
+  # A resumed run's wall clock goes on from its log's last kept row (set far off here).
+  with open(run_dir / "progress.csv", newline="") as f:
+    logged = list(csv.DictReader(f))
+  logged[0]["wall_s"] = "100000.0"
+  with open(run_dir / "progress.csv", "w", newline="") as f:
+    writer = csv.DictWriter(f, fieldnames=list(logged[0]))
+    writer.writeheader()
+    writer.writerows(logged)
+  started = time.perf_counter()
   row, = runner.run(CONFIG, str(run_dir), total, resume=True, checkpoint_replay=False,
                     eval_every=2, print_fn=quiet)
   assert row["iteration"] == 2 and row["updates"] == 2 * CONFIG.updates_per_iteration
   assert np.isfinite(row["eval_return"])
+  assert 100000.0 < row["wall_s"] <= 100000.0 + time.perf_counter() - started
 
 
 def test_expert_learns_reacher_easy():
