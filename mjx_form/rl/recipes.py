@@ -94,6 +94,13 @@ PER_TASK: dict[str, dict] = {
     # 12.9M steps against 267 / 774 (seeds 0 / 1), the scale 0.48-0.58 against 0.32-0.39
     # (2026-11-28_learning_curve_h200_quadruped_run_t25_clip_bf16_fast_ls4_replay_ratio64_
     # epsilon_scale_grid_seeds01; fresh finals in that record). Two seeds; the bar is 914.8.
+    # Seeds 0-2 (one population on one H200, 15.5-15.8k env steps/s per member) to 13.4M steps
+    # in one sitting (844.2 / 825.6 / 691.0 fresh; ..._recipe_seeds012_13m), then resumed from
+    # its lean checkpoint in the next to 26.2M: seed 0 first >= 914.8 at 19.5M (31.2 min of
+    # wall clock over both), fresh final 937.8, seeds 1-2 flat at 813.5 / 708.9 (2026-11-29_
+    # learning_curve_h200_quadruped_run_recipe_seeds012_26m_resumed). Seed 0's best policy is
+    # the shipped expert: 935.7 +- 0.6 (s.e.) over 1024 fresh CPU episodes, >= 924 from every
+    # start bin; dm_control 937.1 against MJX 935.9 over 64 episodes.
     "quadruped_run": {"target_update_period": 25, "clip_critic_actions": True,
                       "sampled_q_bfloat16": True, "epsilon_scale": 1e-6},
     # reacher_hard. The paper's settings at 512 envs x 64 updates: first evaluation >= 932.2
