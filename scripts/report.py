@@ -337,11 +337,23 @@ def _from_scratch(curve: list[dict]) -> bool:
   return not curve[0].get("settings", {}).get("init_policy")
 
 
+def _resumed(curve: list[dict]) -> bool:
+  """Whether a run's curve (in iteration order) is the part of a run after a `--resume` in a
+  result file of its own: its first evaluation lies more than one evaluation interval past
+  iteration 0."""
+  if len(curve) < 2 or "iteration" not in curve[0] or "iteration" not in curve[1]:
+    return False  # (one evaluation, or records without iterations: taken as whole runs)
+  first, second = curve[0]["iteration"], curve[1]["iteration"]
+  return first > second - first
+
+
 def _fastest_to(curves: list[list[dict]], threshold: float, task: str) -> str:
   """Wall clock (env steps, run) of the fastest of `curves` to a first evaluation at or above
-  `threshold`, or "not reached"."""
+  `threshold`, or "not reached". A resumed part that starts at or above it passed it before
+  (in another part), so it is not a first evaluation there."""
   reached = [next((r for r in c if r["eval_return"] >= threshold), None) for c in curves]
-  reached = [r for r in reached if r is not None]
+  reached = [r for r, c in zip(reached, curves)
+             if r is not None and not (_resumed(c) and r is c[0])]
   if not reached:
     return "not reached"
   fastest = min(reached, key=lambda r: r["wall_s"])
@@ -367,10 +379,13 @@ def learning_summary(records: list[dict], threshold: float = 800.0) -> str:
            f"{_eval_episodes(runs)} episodes (a run's `--eval_envs`) with the "
            f"policy's mean action; wall clock includes start-up (compiling, or loading from "
            f"JAX's persistent compilation cache; a run resumed from its checkpoint, `--resume`, "
-           f"adds up its processes' wall clocks, each start-up included). Time to expert: the fastest run to a first "
-           f"evaluation at or above {paper.EXPERT_BAR}x the paper's expert return (runs that "
-           f"started from a trained policy, `--init_policy`, count for the highest evaluation, "
-           f"not for the times):", "",
+           f"continues from the wall clock logged at the checkpoint, each start-up included). "
+           f"Runs: the runs started (a resumed run's later part in another result file is not "
+           f"counted again). Time to expert: the fastest run to a first evaluation at or above "
+           f"{paper.EXPERT_BAR}x the paper's expert return (runs that started from a trained "
+           f"policy, `--init_policy`, count for the highest evaluation, not for the times; a "
+           f"resumed part whose first evaluation is already above a threshold counts not for "
+           f"that threshold, first passed before it):", "",
            f"| task | runs | highest evaluation (env steps, run) | first evaluation >= "
            f"{threshold:.0f}, fastest run: wall clock (env steps, run) | {paper.EXPERT_BAR}x "
            f"paper's expert | time to expert: wall clock (env steps, run) |",
@@ -384,7 +399,8 @@ def learning_summary(records: list[dict], threshold: float = 800.0) -> str:
       continue
     best = max((r for c in curves for r in c), key=lambda r: r["eval_return"])
     scratch = [c for c in curves if _from_scratch(c)]
-    lines.append(f"| {task} | {len(curves)} | {best['eval_return']:.1f} "
+    started = sum(not _resumed(c) for c in curves)
+    lines.append(f"| {task} | {started} | {best['eval_return']:.1f} "
                  f"({best['env_steps'] / 1e6:.1f}M, {_run_label(best['_file'], task)}) | "
                  f"{_fastest_to(scratch, threshold, task)} | {bar:.1f} | "
                  f"{_fastest_to(scratch, bar, task)} |")
@@ -427,6 +443,8 @@ def learning_table(records: list[dict], threshold: float = 800.0) -> str:
     reached = next((r for r in curve if r["eval_return"] >= threshold), None)
     first = (f"{_duration(reached['wall_s'])} ({reached['env_steps'] / 1e6:.1f}M)" if reached
              else "not reached")
+    if reached is curve[0] and _resumed(curve):
+      first = "before this part"  # (passed in the part before the resume)
     settings = last["settings"]
     physics = [f"{last['physics']} physics"] if last.get("physics", "fast") != "fast" else []
     notes = ", ".join(physics + _learner_notes(last, with_penalty=False))  # (its own column)

@@ -582,6 +582,30 @@ def test_learning_tables_show_expert_runs_only():
   assert "| 934.0 | 500 s (5.0M, d) |" in summary, summary
 
 
+def test_a_resumed_part_counts_once_and_for_the_thresholds_it_passes():
+  """A run resumed (`--resume`) into a result file of its own: the part after the resume is
+  not counted as a run again, and a threshold its first evaluation already passes was passed
+  in the part before (the run's clock goes on across the resume)."""
+  base = {"kind": "learning_curve", "method": "expert", "task": "walker_walk", "seed": 0,
+          "num_envs": 512, "device": "gpu:X", "physics_matmul_precision": "highest",
+          "settings": {"updates_per_iteration": 128, "replay_ratio": 16, "eval_episodes": 32}}
+  part1 = [dict(base, _file="g.jsonl", iteration=i, env_steps=i * 1e5, wall_s=i * 10.0,
+                eval_return=v) for i, v in ((10, 500.0), (20, 850.0), (30, 900.0))]
+  part2 = [dict(base, _file="h.jsonl", iteration=i, env_steps=i * 1e5, wall_s=i * 10.0,
+                eval_return=v) for i, v in ((40, 860.0), (50, 940.0))]
+  assert [report._resumed(c) for c in (part1, part2, part2[:1])] == [False, True, False]
+  summary = report.learning_summary([*part1, *part2])
+  assert "| walker_walk | 1 | 940.0 (5.0M, h) | 200 s (2.0M, g) | 934.0 | 500 s (5.0M, h) |" in (
+      summary), summary
+  # (alone, the resumed part passes 800 nowhere that counts)
+  assert "| walker_walk | 0 | 940.0 (5.0M, h) | not reached | 934.0 | 500 s (5.0M, h) |" in (
+      report.learning_summary(part2))
+  rows = [line for line in report.learning_table([*part1, *part2]).splitlines()
+          if line.startswith("| walker_walk")]
+  assert [("before this part" in line, "200 s (2.0M)" in line) for line in rows] == [
+      (False, True), (True, False)], rows
+
+
 def test_expert_runs_tell_members_apart_by_every_grid_setting():
   """A population's members share the file, task and seed; _member keeps them apart by the
   learner, the reward settings, the actor noise and the wrap, and a member's records together."""
