@@ -16,9 +16,11 @@ log-likelihood per offset, steps, the held-out curve) to --results.
 
   python scripts/train_demonstrator.py --task reacher_hard --seeds 0,1,2,3,4,5 --out runs/draws/
 
-`--max_seconds` is the budget of the whole script from its start: recording the demonstrations
-(on a GPU, 1000 quadruped episodes take ~100 s with compilation) and every training; a grid's
-trainings share what is left equally, and each stops at its first evaluation past its share.
+`--max_seconds` is the budget of the script from the start of `main` (after its imports):
+recording the demonstrations (on a GPU, 1000 quadruped episodes take ~100 s with compilation)
+and every training; a grid's trainings share what is left equally, and each stops at its first
+evaluation past its share, then writes its file. Under a hard limit (a GPU call's), leave room
+for the imports, one evaluation interval and the writing.
 """
 
 from __future__ import annotations
@@ -155,6 +157,10 @@ def main(argv=None) -> int:
     obs, info = pipeline.demonstrations(env, artefacts, args.episodes, args.physics, seeds[0],
                                         say)
     training.check(len(obs), obs.shape[1] - 1)
+    if args.max_seconds is not None:
+      spent = time.perf_counter() - started
+      say(f"--max_seconds {args.max_seconds:g}: {spent:.0f}s spent before training, "
+          f"{max(args.max_seconds - spent, 0.0):.0f}s left for it")
     share = lambda left: dataclasses.replace(training, max_seconds=training_budget(
         args.max_seconds, time.perf_counter() - started, left))
     if len(seeds) > 1:

@@ -474,7 +474,7 @@ def test_train_demonstrator_script_trains_a_grid_and_refuses_bad_input(tmp_path,
     assert effect_models.load_effect_model(one).metadata["training"]["seed"] == 5
 
 
-def test_train_demonstrator_budget_counts_from_the_scripts_start(tmp_path, monkeypatch):
+def test_train_demonstrator_budget_counts_from_the_scripts_start(tmp_path, monkeypatch, capsys):
   """--max_seconds covers the whole script: the time spent before a training (recording the
   demonstrations) comes off it, and a grid's trainings share what is left (a clock the test
   sets; the trainings themselves stubbed, only the budget each is given is looked at)."""
@@ -490,19 +490,32 @@ def test_train_demonstrator_budget_counts_from_the_scripts_start(tmp_path, monke
   demos.save_demonstrations(saved, obs, metadata={
       "task": "reacher_easy", "physics": "fast",
       "observation_layout": [["position", 2], ["to_target", 2], ["velocity", 2]]})
-  clock = iter([0.0, 30.0, 70.0])  # the script's start, before each of its two trainings
-  monkeypatch.setattr(script, "time", types.SimpleNamespace(perf_counter=lambda: next(clock)))
-  given = []
+  given, file = [], types.SimpleNamespace(metadata={"training": {"heldout_log_likelihood": [0]}})
 
   def train(env, config, obs, info, training, *rest):
     given.append(training.max_seconds)
-    return types.SimpleNamespace(metadata={"training": {"heldout_log_likelihood": [0.0]}})
+    return file
+
+  def train_draws(env, config, obs, info, training, physics, seeds, *rest):
+    given.append(training.max_seconds)
+    return [file] * len(seeds)
 
   monkeypatch.setattr(script.pipeline, "train_demonstrator", train)
-  assert script.main(["--task", "reacher_easy", "--demos", str(saved), "--window", "5",
-                      "--beta_ar", "0.1,1", "--max_seconds", "100",
-                      "--out", str(tmp_path / "grid")]) == 0
+  monkeypatch.setattr(script.pipeline, "train_demonstrators", train_draws)
+  args = ["--task", "reacher_easy", "--demos", str(saved), "--window", "5", "--max_seconds",
+          "100"]
+  # the script's start, the budget's line, then before each of its two trainings
+  clock = iter([0.0, 30.0, 30.0, 70.0])
+  monkeypatch.setattr(script, "time", types.SimpleNamespace(perf_counter=lambda: next(clock)))
+  assert script.main([*args, "--beta_ar", "0.1,1", "--out", str(tmp_path / "grid")]) == 0
   assert given == [35.0, 30.0]  # (100 - 30) / 2, then (100 - 70) / 1
+  assert "--max_seconds 100: 30s spent before training, 70s left for it" in (
+      capsys.readouterr().out)
+  # draws side by side (--seeds): one training, all that is left
+  given.clear()
+  clock = iter([0.0, 40.0, 40.0])
+  assert script.main([*args, "--seeds", "3,7", "--out", str(tmp_path / "draws")]) == 0
+  assert given == [60.0]
 
 
 # --- angle increments ---------------------------------------------------------------------
