@@ -341,8 +341,10 @@ def _resumed(curve: list[dict]) -> bool:
   """Whether a run's curve (in iteration order) is the part of a run after a `--resume` in a
   result file of its own: its first evaluation lies more than one evaluation interval past
   iteration 0."""
-  if len(curve) < 2 or "iteration" not in curve[0] or "iteration" not in curve[1]:
-    return False  # (one evaluation, or records without iterations: taken as whole runs)
+  # (Three rows at least: the first two then are regular evaluations, not a run's last row,
+  # logged where a time budget stopped it. Fewer, or rows without iterations: a whole run.)
+  if len(curve) < 3 or "iteration" not in curve[0] or "iteration" not in curve[1]:
+    return False
   first, second = curve[0]["iteration"], curve[1]["iteration"]
   return first > second - first
 

@@ -592,8 +592,11 @@ def test_a_resumed_part_counts_once_and_for_the_thresholds_it_passes():
   part1 = [dict(base, _file="g.jsonl", iteration=i, env_steps=i * 1e5, wall_s=i * 10.0,
                 eval_return=v) for i, v in ((10, 500.0), (20, 850.0), (30, 900.0))]
   part2 = [dict(base, _file="h.jsonl", iteration=i, env_steps=i * 1e5, wall_s=i * 10.0,
-                eval_return=v) for i, v in ((40, 860.0), (50, 940.0))]
-  assert [report._resumed(c) for c in (part1, part2, part2[:1])] == [False, True, False]
+                eval_return=v) for i, v in ((40, 860.0), (50, 940.0), (60, 930.0))]
+  # (a run stopped by its time budget right after its first evaluation: rows 10 and 11)
+  stopped = [dict(r, iteration=i) for r, i in zip(part1, (10, 11))]
+  assert [report._resumed(c) for c in (part1, part2, part2[:2], stopped)] == [
+      False, True, False, False]
   summary = report.learning_summary([*part1, *part2])
   assert "| walker_walk | 1 | 940.0 (5.0M, h) | 200 s (2.0M, g) | 934.0 | 500 s (5.0M, h) |" in (
       summary), summary
