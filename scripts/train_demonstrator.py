@@ -160,7 +160,7 @@ def main(argv=None) -> int:
     if args.max_seconds is not None:
       spent = time.perf_counter() - started
       say(f"--max_seconds {args.max_seconds:g}: {spent:.0f}s spent before training, "
-          f"{max(args.max_seconds - spent, 0.0):.0f}s left for it")
+          f"{training_budget(args.max_seconds, spent, 1):.0f}s left for it")
     share = lambda left: dataclasses.replace(training, max_seconds=training_budget(
         args.max_seconds, time.perf_counter() - started, left))
     if len(seeds) > 1:
