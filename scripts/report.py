@@ -339,8 +339,11 @@ def _from_scratch(curve: list[dict]) -> bool:
 
 def _resumed(curve: list[dict]) -> bool:
   """Whether a run's curve (in iteration order) is the part of a run after a `--resume` in a
-  result file of its own: its first evaluation lies more than one evaluation interval past
-  iteration 0."""
+  result file of its own: its records say it started past iteration 0 (`start_iteration`,
+  recorded since 2026-11-29), or, in older records, its first evaluation lies more than one
+  evaluation interval past iteration 0."""
+  if "start_iteration" in curve[0]:
+    return curve[0]["start_iteration"] > 0
   # (Three rows at least: the first two then are regular evaluations, not a run's last row,
   # logged where a time budget stopped it. Fewer, or rows without iterations: a whole run.)
   if len(curve) < 3 or "iteration" not in curve[0] or "iteration" not in curve[1]:

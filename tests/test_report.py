@@ -597,6 +597,10 @@ def test_a_resumed_part_counts_once_and_for_the_thresholds_it_passes():
   stopped = [dict(r, iteration=i) for r, i in zip(part1, (10, 11))]
   assert [report._resumed(c) for c in (part1, part2, part2[:2], stopped)] == [
       False, True, False, False]
+  # Records since 2026-11-29 say where their process started; that wins over the rows.
+  said = lambda curve, start: [dict(r, start_iteration=start) for r in curve]
+  assert [report._resumed(c) for c in (said(part2[:2], 30), said(part2, 0), said(part1, 0))
+          ] == [True, False, False]
   summary = report.learning_summary([*part1, *part2])
   assert "| walker_walk | 1 | 940.0 (5.0M, h) | 200 s (2.0M, g) | 934.0 | 500 s (5.0M, h) |" in (
       summary), summary

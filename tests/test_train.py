@@ -469,7 +469,8 @@ def test_lean_checkpoints_hold_no_replay_and_resume(trainers, tmp_path):
   # The budget was spent before the runner started (seconds_before: demonstrations, a
   # demonstrator): it stops after iteration 1.
   row, = runner.run(CONFIG, str(run_dir), total, max_seconds=5.0, seconds_before=5.0,
-                    checkpoint_replay=False, eval_every=2, print_fn=quiet)
+                    checkpoint_replay=False, eval_every=2, print_fn=quiet,
+                    results_path=str(tmp_path / "first.jsonl"))
   assert row["iteration"] == 1
   ckpt_dir, config = str(run_dir / "checkpoints"), json.load(open(run_dir / "config.json"))
   full = trainers[1].init(jax.random.PRNGKey(0)[None])
@@ -499,10 +500,15 @@ def test_lean_checkpoints_hold_no_replay_and_resume(trainers, tmp_path):
     writer.writerows(logged)
   started = time.perf_counter()
   row, = runner.run(CONFIG, str(run_dir), total, resume=True, checkpoint_replay=False,
-                    eval_every=2, print_fn=quiet)
+                    eval_every=2, print_fn=quiet, results_path=str(tmp_path / "after.jsonl"))
   assert row["iteration"] == 2 and row["updates"] == 2 * CONFIG.updates_per_iteration
   assert np.isfinite(row["eval_return"])
   assert 100000.0 < row["wall_s"] <= 100000.0 + time.perf_counter() - started
+  # Each record says where its process started: the report tells a resumed part by it.
+  first, after = (results.run_records(str(tmp_path / f"{name}.jsonl"))
+                  for name in ("first", "after"))
+  assert [(r["iteration"], r["start_iteration"]) for r in first] == [(1, 0)]
+  assert [(r["iteration"], r["start_iteration"]) for r in after] == [(2, 1)]
 
 
 def test_expert_learns_reacher_easy():

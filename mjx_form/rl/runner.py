@@ -323,6 +323,7 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
            + (f" ({_LAYOUT_WORDS[trainer.layout]})"
               if trainer.members > 1 and trainer.mesh.devices.size > 1 else ""))
   start_iteration = int(state.iteration)
+  startup["start_iteration"] = start_iteration  # (> 0: a resumed run's later part)
   timed_steps, timed_seconds, eval_seconds = 0, 0.0, 0.0
   # Each member's last row; a run resumed at its end (no iteration left) keeps where it stopped.
   rows = [{"iteration": start_iteration, "env_steps": start_iteration * steps_per_iteration,
@@ -665,7 +666,8 @@ def _write_curve_point(writer: results.ResultWriter, trainer: Trainer, member: i
 
   `startup`: `startup_s`, this call's seconds before its first iteration,
   `persistent_cache_hits`, the programs it loaded from JAX's persistent compilation cache, and
-  `pre_training_s`, the command's seconds before this call (demonstrations, a demonstrator).
+  `pre_training_s`, the command's seconds before this call (demonstrations, a demonstrator),
+  and `start_iteration`, the iteration this call started from (0, or its checkpoint's).
   """
   settings = {**_record_settings(trainer, member, total_env_steps),
               "eval_episodes": eval_episodes}
