@@ -53,10 +53,9 @@ def load_expert(task: str, path: str):
 
 def mean_action_rollout(env, agent, key, episodes: int, probe):
   """One episode in each of `episodes` environments of `agent`'s (a loaded policy file's) mean
-  action, clipped to [-1, 1]: `probe(next_state)` of every step, stacked [T, K, ...], on the
-  host."""
+  action, clipped to the task's control range: `probe(next_state)` of every step, stacked
+  [T, K, ...], on the host."""
   import jax
-  import jax.numpy as jnp
   from mjx_form.files import experts
   from mjx_form.rl import normalizer
   from mjx_form.sim import env as env_lib
@@ -69,7 +68,7 @@ def mean_action_rollout(env, agent, key, episodes: int, probe):
 
     def step(states, _):
       pi = policy.apply(agent.params, normalizer.normalize(agent.normalizer, states.obs))
-      nxt = jax.vmap(env.step)(states, jnp.clip(pi.mode(), -1.0, 1.0))
+      nxt = jax.vmap(env.step)(states, env.clip_action(pi.mode()))
       return nxt, probe(nxt)
 
     return jax.lax.scan(step, states, None, length=env_lib.EPISODE_LENGTH)[1]

@@ -2,7 +2,7 @@
 in the simulator the tasks were ported from?
 
 For each task, the expert (`tasks/experts/<task>.npz`, or `--policy`) acts with its mean
-action (clipped to [-1, 1]) in `--episodes` episodes of dm_control's own environment (seeds
+action (clipped to the action spec's bounds, what MuJoCo clamps it to) in `--episodes` episodes of dm_control's own environment (seeds
 `--seed`, `--seed` + 1, ...; its observation dict flattened in the task's declared layout,
 checked against dm_control's spec), and in as many of our MJX episodes on this machine, same
 policy and episode length. One `kind: expert_transfer` record per task: both returns, their
@@ -53,11 +53,13 @@ def flat_observations(time_steps) -> np.ndarray:
                   ).astype(np.float32)
 
 
-def mean_action_fn(expert: experts.Expert, action_size: int):
-  """Jitted [K, D] raw observations -> [K, A] clipped mean actions of the expert's policy."""
-  policy = experts.policy_network(expert.metadata, action_size)
+def mean_action_fn(expert: experts.Expert, low: np.ndarray, high: np.ndarray):
+  """Jitted [K, D] raw observations -> [K, A] mean actions of the expert's policy, clipped to
+  [low, high] [A] (the action spec's bounds)."""
+  policy = experts.policy_network(expert.metadata, len(low))
   return jax.jit(lambda obs: jnp.clip(
-      policy.apply(expert.params, normalizer.normalize(expert.normalizer, obs)).mode(), -1, 1))
+      policy.apply(expert.params, normalizer.normalize(expert.normalizer, obs)).mode(),
+      low, high))
 
 
 def set_start(dm_env, qpos: np.ndarray, qvel: np.ndarray, act: np.ndarray, task: dict):
@@ -81,7 +83,10 @@ def dm_control_returns(task: str, expert: experts.Expert, layout: dict[str, int]
   theirs = dm_control_layout(envs[0])
   if list(theirs.items()) != list(dict(layout).items()):  # order matters
     raise LayoutError(f"{task}: dm_control observes {theirs}, our task declares {dict(layout)}")
-  act = mean_action_fn(expert, action_size)
+  spec = envs[0].action_spec()
+  if spec.shape != (action_size,):
+    raise LayoutError(f"{task}: dm_control's actions have shape {spec.shape}, ours ({action_size},)")
+  act = mean_action_fn(expert, spec.minimum.astype(np.float32), spec.maximum.astype(np.float32))
   time_steps = [env.reset() for env in envs]
   if starts is not None:
     time_steps = [ts._replace(observation=set_start(

@@ -2,8 +2,10 @@
 
 The return stored in an expert file is the best of its training evaluations (32 episodes): the
 maximum of noisy estimates, biased upwards. This script evaluates each policy afresh, with its
-mean action (clipped to [-1, 1]) over `--episodes` full episodes (default 1000, the number of
-demonstrations FORM records), and appends one `kind: expert_eval` record per task: mean,
+mean action (clipped to the task's control range, as the simulator clamps it: [-1, 1] but for
+quadruped's lift actuators, to 1.1, and its extenders, to 0.8; until 2026-11-29 it clipped to
+[-1, 1], below the range quadruped's policies train and act in) over `--episodes` full episodes
+(default 1000, the number of demonstrations FORM records), and appends one `kind: expert_eval` record per task: mean,
 standard deviation, standard error, min and max return, the paper's expert return and
 whether the mean reaches the experts issue's bar (0.95x, `mjx_form.paper`).
 

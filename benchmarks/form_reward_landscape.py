@@ -67,7 +67,7 @@ def rollout(env, agent, noise, key, episodes):
         action = jax.random.uniform(key, (episodes, env.action_size), minval=-1, maxval=1)
       else:
         action = pi.mode() + noise * jax.random.normal(key, pi.mode().shape)
-      nxt = jax.vmap(env.step)(states, jnp.clip(action, -1.0, 1.0))
+      nxt = jax.vmap(env.step)(states, env.clip_action(action))
       return nxt, (states.obs, nxt.reward, pi.mode(), pi.scale)
 
     final, (obs, rewards, means, scales) = jax.lax.scan(

@@ -61,8 +61,9 @@ def draw_starts(env: env_lib.Task, key: jax.Array, episodes: int, dimension: int
 
 def mjx_returns(env: env_lib.Task, expert: experts.Expert, starts: dict,
                 steps: int = env_lib.EPISODE_LENGTH) -> np.ndarray:
-  """[K] returns of the expert's mean action (clipped to [-1, 1]) from `starts` in `env`."""
-  act = dm_control_transfer.mean_action_fn(expert, env.action_size)  # the same policy as there
+  """[K] returns of the expert's mean action (clipped to the control range) from `starts` in
+  `env`."""
+  act = dm_control_transfer.mean_action_fn(expert, *env.action_bounds)  # the policy as there
 
   @jax.jit
   def run(qpos, qvel, actuation, task):

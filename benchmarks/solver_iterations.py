@@ -87,9 +87,8 @@ def policy_for(env, use_expert: bool):
   if use_expert and env.name in tasks.bundled_experts():
     expert = experts.load_expert(tasks.bundled_expert(env.name), env)
     net = experts.policy_network(expert.metadata, env.action_size)
-    return (lambda obs, key: jnp.clip(net.apply(
-        expert.params, normalizer.normalize(expert.normalizer, obs)).mode(), -1.0, 1.0),
-        "expert")
+    return (lambda obs, key: env.clip_action(net.apply(
+        expert.params, normalizer.normalize(expert.normalizer, obs)).mode()), "expert")
   return (lambda obs, key: jax.random.uniform(key, (obs.shape[0], env.action_size),
                                               minval=-1.0, maxval=1.0), "random")
 

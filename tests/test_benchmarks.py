@@ -369,6 +369,26 @@ def test_recorded_actions_follow_the_actors_correlated_noise():
     experts.record(env, expert, key, 2, noise_correlation=0.9)
 
 
+def test_recorded_actions_are_the_mean_clipped_to_the_control_range(monkeypatch):
+  """experts.record applies and records the mean action clipped to the task's control range
+  (`Task.action_bounds`: MuJoCo clamps to it, and a run's actors and evaluations act in it),
+  not to [-1, 1] (quadruped's lift actuators go to 1.1). Here the range is narrowed so that
+  the expert's means leave it on both sides."""
+  import jax
+  import tasks
+  from mjx_form.files import experts
+  from mjx_form.rl import normalizer
+  env = tasks.make("reacher_easy")
+  low, high = np.array([-0.05, -0.03], np.float32), np.array([0.02, 0.04], np.float32)
+  monkeypatch.setattr(type(env), "action_bounds", property(lambda self: (low, high)))
+  expert = experts.load_expert(tasks.bundled_expert("reacher_easy"), env)
+  obs, actions, _ = experts.record(env, expert, jax.random.PRNGKey(5), 3)
+  mean = np.asarray(experts.policy_network(expert.metadata, env.action_size).apply(
+      expert.params, normalizer.normalize(expert.normalizer, obs[:, :-1])).mode())
+  np.testing.assert_allclose(actions, np.clip(mean, low, high), atol=1e-5)
+  assert (actions == low).any() and (actions == high).any()  # (clipped on both sides)
+
+
 def test_multi_device_compile_checks_each_program_in_its_own_process(tmp_path, capsys):
   """benchmarks/multi_device_compile.py on 2 forced host devices: each program compiled and
   run in a child process, one line and one record each; a child's death by a signal is named

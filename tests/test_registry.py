@@ -44,6 +44,10 @@ def test_specs_and_model_match_dm_control(name):
   assert env.n_substeps == dm_env._n_sub_steps == substeps
   assert env.control_timestep == pytest.approx(dm_env.control_timestep()) == pytest.approx(control_dt)
   assert env.action_size == dm_env.action_spec().shape[0] == act_dims
+  # The control range MuJoCo clamps actions to is the action spec's (quadruped's is not [-1, 1]).
+  low, high = env.action_bounds
+  np.testing.assert_array_equal(low, dm_env.action_spec().minimum.astype(np.float32))
+  np.testing.assert_array_equal(high, dm_env.action_spec().maximum.astype(np.float32))
   dm_layout = {k: int(np.prod(v.shape)) for k, v in dm_env.observation_spec().items()}
   assert list(env.observation_layout.items()) == list(dm_layout.items())  # names, sizes, order
   assert env.observation_size == obs_dims

@@ -80,10 +80,11 @@ def record(env: env_lib.Task, expert: Expert, key: jax.Array, episodes: int,
            ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
   """`episodes` full episodes of the expert, in parallel on the device.
 
-  Returns observations [K, T+1, D], actions [K, T, A] (clipped to [-1, 1], what the simulator
-  applied) and task returns [K]. Actions are the policy's mean unless `stochastic`, then
-  sampled with noise correlated in time by `noise_correlation` as a training run's actors
-  sample them (`TrainConfig.action_noise_correlation`; 0: independent draws).
+  Returns observations [K, T+1, D], actions [K, T, A] (clipped to the task's control range,
+  `Task.action_bounds`: what the simulator applied) and task returns [K]. Actions are the
+  policy's mean unless `stochastic`, then sampled with noise correlated in time by
+  `noise_correlation` as a training run's actors sample them
+  (`TrainConfig.action_noise_correlation`; 0: independent draws).
   """
   if noise_correlation and not stochastic:
     raise ValueError("noise_correlation applies to sampled actions only (stochastic=True)")
@@ -111,7 +112,9 @@ def _rollout_fn(env: env_lib.Task, policy: GaussianPolicy, episodes: int, stocha
         action, noise = pi.sample_correlated(key, noise, noise_correlation)
       else:
         action = pi.mode()
-      action = jnp.clip(action, -1.0, 1.0)
+      # (the control range, as MuJoCo clamps it and a run's actors and evaluations act; not
+      # [-1, 1]: quadruped's lift actuators go to 1.1)
+      action = env.clip_action(action)
       next_states = jax.vmap(env.step)(states, action)
       return (next_states, noise), (states.obs, action, next_states.reward)
 

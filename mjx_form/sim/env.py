@@ -26,6 +26,16 @@ from mjx_form.sim import physics as physics_lib
 EPISODE_LENGTH = 1000  # control steps; no Control Suite task terminates early
 
 
+def action_bounds(model: mujoco.MjModel) -> tuple[np.ndarray, np.ndarray]:
+  """([A], [A]) float32: the range MuJoCo clamps each actuator's control to, its `ctrlrange`
+  where it is control-limited, -inf / inf where not. dm_control's action_spec gives the same
+  bounds; most tasks' are [-1, 1], quadruped's lift actuators go to 1.1, its extenders to 0.8."""
+  limited = model.actuator_ctrllimited.astype(bool)
+  low = np.where(limited, model.actuator_ctrlrange[:, 0], -np.inf).astype(np.float32)
+  high = np.where(limited, model.actuator_ctrlrange[:, 1], np.inf).astype(np.float32)
+  return low, high
+
+
 def observation_names(layout: dict[str, int]) -> list[str]:
   """One name per flat observation dimension of `layout` ({'position': 8, 'height': 1, ...}):
   'height' for a size-1 element, 'position[1]' for the second entry of a larger one."""
@@ -122,6 +132,17 @@ class Task(abc.ABC):
   @property
   def action_size(self) -> int:
     return self.mj_model.nu
+
+  @property
+  def action_bounds(self) -> tuple[np.ndarray, np.ndarray]:
+    """([A], [A]): the control range MuJoCo clamps actions to (`action_bounds`)."""
+    return action_bounds(self.mj_model)
+
+  def clip_action(self, action: jax.Array) -> jax.Array:
+    """Actions [..., A] clipped to `action_bounds`: what the simulator applies (`step` gives
+    the same transition either way; the clipped action is what to record or show)."""
+    low, high = self.action_bounds
+    return jnp.clip(action, low, high)
 
   @property
   def observation_size(self) -> int:
