@@ -145,7 +145,7 @@ def main(argv=None) -> int:
   for i, (name, noise, agent) in enumerate(behaviours):
     obs, returns, means, scales = rollout(env, agent, noise, jax.random.PRNGKey(i),
                                           args.episodes)
-    # The policy's mean beyond the action bounds (what the environment clips), and its scale.
+    # The policy's mean outside [-1, 1] (the control range but for quadruped's), and its scale.
     policy_stats = {} if noise is None else {
         "mean_out_of_bounds": float(np.mean(np.abs(means) > 1.0)),
         "policy_scale_median": float(np.median(scales))}

@@ -62,7 +62,7 @@ def iterations_at(m: mjx.Model, d: mjx.Data) -> tuple[jax.Array, jax.Array]:
 def rollout_counts(env, policy_fn, num_envs: int, steps: int, key: jax.Array
                    ) -> tuple[np.ndarray, np.ndarray]:
   """Iterations [steps, num_envs] and line-search passes [steps, num_envs, opt.iterations]
-  along an auto-reset rollout; `policy_fn(obs, key)` gives actions in [-1, 1]."""
+  along an auto-reset rollout; `policy_fn(obs, key)` gives actions in the control range."""
   auto = AutoReset(env)
 
   @jax.jit

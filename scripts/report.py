@@ -431,7 +431,9 @@ def learning_table(records: list[dict], threshold: float = 800.0) -> str:
            f"task return of {_eval_episodes(runs)} full episodes (a run's `--eval_envs`) "
            f"with the "
            f"policy's mean action. Wall clock includes compilation (and each restart's "
-           f"compilation where a run was continued with --resume); start-up: its part before the "
+           f"compilation where a run was continued with --resume; a resumed run's part in a "
+           f"result file of its own says when it passed the threshold \"in this part\", which "
+           f"an earlier part may have passed before); start-up: its part before the "
            f"first iteration (building, tracing, compiling; `cached`: programs loaded from JAX's "
            f"persistent compilation cache), recorded since 2026-11-22. First episodes: `lockstep` "
            f"= all environments started together, `staggered` = at random phases (see "
@@ -448,8 +450,8 @@ def learning_table(records: list[dict], threshold: float = 800.0) -> str:
     reached = next((r for r in curve if r["eval_return"] >= threshold), None)
     first = (f"{_duration(reached['wall_s'])} ({reached['env_steps'] / 1e6:.1f}M)" if reached
              else "not reached")
-    if reached is curve[0] and _resumed(curve):
-      first = "before this part"  # (passed in the part before the resume)
+    if reached is not None and _resumed(curve):  # (an earlier part may have passed it)
+      first = "before this part" if reached is curve[0] else f"in this part: {first}"
     settings = last["settings"]
     physics = [f"{last['physics']} physics"] if last.get("physics", "fast") != "fast" else []
     notes = ", ".join(physics + _learner_notes(last, with_penalty=False))  # (its own column)

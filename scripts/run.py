@@ -182,6 +182,7 @@ def parse_args(argv=None) -> argparse.Namespace:
   train.add_argument("--clip_critic_actions", action=argparse.BooleanOptionalAction,
                      default=None,
                      help="the critic sees clip(a, -1, 1), the action the environment applies "
+                          "where its control range is [-1, 1] (every task but quadruped's) "
                           "(Acme's control-suite MPO), or tanh of the unclipped sample, as the "
                           "paper (default: see --preset)")
   train.add_argument("--epsilon_scale", type=float, default=None, metavar="E",

@@ -387,6 +387,15 @@ def test_recorded_actions_are_the_mean_clipped_to_the_control_range(monkeypatch)
       expert.params, normalizer.normalize(expert.normalizer, obs[:, :-1])).mode())
   np.testing.assert_allclose(actions, np.clip(mean, low, high), atol=1e-5)
   assert (actions == low).any() and (actions == high).any()  # (clipped on both sides)
+  # The benchmarks' rollouts act in the same range: what they write to the simulator's ctrl,
+  # and dm_control_transfer's (and same_starts') policy for the bounds it is given.
+  common = load_script("common", folder="benchmarks")
+  ctrl = common.mean_action_rollout(env, expert, jax.random.PRNGKey(5), 3,
+                                    lambda state: state.data.ctrl)  # [T, K, A]
+  assert (ctrl >= low).all() and (ctrl <= high).all()
+  assert (ctrl == low).any() and (ctrl == high).any()
+  act = load_script("dm_control_transfer", folder="benchmarks").mean_action_fn(expert, low, high)
+  np.testing.assert_allclose(act(obs[:, 0]), np.clip(mean[:, 0], low, high), atol=1e-5)
 
 
 def test_multi_device_compile_checks_each_program_in_its_own_process(tmp_path, capsys):

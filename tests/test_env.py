@@ -243,3 +243,26 @@ def test_observation_names_name_each_dimension_in_layout_order():
       "orientations[0]", "orientations[1]", "height", "velocity[0]", "velocity[1]"]
   layout = tasks.make("cheetah_run").observation_layout
   assert len(env_lib.observation_names(layout)) == sum(layout.values())
+
+
+@pytest.mark.parametrize("clamp", ["enable", "disable"])
+def test_action_bounds_are_what_mujoco_clamps_controls_to(clamp):
+  """env.action_bounds against MuJoCo itself: a limited actuator's force is its control clamped
+  to the bounds, an unlimited one's (or any, with clamping disabled) the control as given."""
+  import mujoco
+  xml = f"""<mujoco><option><flag clampctrl="{clamp}"/></option>
+    <worldbody><body><joint name="j" type="hinge"/><geom size=".1" mass="1"/></body></worldbody>
+    <actuator><motor joint="j" ctrlrange="-1 1.1" ctrllimited="true"/>
+      <motor joint="j" ctrlrange="-.8 .8" ctrllimited="true"/>
+      <motor joint="j" ctrllimited="false"/></actuator></mujoco>"""
+  model = mujoco.MjModel.from_xml_string(xml)
+  low, high = env_lib.action_bounds(model)
+  data = mujoco.MjData(model)
+  for ctrl in ([5.0, 5.0, 5.0], [-5.0, -5.0, -5.0], [0.3, -0.2, 0.1]):
+    data.ctrl[:] = ctrl
+    mujoco.mj_forward(model, data)
+    np.testing.assert_allclose(data.actuator_force, np.clip(ctrl, low, high), rtol=1e-6)
+  expected = ([-1, -0.8, -np.inf], [1.1, 0.8, np.inf]) if clamp == "enable" else (
+      [-np.inf] * 3, [np.inf] * 3)
+  np.testing.assert_array_equal(low, np.float32(expected[0]))
+  np.testing.assert_array_equal(high, np.float32(expected[1]))

@@ -601,6 +601,9 @@ def test_a_resumed_part_counts_once_and_for_the_thresholds_it_passes():
   said = lambda curve, start: [dict(r, start_iteration=start) for r in curve]
   assert [report._resumed(c) for c in (said(part2[:2], 30), said(part2, 0), said(part1, 0))
           ] == [True, False, False]
+  # (a run begun before the field, resumed after it into the same file: its first rows decide)
+  assert report._resumed([*part1, *said(part2, 30)]) is False
+  assert report._resumed([*said(part1, 0)[:1], *part2]) is False
   summary = report.learning_summary([*part1, *part2])
   assert "| walker_walk | 1 | 940.0 (5.0M, h) | 200 s (2.0M, g) | 934.0 | 500 s (5.0M, h) |" in (
       summary), summary
@@ -611,6 +614,11 @@ def test_a_resumed_part_counts_once_and_for_the_thresholds_it_passes():
           if line.startswith("| walker_walk")]
   assert [("before this part" in line, "200 s (2.0M)" in line) for line in rows] == [
       (False, True), (True, False)], rows
+  # A resumed part that dips under a threshold and passes it again: "in this part".
+  dipped = [dict(r, eval_return=v) for r, v in zip(part2, (790.0, 820.0, 930.0))]
+  row, = [line for line in report.learning_table(dipped).splitlines()
+          if line.startswith("| walker_walk")]
+  assert "| in this part: 500 s (5.0M) |" in row, row
 
 
 def test_expert_runs_tell_members_apart_by_every_grid_setting():

@@ -38,9 +38,11 @@ class LearnerConfig:
   learning_rate: float = 1e-4
   dual_learning_rate: float = 1e-3
   max_grad_norm: float = 40.0  # Acme's MPO clips gradients at 40 (not stated in the paper)
-  # The critic sees clip(a, -1, 1), the action the environment applies, as Acme's control-suite
-  # MPO does (`ClipToSpec`); off: the paper's critic sees tanh of the unclipped sample, so two
-  # actions the environment cannot tell apart get different values.
+  # The critic sees clip(a, -1, 1), the action the environment applies where its control range
+  # is [-1, 1] (every task but quadruped's: its lift actuators go to 1.1, its extenders to 0.8,
+  # `Task.action_bounds`), as Acme's control-suite MPO does (`ClipToSpec`); off: the paper's
+  # critic sees tanh of the unclipped sample, so two actions the environment cannot tell apart
+  # get different values.
   clip_critic_actions: bool = False
   # The target critic's Q of the sampled actions (20 per state: half of an update's time on a
   # GPU) computed in bfloat16 instead of float32 (`sampled_q`); off: the paper's precision.

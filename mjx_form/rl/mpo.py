@@ -16,7 +16,8 @@ and KL_scale = mean_s KL(target || N(mu_target, sigma)), both [A] with per-dimen
 
 Action penalty (optional, `MPOConfig.action_penalty`; on by default in Acme's MPO, which
 recommends it for the control suite; the paper does not say): a second objective, the cost
-c_i = -||a_i - clip(a_i, -1, 1)||, gets its own E-step with temperature eta_p and bound
+c_i = -||a_i - clip(a_i, -1, 1)|| (the bounds [-1, 1], every task's control range but
+quadruped's, `Task.action_bounds`), gets its own E-step with temperature eta_p and bound
 epsilon_penalty (multi-objective MPO, Abdolmaleki et al., 2020); its weights are added to w and
 its dual loss to the temperature's. Without it a Gaussian policy whose actions are clipped by
 the environment can drift its mean far outside [-1, 1], where every sample saturates: the
@@ -184,7 +185,9 @@ def mpo_loss(duals: MPODuals, online: DiagonalGaussian, target: DiagonalGaussian
       "q_max": jnp.mean(jnp.max(q_values, axis=0)),
       "scale_mean": jnp.mean(online.scale),
       "entropy": jnp.mean(online.entropy()),
-      # Saturation: parts of sampled actions, and of the policy's mean, outside [-1, 1].
+      # Saturation: parts of sampled actions, and of the policy's mean, outside [-1, 1] (the
+      # control range of every task but quadruped's, whose lift actuators go to 1.1 and
+      # extenders to 0.8: there these shares are of [-1, 1], not of what MuJoCo clamps).
       "sampled_out_of_bounds": jnp.mean(out_of_bounds != 0),
       "mean_out_of_bounds": jnp.mean(jnp.abs(online.mean) > 1.0),
       **penalty_metrics,

@@ -3,7 +3,9 @@
 Encoder: linear 256, optional LayerNorm, tanh, then optional hidden layers of 256 with ELU.
 Policy:  encoder (LayerNorm, one hidden layer) -> diagonal Gaussian; its head (`POLICY_HEADS`)
          is the paper's (mean unbounded, scale softplus + 1e-4) or Acme's control-suite MPO
-         head (mean tanh-bounded to the action bounds, scale at least 0.3).
+         head (mean tanh-bounded to (-1, 1), scale at least 0.3; Acme rescales each task's
+         action spec to [-1, 1] first, this repository does not: quadruped's lift actuators,
+         whose range goes to 1.1, stay below 1 with it).
 Critic:  encoder (LayerNorm, one hidden layer) of the observation, concatenated with
          tanh(action) -> linear 256, LayerNorm, tanh -> 3 layers of 256 with ELU -> scalar.
          The linear layer on the concatenation runs split (`ConcatDense`), so that with N
@@ -52,8 +54,8 @@ class PolicyHead:
 
 
 POLICY_HEADS = {
-    # The paper's: the mean may leave [-1, 1] (the environment clips the action), the scale may
-    # shrink to 1e-4.
+    # The paper's: the mean may leave [-1, 1] (the environment clamps the action to its control
+    # range), the scale may shrink to 1e-4.
     "paper": PolicyHead(),
     # Acme's control-suite MPO/DMPO head (`MultivariateNormalDiagHead(tanh_mean=True,
     # min_scale=0.3, init_scale=0.7)`): the mean stays in the bounds, the scale at 0.3 or more

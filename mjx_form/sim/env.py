@@ -28,9 +28,13 @@ EPISODE_LENGTH = 1000  # control steps; no Control Suite task terminates early
 
 def action_bounds(model: mujoco.MjModel) -> tuple[np.ndarray, np.ndarray]:
   """([A], [A]) float32: the range MuJoCo clamps each actuator's control to, its `ctrlrange`
-  where it is control-limited, -inf / inf where not. dm_control's action_spec gives the same
-  bounds; most tasks' are [-1, 1], quadruped's lift actuators go to 1.1, its extenders to 0.8."""
+  where it is control-limited, -inf / inf where not (or where the model disables clamping).
+  dm_control's action_spec gives the same bounds (+-mjMAXVAL where unlimited; every task's
+  actuators are limited): [-1, 1] but for quadruped's lift actuators, to 1.1, and extenders,
+  to 0.8."""
   limited = model.actuator_ctrllimited.astype(bool)
+  if model.opt.disableflags & mujoco.mjtDisableBit.mjDSBL_CLAMPCTRL:
+    limited = np.zeros_like(limited)
   low = np.where(limited, model.actuator_ctrlrange[:, 0], -np.inf).astype(np.float32)
   high = np.where(limited, model.actuator_ctrlrange[:, 1], np.inf).astype(np.float32)
   return low, high
@@ -139,8 +143,9 @@ class Task(abc.ABC):
     return action_bounds(self.mj_model)
 
   def clip_action(self, action: jax.Array) -> jax.Array:
-    """Actions [..., A] clipped to `action_bounds`: what the simulator applies (`step` gives
-    the same transition either way; the clipped action is what to record or show)."""
+    """Actions [..., A] clipped to `action_bounds`: what the simulator applies, the action to
+    record or show. (`step` of either gives the same physics; the tasks' control costs,
+    hopper's and humanoid's, are 0 at and beyond their bounds, so the same reward too.)"""
     low, high = self.action_bounds
     return jnp.clip(action, low, high)
 
