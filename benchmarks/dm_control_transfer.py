@@ -2,8 +2,9 @@
 in the simulator the tasks were ported from?
 
 For each task, the expert (`tasks/experts/<task>.npz`, or `--policy`) acts with its mean
-action (clipped to the action spec's bounds, what MuJoCo clamps it to) in `--episodes` episodes of dm_control's own environment (seeds
-`--seed`, `--seed` + 1, ...; its observation dict flattened in the task's declared layout,
+action (clipped to the action spec's bounds, what MuJoCo clamps it to; until 2026-11-29 to
+[-1, 1]) in `--episodes` episodes of dm_control's own environment (seeds `--seed`, `--seed` +
+1, ...; its observation dict flattened in the task's declared layout,
 checked against dm_control's spec), and in as many of our MJX episodes on this machine, same
 policy and episode length. One `kind: expert_transfer` record per task: both returns, their
 ratio, and the expert's return at export. The target (issue: experts on all tasks): dm_control
@@ -85,8 +86,9 @@ def dm_control_returns(task: str, expert: experts.Expert, layout: dict[str, int]
     raise LayoutError(f"{task}: dm_control observes {theirs}, our task declares {dict(layout)}")
   spec = envs[0].action_spec()
   if spec.shape != (action_size,):
-    raise LayoutError(f"{task}: dm_control's actions have shape {spec.shape}, ours ({action_size},)")
-  act = mean_action_fn(expert, spec.minimum.astype(np.float32), spec.maximum.astype(np.float32))
+    raise LayoutError(f"{task}: dm_control's actions have shape {spec.shape}, ours "
+                      f"({action_size},)")
+  act = mean_action_fn(expert, *(np.asarray(b, np.float32) for b in (spec.minimum, spec.maximum)))
   time_steps = [env.reset() for env in envs]
   if starts is not None:
     time_steps = [ts._replace(observation=set_start(

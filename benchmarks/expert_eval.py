@@ -2,12 +2,13 @@
 
 The return stored in an expert file is the best of its training evaluations (32 episodes): the
 maximum of noisy estimates, biased upwards. This script evaluates each policy afresh, with its
-mean action (clipped to the task's control range, as the simulator clamps it: [-1, 1] but for
-quadruped's lift actuators, to 1.1, and its extenders, to 0.8; until 2026-11-29 it clipped to
-[-1, 1], below the range quadruped's policies train and act in) over `--episodes` full episodes
-(default 1000, the number of demonstrations FORM records), and appends one `kind: expert_eval` record per task: mean,
-standard deviation, standard error, min and max return, the paper's expert return and
-whether the mean reaches the experts issue's bar (0.95x, `mjx_form.paper`).
+mean action (clipped to the task's control range, as the simulator clamps it: [-1, 1] but
+for quadruped's lift actuators, to 1.1, and its extenders, to 0.8; until 2026-11-29 it
+clipped to [-1, 1], below the range quadruped's policies train and act in) over `--episodes`
+full episodes (default 1000, the number of demonstrations FORM records), and appends one
+`kind: expert_eval` record per task: mean, standard deviation, standard error, min and max
+return, the paper's expert return and whether the mean reaches the experts issue's bar (0.95x,
+`mjx_form.paper`).
 
   python benchmarks/expert_eval.py                              # every shipped expert
   python benchmarks/expert_eval.py --tasks walker_walk --policy runs/ww/seed0/best_policy.npz
@@ -17,15 +18,17 @@ observation (`--bins` equal-width bins between its smallest and largest value; n
 task's observation layout gives them, e.g. `position[1]`, hopper's initial pitch rooty): which
 starts the policy does well from, and how much it explores there (its Gaussian's mean scale
 along those episodes, the share of actions whose mean lies 2 scales beyond [-1, 1], and the
-chance that a sample leaves [-1, 1]).
+chance that a sample leaves [-1, 1]: of [-1, 1], the policy's nominal range and every task's
+control range but quadruped's, as the learner's saturation shares are).
 
   python benchmarks/expert_eval.py --tasks hopper_stand --policy runs/hs/policy.npz \
     --episodes 1024 --by_start "position[1]" --bins 8
 
 The split also gives the share of each bin's episodes with any reward (`rewarded`). With
-`--stochastic` the actions are sampled from the policy's Gaussian (clipped, as the learner's
-actors act) instead of its mean: how often the policy's exploration finds reward, and from where;
-`--action_noise_correlation C` samples them as a run with that setting does.
+`--stochastic` the actions are sampled from the policy's Gaussian (clipped to the control
+range, as MuJoCo clamps the actors' actions) instead of its mean: how often the policy's
+exploration finds reward, and from where; `--action_noise_correlation C` samples them as a run
+with that setting does.
 
 `--by_turn` splits the returns by whether one of the task's raw unbounded angles
 (`Task.periodic_observations`: reacher's shoulder, hopper's and cheetah's pitch) leaves
@@ -120,7 +123,8 @@ def exploration(mean: np.ndarray, scale: np.ndarray) -> dict[str, np.ndarray]:
   [K, T, A] at the visited states: `policy_scale` [K], the mean scale; `beyond_bounds` [K],
   the share of steps and action dimensions whose mean lies more than 2 scales outside [-1, 1]
   (there 98% of the samples clip to the same bound: that dimension explores next to nothing);
-  `clipped` [K], the probability that a sample leaves [-1, 1] (the environment clips it),
+  `clipped` [K], the probability that a sample leaves [-1, 1] (the control range but for
+  quadruped's),
   averaged over steps and dimensions: comparable between policy heads, where a tanh-bounded
   mean is never beyond the bounds."""
   beyond = (np.abs(mean) - 1.0) > 2.0 * scale
