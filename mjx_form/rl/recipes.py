@@ -81,8 +81,9 @@ PER_TASK: dict[str, dict] = {
     # steps/s per member), seeds 0-2 to 24.9M steps (22.6 min): every seed's first evaluation
     # >= 923.8 at 15.4-18.4M steps (14.4-17.0 min), fresh finals 925.0 / 930.9 / 912.8 over
     # 512 episodes (2026-11-26_learning_curve_h200_quadruped_walk_t25_clip_bf16_fast_ls4_
-    # seeds012). Seed 1's final policy is the shipped expert: 935.5 +- 0.9 (s.e.) over 1024
-    # fresh CPU episodes, 924.5 from starts on its back (2026-11-26_expert_eval_cpu_...).
+    # seeds012). Seed 1's final policy is the shipped expert: 931.4 +- 1.0 (s.e.) over 1024
+    # fresh CPU episodes in its control range (2026-11-29_expert_eval_cpu_quadruped_walk_
+    # fast_ls4_seed1_final_control_range; 935.5 with its actions clipped to [-1, 1], 2026-11-26).
     "quadruped_walk": {"target_update_period": 25, "clip_critic_actions": True,
                        "sampled_q_bfloat16": True},
     # quadruped_run. quadruped_walk's recipe levels off at ~420-720 (fast_ls4, 512 envs: 486 /
@@ -99,8 +100,10 @@ PER_TASK: dict[str, dict] = {
     # its lean checkpoint in the next to 26.2M: seed 0 first >= 914.8 at 19.5M (31.2 min of
     # wall clock over both), fresh final 937.8, seeds 1-2 flat at 813.5 / 708.9 (2026-11-29_
     # learning_curve_h200_quadruped_run_recipe_seeds012_26m_resumed). Seed 0's best policy is
-    # the shipped expert: 935.7 +- 0.6 (s.e.) over 1024 fresh CPU episodes, >= 924 from every
-    # start bin; dm_control 937.1 against MJX 935.9 over 64 episodes.
+    # the shipped expert: 941.8 +- 0.7 (s.e.) over 1024 fresh CPU episodes in its control
+    # range (935.7 clipped to [-1, 1]); dm_control 946.0 against MJX 940.7 over 64 episodes.
+    # (The critic's clip, `clip_critic_actions`, is [-1, 1]; quadruped's lift actuators go to
+    # 1.1: a critic clipping to the control range is unmeasured.)
     "quadruped_run": {"target_update_period": 25, "clip_critic_actions": True,
                       "sampled_q_bfloat16": True, "epsilon_scale": 1e-6},
     # reacher_hard. The paper's settings at 512 envs x 64 updates: first evaluation >= 932.2
