@@ -876,6 +876,16 @@ def scaling_summary(records: list[dict]) -> str:
   return "\n".join(lines)
 
 
+def _updates(record: dict) -> str:
+  """A run's learner updates per iteration and its replay ratio (updates x batch / envs):
+  e.g. '512 (64)'; '-' where its record does not say."""
+  settings = record.get("settings", {})
+  if "updates_per_iteration" not in settings:
+    return "-"
+  ratio = settings.get("replay_ratio")
+  return f"{settings['updates_per_iteration']}" + ("" if ratio is None else f" ({ratio:g})")
+
+
 def form_table(records: list[dict], expert_returns: dict[str, float] | None = None,
                demonstration_returns: dict[str, float] | None = None,
                best_per_task: bool = False,
@@ -902,21 +912,22 @@ def form_table(records: list[dict], expert_returns: dict[str, float] | None = No
     demonstration_returns = _demonstration_returns()
   if shipped_demonstrators is None:
     shipped_demonstrators = {meta["sha256"] for meta in _demonstrator_metadata((DEMONSTRATORS,))}
-  newest = _newest(rows, lambda r: (r["task"], r["physics"], r["num_envs"], r["env_steps"],
-                                    r.get("learner_preset"), r["device"], _form_variant(r),
-                                    r.get("_file", ""), r["seed"], r["policy"]))
+  newest = _newest(rows, lambda r: (r["task"], r["physics"], r["num_envs"], _updates(r),
+                                    r["env_steps"], r.get("learner_preset"), r["device"],
+                                    _form_variant(r), r.get("_file", ""), r["seed"],
+                                    r["policy"]))
   groups: dict[tuple, dict[str, list[dict]]] = {}
   for key, r in newest.items():
-    groups.setdefault(key[:8], {}).setdefault(r["policy"], []).append(r)
+    groups.setdefault(key[:9], {}).setdefault(r["policy"], []).append(r)
   groups = {key: g for key, g in groups.items() if g.get("final")}
   configurations = {task: sum(key[0] == task for key in groups) for task, *_ in groups}
   if best_per_task:
     def rank(key):
       final = groups[key]["final"]
-      default = key[6] == _default_form_variant(key[0])
+      default = key[7] == _default_form_variant(key[0])
       shipped = all(r.get("settings", {}).get("reward", {}).get("demonstrator_sha256")
                     in shipped_demonstrators for r in final)
-      return (len(final) >= 2, key[5].startswith("gpu"), shipped, default,
+      return (len(final) >= 2, key[6].startswith("gpu"), shipped, default,
               len(final) if default else 0,
               _mean_std([r["final_return"] for r in final])[0])
     groups = {key: groups[key] for key in (max((k for k in groups if k[0] == task), key=rank)
@@ -946,18 +957,21 @@ def form_table(records: list[dict], expert_returns: dict[str, float] | None = No
            "default), `clipped at c sd` = `--reward_clip c` (the default 3); T = the learner's "
            "target period (the paper's is 200; the default 25); `sampled Q in bf16` = "
            "`--sampled_q_bfloat16` (the default; else float32, the paper's); ar, L2: "
-           "the effect models' beta_ar and L2 weight" + (
+           "the effect models' beta_ar and L2 weight; updates / iteration: the learner's "
+           "updates per iteration of envs x unroll length env steps, the replay ratio (updates x "
+           "batch / envs) beside it" + (
                "; configurations: how many the task has" if best_per_task else "") + ":",
            "",
-           "| task | device | physics | envs | reward, T, effect models | seeds | episodes / seed | env steps "
+           "| task | device | physics | envs | updates / iteration (replay ratio) | "
+           "reward, T, effect models | seeds | episodes / seed | env steps "
            "| wall clock (mean) | FORM return | best policy | by log pD | average policy | "
            "average by log pD | expert | "
            "fraction | "
            "paper's fraction |" + (" configurations |" if best_per_task else ""),
-           "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"
+           "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"
            + ("---|" if best_per_task else "")]
-  for key in sorted(groups, key=lambda k: (_order(k[0]), k[2], k[3], str(k))):
-    task, physics, num_envs, env_steps, _, device, variant, _ = key
+  for key in sorted(groups, key=lambda k: (_order(k[0]), k[2], k[4], str(k))):
+    task, physics, num_envs, updates, env_steps, _, device, variant, _ = key
     final, best = groups[key]["final"], groups[key].get("best", [])
     mean, std = _mean_std([r["final_return"] for r in final])
     best_texts = [f"{_mean_std([r['final_return'] for r in chosen])[0]:.1f}" if chosen else "-"
@@ -975,7 +989,8 @@ def form_table(records: list[dict], expert_returns: dict[str, float] | None = No
     fraction = f"{mean / expert:.2f}" if expert else "-"
     paper = (f"{PAPER_FORM[task] / PAPER_EXPERT[task]:.2f}"
              if task in PAPER_FORM and task in PAPER_EXPERT else "-")
-    lines.append(f"| {task} | `{device}` | {physics} | {num_envs} | {variant} | {len(final)} | "
+    lines.append(f"| {task} | `{device}` | {physics} | {num_envs} | {updates} | {variant} | "
+                 f"{len(final)} | "
                  f"{'/'.join(str(e) for e in episodes)} | {env_steps / 1e6:.1f}M{stopped} | "
                  f"{_duration(wall)} | {mean:.1f}{spread} | {' | '.join(best_texts)} | "
                  f"{'-' if expert is None else f'{expert:.1f}'} | {fraction} | {paper} |"

@@ -76,15 +76,23 @@ def test_form_table_averages_the_final_policy_over_seeds():
   # 512 envs: seeds 800, 700, 600 -> 700 +- 81.6 (population std), 700 / 875 = 0.80; best:
   # (850 + 750) / 2; by log pD: (820 + 640) / 2; average: (780 + 600) / 2; its by log pD: 610;
   # paper: 827.9 / 930.5 = 0.89; wall clock: the seeds' mean, 700 s.
-  assert ("| cheetah_run | `gpu:X` | fast | 512 | raw, T - | 3 | 256 | 20.0M | 11.7 min | "
+  assert ("| cheetah_run | `gpu:X` | fast | 512 | - | raw, T - | 3 | 256 | 20.0M | 11.7 min | "
           "700.0 +- 81.6 | 800.0 | 730.0 | 690.0 | 610.0 | 875.0 | 0.80 | 0.89 |") in rows, rows
-  assert ("| cheetah_run | `gpu:X` | fast | 64 | raw, T - | 1 | 256 | 20.0M | 10.0 min | 300.0 | "
+  assert ("| cheetah_run | `gpu:X` | fast | 64 | - | raw, T - | 1 | 256 | 20.0M | 10.0 min | 300.0 | "
           "- | - | - | - | 875.0 | 0.34 | 0.89 |") in rows, rows  # one seed: no spread
   # A standardised reward or another target period is another row.
   variant = {"reward": {"standardise_reward": True}, "learner": {"target_update_period": 25}}
   table = report.form_table(records + [_final_return(0, 400.0, settings=variant)],
                             expert_returns={"cheetah_run": 875.0}, demonstration_returns={})
-  assert "| 512 | standardised, T 25 | 1 | 256 | 20.0M | 10.0 min | 400.0 |" in table, table
+  assert "| 512 | - | standardised, T 25 | 1 | 256 | 20.0M | 10.0 min | 400.0 |" in table, table
+  # So are other learner updates per iteration (shown with the replay ratio; '-' where a
+  # record does not say, as above).
+  ratios = [_final_return(0, v, settings={"updates_per_iteration": u, "replay_ratio": u / 8})
+            for v, u in ((450.0, 128), (460.0, 512))]
+  table = report.form_table(ratios, expert_returns={"cheetah_run": 875.0},
+                            demonstration_returns={})
+  assert "| 512 | 128 (16) | raw, T - | 1 | 256 | 20.0M | 10.0 min | 450.0 |" in table, table
+  assert "| 512 | 512 (64) | raw, T - | 1 | 256 | 20.0M | 10.0 min | 460.0 |" in table, table
   # So are other effect-model regularisers (a demonstrator of another beta_ar or L2).
   models = [_final_return(0, v, settings={"reward": {"effect_model": {"beta_ar": a, "l2": l2}}})
             for v, a, l2 in ((410.0, 1.0, 0.1), (420.0, 0.01, 1.0))]
