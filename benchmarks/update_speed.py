@@ -14,9 +14,20 @@ best of `--repeats` calls after a warm-up call. Variants, each compiled on its o
                  (`LearnerConfig.sampled_q_bfloat16`);
   - retrace_*:   the Retrace targets of one batch alone, as a loop and unrolled (the learner
                  unrolls it).
+FORM's work per learner update (`--method form`; the task's effect-model settings, an untrained
+demonstrator of the same shape; the batch moved by a tiny amount each update, so that nothing of
+it is hoisted out of the loop as a training run's fresh batches are not):
+  - form_source: the reward source's part (`FormReward.update`: the imitator model's step, then
+                 the batch's rewards folded into their statistics; `relabel`);
+  - form_log_pd: the demonstrator's log pD of the batch alone (what a replay storing log pD at
+                 collection would save per update);
+  - form_loop:   the source's part and the learner's update (sampled Q in bf16, FORM's default)
+                 on its rewards, as the training loop runs them; against bf16_sampled_q.
 Records `kind: update_speed` with `update_ms` (or `retrace_ms`).
 
   python benchmarks/update_speed.py --tasks cheetah_run humanoid_run
+  python benchmarks/update_speed.py --tasks quadruped_run --variants bf16_sampled_q form_source \
+      form_log_pd form_loop
 """
 
 from __future__ import annotations
@@ -39,10 +50,14 @@ import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 
 import tasks  # noqa: E402
+from mjx_form.imitation import effect_model as em  # noqa: E402
+from mjx_form.imitation import settings as form_settings  # noqa: E402
+from mjx_form.imitation.form import Demonstrator, FormReward  # noqa: E402
 from mjx_form.rl import learner, normalizer, retrace  # noqa: E402
 from mjx_form.rl.networks import Critic, Networks, make_networks  # noqa: E402
 
-VARIANTS = ("base", "samples_1", "highest", "tiled_critic", "bf16_sampled_q")
+FORM_VARIANTS = ("form_source", "form_log_pd", "form_loop")
+VARIANTS = ("base", "samples_1", "highest", "tiled_critic", "bf16_sampled_q", *FORM_VARIANTS)
 
 
 def random_batch(key, batch: int, length: int, obs_size: int, action_size: int):
@@ -59,6 +74,41 @@ def update_fn(networks, config: learner.LearnerConfig, updates: int):
     def one(state, key):
       return learner.update(networks, config, state, norm, batch, rewards, key)[0], None
     return jax.lax.scan(one, state, jax.random.split(key, updates))[0]
+  return jax.jit(run, donate_argnums=0)
+
+
+def form_source(name: str, env, key) -> FormReward:
+  """FORM's reward source for task `name` with its effect-model settings and FORM's default
+  reward (standardised, clipped at 3 sd), on an untrained demonstrator of the same shape."""
+  config = form_settings.effect_model_config(name, env)
+  model = em.make_model(config, env.observation_size)
+  demonstrator = Demonstrator(em.init_params(model, key), normalizer.init(env.observation_size))
+  return FormReward(config, demonstrator, "untrained", standardise_reward=True, reward_clip=3.0)
+
+
+def form_fn(variant: str, source: FormReward, networks, config: learner.LearnerConfig,
+            updates: int):
+  """`updates` of a FORM variant's work per learner update (module docstring), in one scan;
+  each update's batch moved by 1e-6 x its index."""
+  def run(carry, norm, batch, key):
+    def one(carry, xs):
+      i, key = xs
+      moved = {**batch, "observation": batch["observation"] + 1e-6 * i}
+      if variant == "form_log_pd":
+        d, total = carry
+        x, x_next = moved["observation"][:, :-1], moved["observation"][:, 1:]
+        return (d, total + em.transition_log_prob(source.model, d.params, d.normalizer, x,
+                                                  x_next).mean()), None
+      state, learner_state = carry
+      state, _ = source.update(state, moved, key)
+      rewards, _ = source.relabel(state, moved)
+      if variant == "form_source":  # (the rewards kept live through the carry)
+        return (state, learner_state + rewards.mean()), None
+      learner_state = learner.update(networks, config, learner_state, norm, moved, rewards,
+                                     key)[0]
+      return (state, learner_state), None
+    steps = (jnp.arange(updates, dtype=jnp.float32), jax.random.split(key, updates))
+    return jax.lax.scan(one, carry, steps)[0]
   return jax.jit(run, donate_argnums=0)
 
 
@@ -106,6 +156,30 @@ def main(argv=None) -> int:
                                   action_size)
     norm = normalizer.init(obs_size)
     for variant in args.variants:
+      if variant in FORM_VARIANTS:
+        config = learner.LearnerConfig(sampled_q_bfloat16=True)
+        source = form_source(name, env, key)
+        networks = make_networks(action_size)
+        learner_state = (learner.init(networks, config, key, obs_size, action_size)
+                         if variant == "form_loop" else jnp.zeros(()))
+        state = source.init(key, obs_size, action_size)
+        carry = {"form_log_pd": (state.demonstrator, jnp.zeros(())),
+                 "form_source": (state, jnp.zeros(())),
+                 "form_loop": (state, learner_state)}[variant]
+        carry = jax.tree.map(lambda x: jnp.array(x, copy=True), carry)
+        seconds, compile_s = time_call(
+            form_fn(variant, source, networks, config, args.updates), (carry, norm, batch, key),
+            args.repeats, donate_first=True)
+        ms = 1e3 * seconds / args.updates
+        writer.write(kind="update_speed", task=name, variant=variant,
+                     settings={**shape, "updates": args.updates, "repeats": args.repeats,
+                               "observation_size": obs_size, "action_size": action_size,
+                               "learner": dataclasses.asdict(config),
+                               "effect_model": source.config.to_dict()},
+                     update_ms=ms, compile_s=compile_s)
+        print(f"{name:<16}{variant:<12}{ms:8.2f} ms/update  (compile {compile_s:.0f}s)",
+              flush=True)
+        continue
       config = learner.LearnerConfig()
       if variant == "samples_1":
         config = dataclasses.replace(config, num_action_samples=1)

@@ -111,6 +111,28 @@ def test_scaling_measures_weak_scaling_and_builds_populations_over_the_devices(t
   assert "has 2 device(s)" in capsys.readouterr().err
 
 
+def test_update_speed_times_forms_work_per_learner_update(tmp_path, capsys):
+  """benchmarks/update_speed.py's FORM variants, tiny sizes: one record each, with the task's
+  effect-model settings and the learner FORM runs with (sampled Q in bf16)."""
+  from mjx_form.imitation import settings as form_settings
+  bench = load_script("update_speed", folder="benchmarks")
+  out = tmp_path / "speed.jsonl"
+  assert bench.main(["--tasks", "reacher_easy", "--variants", *bench.FORM_VARIANTS,
+                     "--updates", "2", "--batch_size", "3", "--unroll_length", "7",
+                     "--repeats", "1", "--out", str(out)]) == 0
+  records = [json.loads(line) for line in open(out)]
+  timed = [r for r in records if r["variant"] in bench.FORM_VARIANTS]
+  assert [r["variant"] for r in timed] == list(bench.FORM_VARIANTS)
+  expected = form_settings.effect_model_config("reacher_easy").to_dict()
+  for r in timed:
+    assert r["kind"] == "update_speed" and r["update_ms"] > 0, r
+    assert r["settings"]["effect_model"] == expected
+    assert r["settings"]["learner"]["sampled_q_bfloat16"] is True
+    assert (r["settings"]["batch_size"], r["settings"]["unroll_length"]) == (3, 7)
+  printed = capsys.readouterr().out
+  assert all(f"reacher_easy    {v}" in printed for v in bench.FORM_VARIANTS), printed
+
+
 def test_dm_control_transfer_runs_the_expert_in_dm_control(tmp_path):
   """benchmarks/dm_control_transfer.py, 2 short episodes of reacher_easy: a record with the
   dm_control return (reacher's reward is in [0, 1] per step); observations flattened in
