@@ -169,7 +169,9 @@ class EffectModel(nn.Module):
     standardisation (None: none; needed with `angle_inputs`) -> [..., width]."""
     return self.encoder(encoder_inputs(self, t, x))
 
-  def predict(self, h: jax.Array, offset: int) -> GaussianMixture:  # h [..., width]
+  def predict(self, h: jax.Array, offset) -> GaussianMixture:
+    """h [..., width]; offset: an int, or an int array that broadcasts against h's leading
+    axes (e.g. [O, 1, 1] for h [O, B, T, width]: offset o's prediction in row o)."""
     onehot = jax.nn.one_hot(offset - 1, self.max_offset, dtype=h.dtype)
     onehot = jnp.broadcast_to(onehot, h.shape[:-1] + (self.max_offset,))
     out = self.head(nn.elu(self.hidden(jnp.concatenate([h, onehot], axis=-1))))
@@ -319,12 +321,14 @@ def offset_log_probs(model: EffectModel, params, x: jax.Array,
   x_t's `shifts` under turns `t` (`turns`; None: not moved)."""
   inputs, targets = shifts(model, t, x[:, :-1])  # [B, T, D] each
   h = model.apply(params, x[:, :-1] - inputs, t, method=model.encode)  # [B, T, W]
-  out = []
-  for delta in range(1, model.max_offset + 1):
-    mixture = model.apply(params, h, delta, method=model.predict)  # [B, T, K, D]
-    target = jnp.pad(x[:, delta:], ((0, 0), (0, delta - 1), (0, 0)))  # [B, T, D]
-    out.append(mixture.log_prob(target - targets))
-  return jnp.stack(out)
+  # Every offset in one pass (one matmul per layer, not one per offset): [O, B, T, ...].
+  n = model.max_offset
+  offsets = jnp.arange(1, n + 1).reshape(n, 1, 1)
+  mixture = model.apply(params, jnp.broadcast_to(h, (n, *h.shape)), offsets,
+                        method=model.predict)  # [O, B, T, K, D]
+  later = jnp.stack([jnp.pad(x[:, delta:], ((0, 0), (0, delta - 1), (0, 0)))
+                     for delta in range(1, n + 1)])  # [O, B, T, D]: x_{t+delta}
+  return mixture.log_prob(later - targets)
 
 
 def transition_mixture(model: EffectModel, params, norm: normalizer.NormalizerState,
