@@ -14,15 +14,18 @@ best of `--repeats` calls after a warm-up call. Variants, each compiled on its o
                  (`LearnerConfig.sampled_q_bfloat16`);
   - retrace_*:   the Retrace targets of one batch alone, as a loop and unrolled (the learner
                  unrolls it).
-FORM's work per learner update (`--method form`; the task's effect-model settings, an untrained
-demonstrator of the same shape; the batch moved by a tiny amount each update, so that nothing of
-it is hoisted out of the loop as a training run's fresh batches are not):
+FORM's work per learner update (what `scripts/run.py --method form` adds to each; the task's
+effect-model settings, an untrained demonstrator of the same shape; the batch moved by a tiny
+amount each update, so that nothing of it is hoisted out of the loop, as a training run's fresh
+batches are not):
   - form_source: the reward source's part (`FormReward.update`: the imitator model's step, then
                  the batch's rewards folded into their statistics; `relabel`);
   - form_log_pd: the demonstrator's log pD of the batch alone (what a replay storing log pD at
                  collection would save per update);
-  - form_loop:   the source's part and the learner's update (sampled Q in bf16, FORM's default)
-                 on its rewards, as the training loop runs them; against bf16_sampled_q.
+  - form_loop:   the source's part and the learner's update on its rewards, as the training
+                 loop runs them, with bf16_sampled_q's learner (FORM's runs also keep an
+                 average policy and may set T, the critic's clip or epsilon_scale: a few
+                 element-wise operations more or none) to compare with it.
 Records `kind: update_speed` with `update_ms` (or `retrace_ms`).
 
   python benchmarks/update_speed.py --tasks cheetah_run humanoid_run
@@ -99,14 +102,12 @@ def form_fn(variant: str, source: FormReward, networks, config: learner.LearnerC
         x, x_next = moved["observation"][:, :-1], moved["observation"][:, 1:]
         return (d, total + em.transition_log_prob(source.model, d.params, d.normalizer, x,
                                                   x_next).mean()), None
-      state, learner_state = carry
+      state, rest = carry  # rest: form_loop's learner state, form_source's running sum
       state, _ = source.update(state, moved, key)
       rewards, _ = source.relabel(state, moved)
-      if variant == "form_source":  # (the rewards kept live through the carry)
-        return (state, learner_state + rewards.mean()), None
-      learner_state = learner.update(networks, config, learner_state, norm, moved, rewards,
-                                     key)[0]
-      return (state, learner_state), None
+      if variant == "form_source":  # (the rewards kept live through the sum)
+        return (state, rest + rewards.mean()), None
+      return (state, learner.update(networks, config, rest, norm, moved, rewards, key)[0]), None
     steps = (jnp.arange(updates, dtype=jnp.float32), jax.random.split(key, updates))
     return jax.lax.scan(one, carry, steps)[0]
   return jax.jit(run, donate_argnums=0)
