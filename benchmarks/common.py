@@ -123,14 +123,19 @@ def time_executable(exe, fn_args: tuple, steps: int, num_envs: int, repeats: int
   return steps * num_envs / best_call_time(exe, fn_args, repeats)
 
 
-def best_call_time(exe, fn_args: tuple, repeats: int, feed_output: bool = True) -> float:
+def best_call_time(exe, fn_args: tuple, repeats: int, feed_output: bool = True,
+                   keep: list | None = None) -> float:
   """Best seconds per call of compiled `exe` after one warm-up call. With `feed_output`, each
-  call gets the previous output as its first argument (for an `exe` that donates it)."""
+  call gets the previous output as its first argument (for an `exe` that donates it). `keep`:
+  where given, the arguments of one more call are appended to it afterwards."""
   import jax
   holder = [jax.block_until_ready(exe(*fn_args))]  # warm-up
+  next_args = lambda: (holder[0], *fn_args[1:]) if feed_output else fn_args
 
   def call():
-    args = (holder[0], *fn_args[1:]) if feed_output else fn_args
-    holder[0] = jax.block_until_ready(exe(*args))
-  return best_time(call, repeats)
+    holder[0] = jax.block_until_ready(exe(*next_args()))
+  seconds = best_time(call, repeats)
+  if keep is not None:
+    keep.append(next_args())
+  return seconds
 

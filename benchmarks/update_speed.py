@@ -26,7 +26,9 @@ batches are not):
                  loop runs them, with bf16_sampled_q's learner (FORM's runs also keep an
                  average policy and may set T, the critic's clip or epsilon_scale: a few
                  element-wise operations more or none) to compare with it.
-Records `kind: update_speed` with `update_ms` (or `retrace_ms`).
+Records `kind: update_speed` with `update_ms` (or `retrace_ms`). `--profile N` also runs each
+update variant's program once under the profiler and prints and records (`profile`) the N source
+lines with the most device time per update (`device_profile.py`).
 
   python benchmarks/update_speed.py --tasks cheetah_run humanoid_run
   python benchmarks/update_speed.py --tasks quadruped_run --variants bf16_sampled_q form_source \
@@ -45,6 +47,7 @@ import time
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
 import common  # noqa: E402  (puts the repository on sys.path)
+import device_profile  # noqa: E402
 from mjx_form.cpu import configure_cpu_xla  # noqa: E402
 
 configure_cpu_xla()
@@ -124,12 +127,22 @@ def retrace_fn(unroll, calls: int):
   return jax.jit(run)
 
 
-def time_call(fn, args, repeats: int, donate_first: bool):
-  """(best seconds per call, compile seconds) of jitted fn on args."""
+def time_call(fn, args, repeats: int, donate_first: bool, profile: int = 0, per_call: int = 1):
+  """(best seconds per call, compile seconds, profile) of jitted fn on args; profile: the
+  `profile` source lines with the most device time in one more call, each with its
+  microseconds per `per_call`-th of the call ([] where not asked)."""
   t0 = time.perf_counter()
   exe = fn.lower(*args).compile()
   compile_s = time.perf_counter() - t0
-  return common.best_call_time(exe, args, repeats, feed_output=donate_first), compile_s
+  keep = []
+  seconds = common.best_call_time(exe, args, repeats, feed_output=donate_first, keep=keep)
+  lines = device_profile.top_lines(exe, keep[0], profile) if profile else []
+  return seconds, compile_s, [{**line, "us": line["us"] / per_call} for line in lines]
+
+
+def print_profile(lines: list[dict]) -> None:
+  for line in lines:
+    print(f"    {line['share']:6.1%} {line['us']:9.1f} us/update  {line['where']}", flush=True)
 
 
 def main(argv=None) -> int:
@@ -142,10 +155,14 @@ def main(argv=None) -> int:
   parser.add_argument("--batch_size", type=int, default=64)
   parser.add_argument("--unroll_length", type=int, default=100)
   parser.add_argument("--repeats", type=int, default=3)
+  parser.add_argument("--profile", type=int, default=0, metavar="N",
+                      help="also profile each update variant: its N costliest source lines")
   parser.add_argument("--out", default=common.default_results_path("update_speed"))
   args = parser.parse_args(argv)
   if min(args.updates, args.batch_size, args.unroll_length, args.repeats) <= 0:
     parser.error("--updates, --batch_size, --unroll_length and --repeats must be positive")
+  if args.profile < 0:
+    parser.error(f"--profile must be 0 (off) or positive, got {args.profile}")
   writer = common.ResultWriter(args.out)
   key = jax.random.PRNGKey(0)
   shape = {"batch_size": args.batch_size, "unroll_length": args.unroll_length}
@@ -168,18 +185,19 @@ def main(argv=None) -> int:
                  "form_source": (state, jnp.zeros(())),
                  "form_loop": (state, learner_state)}[variant]
         carry = jax.tree.map(lambda x: jnp.array(x, copy=True), carry)
-        seconds, compile_s = time_call(
+        seconds, compile_s, profile = time_call(
             form_fn(variant, source, networks, config, args.updates), (carry, norm, batch, key),
-            args.repeats, donate_first=True)
+            args.repeats, donate_first=True, profile=args.profile, per_call=args.updates)
         ms = 1e3 * seconds / args.updates
         writer.write(kind="update_speed", task=name, variant=variant,
                      settings={**shape, "updates": args.updates, "repeats": args.repeats,
                                "observation_size": obs_size, "action_size": action_size,
                                "learner": dataclasses.asdict(config),
                                "effect_model": source.config.to_dict()},
-                     update_ms=ms, compile_s=compile_s)
+                     update_ms=ms, compile_s=compile_s, **({"profile": profile} if profile else {}))
         print(f"{name:<16}{variant:<12}{ms:8.2f} ms/update  (compile {compile_s:.0f}s)",
               flush=True)
+        print_profile(profile)
         continue
       config = learner.LearnerConfig()
       if variant == "samples_1":
@@ -195,23 +213,24 @@ def main(argv=None) -> int:
       precision = (jax.default_matmul_precision("highest") if variant == "highest"
                    else contextlib.nullcontext())
       with precision:
-        seconds, compile_s = time_call(
+        seconds, compile_s, profile = time_call(
             update_fn(networks, config, args.updates), (state, norm, batch, rewards, key),
-            args.repeats, donate_first=True)
+            args.repeats, donate_first=True, profile=args.profile, per_call=args.updates)
       ms = 1e3 * seconds / args.updates
-      result = {"update_ms": ms, "compile_s": compile_s}
+      result = {"update_ms": ms, "compile_s": compile_s, **({"profile": profile} if profile else {})}
       writer.write(kind="update_speed", task=name, variant=variant,
                    settings={**shape, "updates": args.updates, "repeats": args.repeats,
                              "observation_size": obs_size, "action_size": action_size,
                              "learner": dataclasses.asdict(config)}, **result)
       print(f"{name:<16}{variant:<12}{ms:8.2f} ms/update  (compile {compile_s:.0f}s)",
             flush=True)
+      print_profile(profile)
     retrace_args = tuple(jax.random.normal(k, (args.batch_size, args.unroll_length))
                          for k in jax.random.split(key, 5))
     retrace_args = retrace_args[:3] + (jnp.full_like(retrace_args[3], 0.99),) + retrace_args[4:]
     for label, unroll in (("retrace_loop", 1), ("retrace_unrolled", True)):
-      seconds, compile_s = time_call(retrace_fn(unroll, args.updates), (retrace_args,),
-                                        args.repeats, donate_first=False)
+      seconds, compile_s, _ = time_call(retrace_fn(unroll, args.updates), (retrace_args,),
+                                           args.repeats, donate_first=False)
       ms = 1e3 * seconds / args.updates
       writer.write(kind="update_speed", task=name, variant=label,
                    settings={**shape, "updates": args.updates, "repeats": args.repeats},

@@ -119,7 +119,7 @@ def test_update_speed_times_forms_work_per_learner_update(tmp_path, capsys):
   out = tmp_path / "speed.jsonl"
   assert bench.main(["--tasks", "reacher_easy", "--variants", *bench.FORM_VARIANTS,
                      "--updates", "2", "--batch_size", "3", "--unroll_length", "7",
-                     "--repeats", "1", "--out", str(out)]) == 0
+                     "--repeats", "1", "--profile", "3", "--out", str(out)]) == 0
   records = [json.loads(line) for line in open(out)]
   timed = [r for r in records if r["variant"] in bench.FORM_VARIANTS]
   assert [r["variant"] for r in timed] == list(bench.FORM_VARIANTS)
@@ -129,8 +129,36 @@ def test_update_speed_times_forms_work_per_learner_update(tmp_path, capsys):
     assert r["settings"]["effect_model"] == expected
     assert r["settings"]["learner"]["sampled_q_bfloat16"] is True
     assert (r["settings"]["batch_size"], r["settings"]["unroll_length"]) == (3, 7)
+    # --profile 3: the three costliest source lines of the variant's program, per update
+    assert 1 <= len(r["profile"]) <= 3 and 0 < sum(p["share"] for p in r["profile"]) <= 1 + 1e-9
+    assert all(p["us"] > 0 and ":" in p["where"] for p in r["profile"]), r["profile"]
+  # (the imitator's step is the effect model's layers, log pD alone is not)
+  assert any("EffectModel" in p["where"] for p in timed[0]["profile"]), timed[0]["profile"]
   printed = capsys.readouterr().out
   assert all(f"reacher_easy    {v}" in printed for v in bench.FORM_VARIANTS), printed
+  with pytest.raises(SystemExit):
+    bench.main(["--profile", "-1"])
+
+
+def test_device_profile_names_the_source_line_that_costs_the_most():
+  """benchmarks/device_profile.py on the CPU: a program whose matmul dwarfs the rest is
+  attributed to the matmul's line here; older HLO texts name their lines in the metadata."""
+  device_profile = load_script("device_profile", folder="benchmarks")
+
+  def program(x):
+    cheap = jnp.log1p(x[0, 0])
+    return jnp.tanh(x @ x @ x).sum() + cheap  # the costly line (a fusion: its root's line)
+
+  x = jnp.ones((384, 384))
+  exe = jax.jit(program).lower(x).compile()
+  lines = device_profile.top_lines(exe, (x,), 2)
+  line = program.__code__.co_firstlineno + 2
+  assert lines[0]["where"].startswith(f"test_benchmarks.py:{line} "), lines
+  assert lines[0]["share"] > 0.5 and lines[0]["us"] > 0
+  old = ('  %fusion.3 = f32[4]{0} fusion(%p), kind=kLoop, calls=%c, metadata={op_name='
+         '"jit(run)/while/body/EffectModel/head/dot_general" source_file="/x/y/linear.py" '
+         'source_line=287}')
+  assert device_profile.hlo_sources(old) == {"fusion.3": "linear.py:287 EffectModel/head/dot_general"}
 
 
 def test_dm_control_transfer_runs_the_expert_in_dm_control(tmp_path):
