@@ -130,18 +130,23 @@ def retrace_fn(unroll, calls: int):
 def time_call(fn, args, repeats: int, donate_first: bool, profile: int = 0, per_call: int = 1):
   """(best seconds per call, compile seconds, profile) of jitted fn on args; profile: the
   `profile` source lines with the most device time in one more call, each with its
-  microseconds per `per_call`-th of the call ([] where not asked)."""
+  microseconds per `per_call`-th of the call (None where not asked)."""
   t0 = time.perf_counter()
   exe = fn.lower(*args).compile()
   compile_s = time.perf_counter() - t0
   keep = []
   seconds = common.best_call_time(exe, args, repeats, feed_output=donate_first, keep=keep)
-  lines = device_profile.top_lines(exe, keep[0], profile) if profile else []
+  if not profile:
+    return seconds, compile_s, None
+  lines = device_profile.top_lines(exe, keep[0], profile)
   return seconds, compile_s, [{**line, "us": line["us"] / per_call} for line in lines]
 
 
-def print_profile(lines: list[dict]) -> None:
-  for line in lines:
+def print_profile(lines: list[dict] | None) -> None:
+  """The lines of `time_call`'s profile (None: none asked for; [] the trace held nothing)."""
+  if lines is not None and not lines:
+    print("    (profile: the trace held no operation of this program)", flush=True)
+  for line in lines or ():
     print(f"    {line['share']:6.1%} {line['us']:9.1f} us/update  {line['where']}", flush=True)
 
 
@@ -194,7 +199,8 @@ def main(argv=None) -> int:
                                "observation_size": obs_size, "action_size": action_size,
                                "learner": dataclasses.asdict(config),
                                "effect_model": source.config.to_dict()},
-                     update_ms=ms, compile_s=compile_s, **({"profile": profile} if profile else {}))
+                     update_ms=ms, compile_s=compile_s,
+                     **({} if profile is None else {"profile": profile}))
         print(f"{name:<16}{variant:<12}{ms:8.2f} ms/update  (compile {compile_s:.0f}s)",
               flush=True)
         print_profile(profile)
@@ -217,7 +223,8 @@ def main(argv=None) -> int:
             update_fn(networks, config, args.updates), (state, norm, batch, rewards, key),
             args.repeats, donate_first=True, profile=args.profile, per_call=args.updates)
       ms = 1e3 * seconds / args.updates
-      result = {"update_ms": ms, "compile_s": compile_s, **({"profile": profile} if profile else {})}
+      result = {"update_ms": ms, "compile_s": compile_s,
+                **({} if profile is None else {"profile": profile})}
       writer.write(kind="update_speed", task=name, variant=variant,
                    settings={**shape, "updates": args.updates, "repeats": args.repeats,
                              "observation_size": obs_size, "action_size": action_size,
