@@ -116,6 +116,37 @@ def form_fn(variant: str, source: FormReward, networks, config: learner.LearnerC
   return jax.jit(run, donate_argnums=0)
 
 
+def program(variant: str, name: str, env, norm, batch, rewards, key, updates: int):
+  """(jitted fn donating its first argument, its arguments, the learner's config, settings
+  beyond the learner's) of an update variant (module docstring) of task `name`."""
+  obs_size, action_size = env.observation_size, env.action_size
+  networks = make_networks(action_size)
+  if variant in FORM_VARIANTS:
+    config = learner.LearnerConfig(sampled_q_bfloat16=True)
+    source = form_source(name, env, key)
+    state = source.init(key, obs_size, action_size)
+    if variant == "form_log_pd":
+      carry = (state.demonstrator, jnp.zeros(()))
+    elif variant == "form_source":
+      carry = (state, jnp.zeros(()))
+    else:
+      carry = (state, learner.init(networks, config, key, obs_size, action_size))
+    carry = jax.tree.map(lambda x: jnp.array(x, copy=True), carry)  # (a buffer per leaf)
+    return (form_fn(variant, source, networks, config, updates), (carry, norm, batch, key),
+            config, {"effect_model": source.config.to_dict()})
+  config = learner.LearnerConfig()
+  if variant == "samples_1":
+    config = dataclasses.replace(config, num_action_samples=1)
+  if variant == "bf16_sampled_q":
+    config = dataclasses.replace(config, sampled_q_bfloat16=True)
+  if variant == "tiled_critic":
+    networks = Networks(networks.policy, Critic(tiled=True))
+  state = learner.init(networks, config, key, obs_size, action_size)
+  # Targets start as the online parameters; donation needs a buffer per leaf.
+  state = jax.tree.map(lambda x: jnp.array(x, copy=True), state)
+  return update_fn(networks, config, updates), (state, norm, batch, rewards, key), config, {}
+
+
 def retrace_fn(unroll, calls: int):
   def run(args):
     def one(carry, _):
@@ -179,56 +210,20 @@ def main(argv=None) -> int:
                                   action_size)
     norm = normalizer.init(obs_size)
     for variant in args.variants:
-      if variant in FORM_VARIANTS:
-        config = learner.LearnerConfig(sampled_q_bfloat16=True)
-        source = form_source(name, env, key)
-        networks = make_networks(action_size)
-        learner_state = (learner.init(networks, config, key, obs_size, action_size)
-                         if variant == "form_loop" else jnp.zeros(()))
-        state = source.init(key, obs_size, action_size)
-        carry = {"form_log_pd": (state.demonstrator, jnp.zeros(())),
-                 "form_source": (state, jnp.zeros(())),
-                 "form_loop": (state, learner_state)}[variant]
-        carry = jax.tree.map(lambda x: jnp.array(x, copy=True), carry)
-        seconds, compile_s, profile = time_call(
-            form_fn(variant, source, networks, config, args.updates), (carry, norm, batch, key),
-            args.repeats, donate_first=True, profile=args.profile, per_call=args.updates)
-        ms = 1e3 * seconds / args.updates
-        writer.write(kind="update_speed", task=name, variant=variant,
-                     settings={**shape, "updates": args.updates, "repeats": args.repeats,
-                               "observation_size": obs_size, "action_size": action_size,
-                               "learner": dataclasses.asdict(config),
-                               "effect_model": source.config.to_dict()},
-                     update_ms=ms, compile_s=compile_s,
-                     **({} if profile is None else {"profile": profile}))
-        print(f"{name:<16}{variant:<12}{ms:8.2f} ms/update  (compile {compile_s:.0f}s)",
-              flush=True)
-        print_profile(profile)
-        continue
-      config = learner.LearnerConfig()
-      if variant == "samples_1":
-        config = dataclasses.replace(config, num_action_samples=1)
-      if variant == "bf16_sampled_q":
-        config = dataclasses.replace(config, sampled_q_bfloat16=True)
-      networks = make_networks(action_size)
-      if variant == "tiled_critic":
-        networks = Networks(networks.policy, Critic(tiled=True))
-      state = learner.init(networks, config, key, obs_size, action_size)
-      # Targets start as the online parameters; donation needs a buffer per leaf.
-      state = jax.tree.map(lambda x: jnp.array(x, copy=True), state)
+      fn, fn_args, config, extra = program(variant, name, env, norm, batch, rewards, key,
+                                           args.updates)
       precision = (jax.default_matmul_precision("highest") if variant == "highest"
                    else contextlib.nullcontext())
       with precision:
-        seconds, compile_s, profile = time_call(
-            update_fn(networks, config, args.updates), (state, norm, batch, rewards, key),
-            args.repeats, donate_first=True, profile=args.profile, per_call=args.updates)
+        seconds, compile_s, profile = time_call(fn, fn_args, args.repeats, donate_first=True,
+                                                profile=args.profile, per_call=args.updates)
       ms = 1e3 * seconds / args.updates
-      result = {"update_ms": ms, "compile_s": compile_s,
-                **({} if profile is None else {"profile": profile})}
       writer.write(kind="update_speed", task=name, variant=variant,
                    settings={**shape, "updates": args.updates, "repeats": args.repeats,
                              "observation_size": obs_size, "action_size": action_size,
-                             "learner": dataclasses.asdict(config)}, **result)
+                             "learner": dataclasses.asdict(config), **extra},
+                   update_ms=ms, compile_s=compile_s,
+                   **({} if profile is None else {"profile": profile}))
       print(f"{name:<16}{variant:<12}{ms:8.2f} ms/update  (compile {compile_s:.0f}s)",
             flush=True)
       print_profile(profile)
