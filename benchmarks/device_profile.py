@@ -8,6 +8,11 @@ their bodies'), maps each operation to the metadata XLA kept for it (the JAX ope
 innermost line of this repository's code in the call stack that made it, from the optimised
 HLO text), and returns the `n` lines with the most time. A fusion is attributed to its root
 operation. Used by `update_speed.py --profile N`.
+
+Compile the program to profile with `PROFILE_OPTIONS` (`compile_for_profile`): on a GPU, XLA
+otherwise records the program's kernels as CUDA graphs ("command buffers"), and the trace then
+holds one event per graph, `command_buffer_N` with no source (seen on an H200, 2026-11-29:
+100% of quadruped_run's FORM step in one such event), not the operations inside.
 """
 
 from __future__ import annotations
@@ -113,6 +118,16 @@ def operation_times(trace: dict, module: str) -> collections.Counter:
       continue
     times[args["hlo_op"]] += float(e.get("dur", 0.0))
   return times
+
+
+# XLA's option that lists what runs as command buffers; empty: nothing (every backend takes it).
+PROFILE_OPTIONS = {"xla_gpu_enable_command_buffer": ""}
+
+
+def compile_for_profile(fn, args: tuple):
+  """jitted `fn` compiled for `args` as `top_lines` can attribute it: each kernel its own
+  event (no command buffers)."""
+  return fn.lower(*args).compile(compiler_options=PROFILE_OPTIONS)
 
 
 def top_lines(exe, args: tuple, n: int) -> list[dict]:

@@ -169,7 +169,8 @@ def time_call(fn, args, repeats: int, donate_first: bool, profile: int = 0, per_
   seconds = common.best_call_time(exe, args, repeats, feed_output=donate_first, keep=keep)
   if not profile:
     return seconds, compile_s, None
-  lines = device_profile.top_lines(exe, keep[0], profile)
+  # (its own executable: the timed one may run its kernels as command buffers, device_profile)
+  lines = device_profile.top_lines(device_profile.compile_for_profile(fn, args), keep[0], profile)
   return seconds, compile_s, [{**line, "us": line["us"] / per_call} for line in lines]
 
 

@@ -154,7 +154,7 @@ def test_device_profile_names_the_source_line_that_costs_the_most():
     return jax.lax.scan(step, x, None, length=8)[0].sum() + jnp.log1p(x[0, 0])
 
   x = jnp.ones((384, 384))
-  exe = jax.jit(program).lower(x).compile()
+  exe = device_profile.compile_for_profile(jax.jit(program), (x,))  # (as update_speed.py)
   lines = device_profile.top_lines(exe, (x,), 3)
   line = program.__code__.co_firstlineno + 2
   assert lines[0]["where"].startswith(f"test_benchmarks.py:{line} "), lines
