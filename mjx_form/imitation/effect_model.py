@@ -314,11 +314,11 @@ def wrap_raw(model: EffectModel, x: jax.Array) -> jax.Array:
 
 # --- densities ----------------------------------------------------------------------------
 
-def offset_log_probs(model: EffectModel, params, x: jax.Array,
-                     t: Turns | None = None) -> jax.Array:
-  """Standardised-space log p(x_{t+delta} | x_t) for every offset: x [B, T+1, D] (standardised)
-  -> [max_offset, B, T] (pairs past x_T give values to be masked out); each pair moved by
-  x_t's `shifts` under turns `t` (`turns`; None: not moved)."""
+def offset_mixtures(model: EffectModel, params, x: jax.Array, t: Turns | None = None
+                    ) -> tuple[GaussianMixture, jax.Array]:
+  """Every offset's mixture over x_{t+delta} from x_t, x [B, T+1, D] (standardised): mixture
+  [max_offset, B, T, K, D] (row delta - 1: offset delta) and what to subtract from its targets
+  [B, T, D] (`shifts` of x_t under turns `t`; None: not moved)."""
   inputs, targets = shifts(model, t, x[:, :-1])  # [B, T, D] each
   h = model.apply(params, x[:, :-1] - inputs, t, method=model.encode)  # [B, T, W]
   # Every offset in one pass (one matmul per layer, not one per offset): [O, B, T, ...].
@@ -326,6 +326,21 @@ def offset_log_probs(model: EffectModel, params, x: jax.Array,
   offsets = jnp.arange(1, n + 1).reshape(n, 1, 1)
   mixture = model.apply(params, jnp.broadcast_to(h, (n, *h.shape)), offsets,
                         method=model.predict)  # [O, B, T, K, D]
+  return mixture, targets
+
+
+def offset_log_probs(model: EffectModel, params, x: jax.Array,
+                     t: Turns | None = None) -> jax.Array:
+  """Standardised-space log p(x_{t+delta} | x_t) for every offset: x [B, T+1, D] (standardised)
+  -> [max_offset, B, T] (pairs past x_T give values to be masked out); each pair moved by
+  x_t's `shifts` under turns `t` (`turns`; None: not moved)."""
+  mixture, targets = offset_mixtures(model, params, x, t)
+  return _offset_log_probs(mixture, targets, x)
+
+
+def _offset_log_probs(mixture: GaussianMixture, targets: jax.Array, x: jax.Array) -> jax.Array:
+  """`offset_mixtures`' log p of the observations x [B, T+1, D] they predict: [O, B, T]."""
+  n = mixture.logits.shape[0]
   later = jnp.stack([jnp.pad(x[:, delta:], ((0, 0), (0, delta - 1), (0, 0)))
                      for delta in range(1, n + 1)])  # [O, B, T, D]: x_{t+delta}
   return mixture.log_prob(later - targets)
@@ -365,15 +380,15 @@ def loss(model: EffectModel, config: EffectModelConfig, params, x: jax.Array,
   """The negated objective (module docstring) on standardised sequences x [B, T+1, D]; pairs
   moved by their x_t's `shifts` under turns `t` (None: not moved)."""
   masks = offset_masks(discount, config.max_offset)  # [max_offset, B, T]
-  log_probs = offset_log_probs(model, params, x, t)  # [max_offset, B, T]
+  mixtures, targets = offset_mixtures(model, params, x, t)  # [max_offset, B, T, K, D], [B, T, D]
+  log_probs = _offset_log_probs(mixtures, targets, x)  # [max_offset, B, T]
   per_offset = jax.vmap(_masked_mean)(log_probs, masks)  # [max_offset]
   # Autoregressive term: x~_{t+1} ~ p(. | x_t) for t = 0..T-2, then log p(x_{t+2} | x~_{t+1}).
   # (With turns, x~_{t+1} is drawn in x_t's moved frame, then put back, then x~_{t+1} and
   # x_{t+2} are moved by x~_{t+1}'s own shifts; with angle inputs the encoder then sees the cos
-  # and sin of x~_{t+1}'s own angles.)
-  inputs, targets = shifts(model, t, x[:, :-2])
-  sampled = jax.lax.stop_gradient(
-      model.apply(params, x[:, :-2] - inputs, 1, t).sample(key)) + targets  # [B, T-1, D]
+  # and sin of x~_{t+1}'s own angles.) p(. | x_t) is the offset-1 row of the mixtures above.
+  first = jax.tree.map(lambda a: a[0, :, :-1], mixtures)  # [B, T-1, K, D]
+  sampled = jax.lax.stop_gradient(first.sample(key)) + targets[:, :-1]  # [B, T-1, D]
   inputs, targets = shifts(model, t, sampled)
   ar_log_prob = model.apply(params, sampled - inputs, 1, t).log_prob(
       x[:, 2:] - targets)  # [B, T-1]
