@@ -647,7 +647,9 @@ def _default_form_variant(task: str) -> str:
                  "reward_clip": run["reward_clip"],
                  "effect_model": form_settings.effect_model_settings(task)},
       "learner": {"target_update_period": run["target_update_period"],
-                  "sampled_q_bfloat16": run["sampled_q_bfloat16"]},
+                  "sampled_q_bfloat16": run["sampled_q_bfloat16"],
+                  "clip_critic_actions": run.get("clip_critic_actions", False),
+                  "mpo": {"epsilon_scale": run.get("epsilon_scale", 1e-5)}},
       **{k: run[k] for k in form_settings.ACTOR_KEYS if k in run}}})
 
 

@@ -475,6 +475,12 @@ def recipe_hint(args: argparse.Namespace, error: ValueError) -> str:
   if "reward.ensemble_log_pd" in error.keys:
     return (" (a run started with --ensemble_log_pd mean resumes with it; one started without "
             "it, without it)")
+  if args.method == "form" and {"learner.clip_critic_actions",
+                                "learner.mpo.epsilon_scale"} & set(error.keys):
+    return (" (walker_walk's and quadruped_run's FORM runs take the expert recipes' learner "
+            "since 2026-11-29, mjx_form/imitation/settings.py; a run started before resumes "
+            "with --no-clip_critic_actions --epsilon_scale 1e-5, one started with other flags "
+            "with those flags)")
   if args.method == "expert" and recipe_applies(args):
     return (f" ({args.task}'s expert runs take its recipe, mjx_form/rl/recipes.py; a run "
             "started with the paper's settings, or before the recipe had these keys, resumes "

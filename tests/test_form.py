@@ -607,7 +607,10 @@ def test_form_run_settings_take_the_task_entry_then_the_preset_then_the_flags(mo
   default = {"standardise_reward": True, "reward_clip": 3.0, "target_update_period": 25,
              "sampled_q_bfloat16": True, "policy_average_decay": 0.9995}
   assert chosen("--task", "cheetah_run") == default
-  assert chosen("--task", "walker_walk") == default
+  assert chosen("--task", "walker_stand") == default
+  # walker_walk's entry: the expert recipes' learner (the critic's clip, MPO's scale bound)
+  assert chosen("--task", "walker_walk") == {**default, "clip_critic_actions": True,
+                                             "epsilon_scale": 1e-6}
   monkeypatch.setitem(settings.PER_TASK_RUN, "walker_walk", {"reward_clip": 2.0})
   assert chosen("--task", "walker_walk")["reward_clip"] == 2.0
   assert chosen("--task", "cheetah_run")["reward_clip"] == 3.0
@@ -767,6 +770,13 @@ def test_form_flags_are_refused_for_other_methods(capsys, monkeypatch, tmp_path)
   refused = checkpoint.CheckpointError("differs", ("learner.policy_average_decay",))
   assert "--policy_average_decay 0 for none" in cli.recipe_hint(
       cli.parse_args(["--resume"]), refused)
+  # and one refused for the critic's clip or MPO's scale bound (walker_walk's and
+  # quadruped_run's FORM entries set them since 2026-11-29)
+  refused = checkpoint.CheckpointError("differs", ("learner.mpo.epsilon_scale",))
+  assert "resumes with --no-clip_critic_actions --epsilon_scale 1e-5" in cli.recipe_hint(
+      cli.parse_args(["--resume", "--task", "walker_walk"]), refused)
+  assert "--no-clip_critic_actions" not in cli.recipe_hint(
+      cli.parse_args(["--resume", "--task", "walker_walk", "--method", "expert"]), refused)
   # --resume reads the kept demonstrators; a demonstrator flag beside it would be ignored
   for flags in (["--demonstrator", "a.npz"], ["--train_demonstrator"],
                 ["--demonstrator_seed", "1"], ["--member_demonstrators"]):

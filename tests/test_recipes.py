@@ -112,13 +112,22 @@ def test_run_applies_the_recipe_to_expert_runs_only_and_flags_win():
   assert config("--task", "walker_run", "--method", "form",
                 "--epsilon_scale", "1e-6").learner.mpo.epsilon_scale == 1e-6
   assert config("--task", "walker_run", "--method", "form").learner.mpo.epsilon_scale == 1e-5
-  # quadruped_run's recipe sets it; the flag and the paper preset win; FORM keeps the paper's.
+  # quadruped_run's recipe sets it; the flag and the paper preset win; FORM's own entry
+  # (mjx_form/imitation/settings.py) sets it too, with the critic's clip; --preset paper not.
   assert config("--task", "quadruped_run", "--method", "expert").learner.mpo.epsilon_scale == 1e-6
   assert config("--task", "quadruped_run", "--method", "expert", "--epsilon_scale",
                 "1e-5").learner.mpo.epsilon_scale == 1e-5
   assert config("--task", "quadruped_run", "--method", "expert",
                 "--preset", "paper").learner == LearnerConfig()
-  assert config("--task", "quadruped_run", "--method", "form").learner.mpo.epsilon_scale == 1e-5
+  form = config("--task", "quadruped_run", "--method", "form").learner
+  assert (form.mpo.epsilon_scale, form.clip_critic_actions) == (1e-6, True)
+  form = config("--task", "quadruped_run", "--method", "form", "--no-clip_critic_actions",
+                "--epsilon_scale", "1e-5").learner
+  assert (form.mpo.epsilon_scale, form.clip_critic_actions) == (1e-5, False)
+  form = config("--task", "quadruped_run", "--method", "form", "--preset", "paper").learner
+  assert (form.mpo.epsilon_scale, form.clip_critic_actions) == (1e-5, False)
+  form = config("--task", "walker_stand", "--method", "form").learner  # no entry: the paper's
+  assert (form.mpo.epsilon_scale, form.clip_critic_actions) == (1e-5, False)
   head = config("--task", "hopper_stand", "--method", "expert", "--policy_head", "paper")
   assert head.policy_head == "paper" and head.action_noise_correlation == 0.9
   # FORM has its own settings: settings.PER_TASK_RUN's entry (hopper_stand's sets the actor),
@@ -163,7 +172,11 @@ def test_run_names_the_recipe_and_its_overrides(capsys):
   assert "hopper_stand's FORM settings" in line and "policy_head acme" in line
   assert "overridden by --no-wrap_angles;" in line
   assert cli.recipe_applies(cli.parse_args(["--task", "hopper_stand", "--method", "form"]))
-  assert not cli.recipe_applies(cli.parse_args(["--task", "walker_walk", "--method", "form"]))
+  assert not cli.recipe_applies(cli.parse_args(["--task", "walker_stand", "--method", "form"]))
+  line = cli.recipe_line(cli.parse_args(["--task", "walker_walk", "--method", "form",
+                                         "--epsilon_scale", "1e-5"]))
+  assert "walker_walk's FORM settings" in line and "clip_critic_actions True" in line
+  assert "overridden by --epsilon_scale;" in line
   assert not cli.recipe_applies(cli.parse_args(["--task", "hopper_stand", "--method", "form",
                                                 "--preset", "paper"]))
   with pytest.raises(SystemExit):

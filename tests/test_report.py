@@ -206,7 +206,9 @@ def _default_settings(task):
                      "reward_clip": run["reward_clip"],
                      "effect_model": settings.effect_model_settings(task)},
           "learner": {"target_update_period": run["target_update_period"],
-                      "sampled_q_bfloat16": run["sampled_q_bfloat16"]},
+                      "sampled_q_bfloat16": run["sampled_q_bfloat16"],
+                      **({"clip_critic_actions": True} if run.get("clip_critic_actions") else {}),
+                      "mpo": {"epsilon_scale": run.get("epsilon_scale", 1e-5)}},
           **{k: run[k] for k in settings.ACTOR_KEYS if k in run}}  # e.g. reacher's angles
 
 
@@ -225,6 +227,14 @@ def test_default_form_variant_is_what_a_default_run_records():
   assert report._default_form_variant("hopper_stand") in variants and len(variants) == 2
   assert "acme policy head, actor noise correlated 0.9, angles wrapped" in (
       report._default_form_variant("hopper_stand"))
+  # a task whose entry sets the learner: walker_walk's runs with the expert recipes' learner
+  name = "2026-11-29_learning_curve_h200_walker_walk_form_recipe_seeds012_5m"
+  runs = results.run_records(os.path.join(report.RESULTS, name + ".jsonl"))
+  assert {report._form_variant(r) for r in runs if r["kind"] == "learning_curve"} == {
+      report._default_form_variant("walker_walk")}
+  assert "critic clips actions, sampled Q in bf16, epsilon_scale 1e-06" in (
+      report._default_form_variant("walker_walk"))
+  assert "critic clips" not in report._default_form_variant("walker_stand")
   # a turn-invariant run's effect models say so (a period of zeros is none)
   turned = json.loads(json.dumps(record))
   turned["settings"]["reward"]["effect_model"]["period"] = [0.0, 6.28] + [0.0] * 15

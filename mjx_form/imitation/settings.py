@@ -1,5 +1,5 @@
-"""FORM's per-task settings, in one place: the effect models' regularisers, and the learner's
-target period and reward scale of an imitation run.
+"""FORM's per-task settings, in one place: the effect models' regularisers, and the reward
+scale, actor and learner of an imitation run.
 
 The paper tunes two regularisers per task and shares them between the demonstrator and the
 imitator model: the autoregressive weight beta_ar and the L2 weight, each over the grid
@@ -132,9 +132,29 @@ PAPER_RUN = {"standardise_reward": False, "reward_clip": 0.0, "target_update_per
 DEFAULT_RUN = {"standardise_reward": True, "reward_clip": 3.0, "target_update_period": 25,
                "sampled_q_bfloat16": True, "policy_average_decay": 0.9995}
 # A task's measured departures from DEFAULT_RUN. Besides DEFAULT_RUN's keys an entry may set the
-# actor (ACTOR_KEYS; the paper's head, independent noise and raw angles otherwise).
+# actor (ACTOR_KEYS; the paper's head, independent noise and raw angles otherwise) and more of
+# the learner (LEARNER_KEYS; the paper's otherwise: the critic sees tanh of the sampled action,
+# MPO's scale bound 1e-5).
 ACTOR_KEYS = ("policy_head", "action_noise_correlation", "wrap_angles", "angle_features")
+LEARNER_KEYS = ("clip_critic_actions", "epsilon_scale")
+# The learner of the expert recipes for walker_run and quadruped_run (mjx_form/rl/recipes.py):
+# the critic clips actions, MPO's scale bound at Acme's 1e-6. Measured with 512 envs x 512
+# updates per iteration (replay ratio 64; the scale stays on the command line: `--num_envs 512
+# --updates_per_iteration 512`), seeds 0-2 as one population on one H200, fresh finals over 256
+# episodes, against the FORM rows before it (the defaults above at 512 x 128: not a same-scale
+# A/B, the learner's settings and 4x the updates per env step change together):
+#   walker_walk (benchmarks/NOTES.md, session 56; 2026-11-29_learning_curve_h200_walker_walk_
+#     form_recipe_seeds012_5m): 969.1 / 958.3 / 970.5 (mean 966.0, 1.00 of the demonstrations'
+#     963.7; the paper's FORM / expert 0.995) at 5.2M steps, every seed's first evaluation >= 0.95
+#     of the demonstrations at 1.5M steps (6.9 min); the defaults at 128 updates: 945.5 +- 22.9
+#     at 14.4M, first >= 0.95 at 4.1-7.2M steps (7.2-11.7 min; 2026-11-28_..._form_seeds012_14m);
+#   quadruped_run (`--physics fast_ls4`, its expert's; session 55, 2026-11-29_learning_curve_
+#     h200_quadruped_run_form_recipe_seeds012_4m): 926.7 / 932.7 / 936.5 (mean 932.0, 0.99 of the
+#     demonstrations' 941.5; the paper's 0.985) at 4.1M steps; no FORM run of it before.
+RECIPE_LEARNER = {"clip_critic_actions": True, "epsilon_scale": 1e-6}
 PER_TASK_RUN: dict[str, dict] = {
+    "walker_walk": dict(RECIPE_LEARNER),
+    "quadruped_run": dict(RECIPE_LEARNER),
     # hopper_stand: the actor of its expert recipe (mjx_form/rl/recipes.py: without the acme head
     # and noise correlated at 0.9 the expert runs never rose; wrapped angles fixed its falls from
     # starts past pi), not A/B'd under FORM. T 100 against 25, measured on one H100 (512 envs x
@@ -163,8 +183,8 @@ PRESETS = ("default", "paper")
 
 def run_settings(task: str, preset: str = "default") -> dict:
   """`standardise_reward`, `reward_clip`, `target_update_period`, `sampled_q_bfloat16` and
-  `policy_average_decay` of a FORM run of `task`, and the actor settings its PER_TASK_RUN entry
-  sets."""
+  `policy_average_decay` of a FORM run of `task`, and the actor and learner settings its
+  PER_TASK_RUN entry sets."""
   if preset not in PRESETS:
     raise ValueError(f"unknown preset {preset!r} (valid: {', '.join(PRESETS)})")
   if preset == "paper":
