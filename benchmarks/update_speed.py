@@ -169,8 +169,12 @@ def time_call(fn, args, repeats: int, donate_first: bool, profile: int = 0, per_
   seconds = common.best_call_time(exe, args, repeats, feed_output=donate_first, keep=keep)
   if not profile:
     return seconds, compile_s, None
-  # (its own executable: the timed one may run its kernels as command buffers, device_profile)
-  lines = device_profile.top_lines(device_profile.compile_for_profile(fn, args), keep[0], profile)
+  # Its own executable (the timed one may run its kernels as command buffers, device_profile),
+  # called once before the traced call, as the timed one was.
+  profiled = device_profile.compile_for_profile(fn, args)
+  live = jax.block_until_ready(profiled(*keep[0]))
+  lines = device_profile.top_lines(profiled, (live, *keep[0][1:]) if donate_first else keep[0],
+                                   profile)
   return seconds, compile_s, [{**line, "us": line["us"] / per_call} for line in lines]
 
 

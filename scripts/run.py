@@ -475,8 +475,9 @@ def recipe_hint(args: argparse.Namespace, error: ValueError) -> str:
   if "reward.ensemble_log_pd" in error.keys:
     return (" (a run started with --ensemble_log_pd mean resumes with it; one started without "
             "it, without it)")
-  if args.method == "form" and {"learner.clip_critic_actions",
-                                "learner.mpo.epsilon_scale"} & set(error.keys):
+  if (args.method == "form" and {"learner.clip_critic_actions", "learner.mpo.epsilon_scale"}
+      & set(error.keys) and set(settings.LEARNER_KEYS) & set(settings.run_settings(args.task))
+      and args.preset != "paper"):
     return (" (walker_walk's and quadruped_run's FORM runs take the expert recipes' learner "
             "since 2026-11-29, mjx_form/imitation/settings.py; a run started before resumes "
             "with --no-clip_critic_actions --epsilon_scale 1e-5, one started with other flags "
@@ -489,8 +490,10 @@ def recipe_hint(args: argparse.Namespace, error: ValueError) -> str:
 
 
 def form_run_settings(args: argparse.Namespace) -> dict:
-  """The FORM run's reward scale, reward clip, target period and sampled-Q precision: --preset's
-  for the task, then the flags."""
+  """The FORM run's reward scale, reward clip, target period, sampled-Q precision and average
+  policy's decay, and the actor and learner settings of the task's entry
+  (`settings.run_settings`): --preset's for the task, then the flags of the first five (the
+  others' flags apply in `train_config`)."""
   chosen = settings.run_settings(args.task, args.preset or "default")
   if args.reward_scale is not None:
     chosen["standardise_reward"] = args.reward_scale == "standardised"

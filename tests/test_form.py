@@ -777,6 +777,8 @@ def test_form_flags_are_refused_for_other_methods(capsys, monkeypatch, tmp_path)
       cli.parse_args(["--resume", "--task", "walker_walk"]), refused)
   assert "--no-clip_critic_actions" not in cli.recipe_hint(
       cli.parse_args(["--resume", "--task", "walker_walk", "--method", "expert"]), refused)
+  assert "--no-clip_critic_actions" not in cli.recipe_hint(  # no entry sets them there
+      cli.parse_args(["--resume", "--task", "walker_stand"]), refused)
   # --resume reads the kept demonstrators; a demonstrator flag beside it would be ignored
   for flags in (["--demonstrator", "a.npz"], ["--train_demonstrator"],
                 ["--demonstrator_seed", "1"], ["--member_demonstrators"]):
