@@ -138,7 +138,9 @@ def check(jobs_file: Path, deadline_s: float = 1200.0) -> list[str]:
         raise JobsError(f"job {job['name']!r}: run.py would refuse it: {e}") from None
     lines.append(
         f"{job['name']}: {config.task} {args.method}, seeds {seeds}{grid}; {config.num_envs} "
-        f"envs x {config.updates_per_iteration} updates (replay ratio {config.replay_ratio:g}), "
+        f"envs x {config.updates_per_iteration} updates (replay ratio {config.replay_ratio:g}"
+        + (f"; imitator on 1 batch in {config.source_update_every}"
+           if config.source_update_every > 1 else "") + "), "
         f"width {config.network_width}, T {learner.target_update_period}, sampled Q "
         f"{'bf16' if learner.sampled_q_bfloat16 else 'float32'}, critic clips actions "
         f"{learner.clip_critic_actions}, action penalty {learner.mpo.action_penalty}, "

@@ -627,6 +627,8 @@ def _form_variant(record: dict) -> str:
     regularisers.append("angle inputs")
   if model.get("max_scale"):
     regularisers.append(f"scales below {model['max_scale']:g} sd")
+  if settings.get("source_update_every", 1) != 1:  # (`--imitator_every`; records before it: 1)
+    regularisers.append(f"imitator on 1 batch in {settings['source_update_every']}")
   if settings.get("reward", {}).get("demonstrators"):
     mean = settings["reward"].get("ensemble_log_pd") == "mean"  # (else their mixture)
     regularisers.append(f"ensemble of {settings['reward']['demonstrators']} demonstrators"

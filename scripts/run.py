@@ -56,7 +56,8 @@ METHODS = ("form", "expert", "random")
 FORM_ONLY = ("expert", "demos", "demo_episodes", "save_demos", "demonstrator",
              "member_demonstrators", "train_demonstrator", "demonstrator_seed", "beta_ar",
              "effect_l2", "turn_invariant", "angle_increments", "angle_inputs",
-             "effect_max_scale", "reward_scale", "reward_clip", "ensemble_log_pd")
+             "effect_max_scale", "reward_scale", "reward_clip", "ensemble_log_pd",
+             "imitator_every")
 
 DEFAULT_COMPILATION_CACHE = os.path.join(
     os.environ.get("XDG_CACHE_HOME", os.path.expanduser("~/.cache")), "mjx_form", "jax")
@@ -316,6 +317,11 @@ def parse_args(argv=None) -> argparse.Namespace:
                     help="standardised: the learner gets the FORM reward standardised by its "
                          "running mean and sd (mjx_form/imitation/form.py); raw: log pD - log pI "
                          "as the paper (default: --preset's)")
+  form.add_argument("--imitator_every", type=int, default=1, metavar="K",
+                    help="train the imitator model on the first of every K learner batches "
+                         "(a divisor of --updates_per_iteration); every batch is still "
+                         "relabelled with the current imitator. 1 (default): every batch, as "
+                         "the paper; not measured otherwise")
   form.add_argument("--reward_clip", type=float, default=None,
                     help="bound the FORM reward's tail: clip it to this many running standard "
                          "deviations around its running mean, in the learner's reward and in "
@@ -389,6 +395,9 @@ def parse_args(argv=None) -> argparse.Namespace:
       parser.error(f"--{name} must be a positive integer, got {getattr(args, name)}")
   if args.max_seconds is not None and args.max_seconds <= 0:
     parser.error(f"--max_seconds must be positive, got {args.max_seconds}")
+  if args.imitator_every <= 0 or args.updates_per_iteration % args.imitator_every:
+    parser.error(f"--imitator_every must be a positive divisor of --updates_per_iteration "
+                 f"({args.updates_per_iteration}), got {args.imitator_every}")
   for name in ("demo_episodes",):
     if getattr(args, name) is not None and getattr(args, name) <= 0:
       parser.error(f"--{name} must be a positive integer, got {getattr(args, name)}")
@@ -425,6 +434,7 @@ def train_config(args: argparse.Namespace) -> TrainConfig:
                      unroll_length=args.unroll_length, batch_size=args.batch_size,
                      replay_capacity=args.replay_capacity,
                      updates_per_iteration=args.updates_per_iteration,
+                     source_update_every=args.imitator_every,
                      network_width=args.network_width, policy_head=chosen["policy_head"],
                      action_noise_correlation=chosen["action_noise_correlation"],
                      eval_envs=args.eval_envs, seed=seed,

@@ -566,6 +566,23 @@ def test_training_never_sees_the_task_reward(form_trainer, monkeypatch):
   assert np.isfinite(metrics[-1]["form_reward"][0]) and metrics[-1]["imitator_log_prob"][0] != 0
 
 
+def test_imitator_every_k_trains_it_on_one_batch_in_k(form_trainer):
+  """source_update_every k (`--imitator_every`): the imitator model takes one step per k
+  learner updates, the reward statistics fold in one batch per step, the learner takes every
+  update, and the iteration reports the same metrics."""
+  state, metrics = _iterate(form_trainer, 3)
+  every = Trainer(dataclasses.replace(CONFIG, source_update_every=2), mesh_lib.make_mesh(),
+                  FormReward(EFFECT, _demonstrator()))
+  other, other_metrics = _iterate(every, 3)
+  assert int(state.source.imitator.steps[0]) == 6 and int(other.source.imitator.steps[0]) == 3
+  assert int(state.source.reward.count[0]) == 6 and int(other.source.reward.count[0]) == 3
+  assert int(state.learner.updates[0]) == int(other.learner.updates[0]) == 6
+  assert metrics[-1].keys() == other_metrics[-1].keys()
+  assert np.isfinite(other_metrics[-1]["form_reward"][0])
+  assert not np.allclose(np.asarray(jax.tree.leaves(state.learner.policy)[0]),
+                         np.asarray(jax.tree.leaves(other.learner.policy)[0]))
+
+
 def test_fresh_metrics_score_the_new_transitions_under_the_imitator_before_it_saw_them(
     form_trainer):
   """fresh_metrics: both models' mean log-likelihood over the valid transitions of unrolls; the
@@ -694,10 +711,20 @@ def test_form_flags_are_refused_for_other_methods(capsys, monkeypatch, tmp_path)
                       (["--method", "expert", "--train_demonstrator"], "--train_demonstrator"),
                       (["--method", "random", "--demonstrator_seed", "0"],
                        "--demonstrator_seed"),
-                      (["--method", "expert", "--demonstrator", "a.npz"], "--demonstrator")):
+                      (["--method", "expert", "--demonstrator", "a.npz"], "--demonstrator"),
+                      (["--method", "expert", "--imitator_every", "2"], "--imitator_every")):
     with pytest.raises(SystemExit):
       cli.parse_args(argv)
     assert f"{named} apply to --method form only" in capsys.readouterr().err
+  # --imitator_every: a positive divisor of the updates per iteration, into the TrainConfig
+  for bad in ("0", "3"):
+    with pytest.raises(SystemExit):
+      cli.parse_args(["--updates_per_iteration", "8", "--imitator_every", bad])
+    assert ("--imitator_every must be a positive divisor of --updates_per_iteration (8), got "
+            f"{bad}") in capsys.readouterr().err
+  assert cli.train_config(cli.parse_args(["--updates_per_iteration", "8", "--imitator_every",
+                                          "4"])).source_update_every == 4
+  assert cli.train_config(cli.parse_args([])).source_update_every == 1
   # --member_demonstrators: one --demonstrator per member, 2 members or more
   for argv, given, members in (
       (["--seeds", "0,1,2", "--demonstrator", "a.npz", "--demonstrator", "b.npz"], 2, 3),

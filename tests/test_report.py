@@ -235,6 +235,14 @@ def test_default_form_variant_is_what_a_default_run_records():
   assert "critic clips actions, sampled Q in bf16, epsilon_scale 1e-06" in (
       report._default_form_variant("walker_walk"))
   assert "critic clips" not in report._default_form_variant("walker_stand")
+  # a run whose imitator trained on 1 batch in k says so (records before the setting: every)
+  sparse = json.loads(json.dumps(record))
+  sparse["settings"]["source_update_every"] = 4
+  assert report._form_variant(sparse) == (
+      "standardised clipped at 3 sd, T 25, ar 0.01, L2 1, imitator on 1 batch in 4, sampled Q in "
+      "bf16")
+  sparse["settings"]["source_update_every"] = 1
+  assert report._form_variant(sparse) == report._default_form_variant("cheetah_run")
   # a turn-invariant run's effect models say so (a period of zeros is none)
   turned = json.loads(json.dumps(record))
   turned["settings"]["reward"]["effect_model"]["period"] = [0.0, 6.28] + [0.0] * 15

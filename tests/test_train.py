@@ -134,6 +134,24 @@ def test_two_devices_match_one_device(trainers):
   assert int(s1.learner.updates[0]) == 8
 
 
+def test_source_update_every_changes_nothing_for_a_source_that_learns_nothing(trainers):
+  """The learner's updates restructured as one that trains the source and k - 1 that only
+  relabel: with the task's reward (no state to train) training is the same (to float rounding:
+  XLA fuses the nested loop's body differently) and every update still runs."""
+  one = trainers[0]
+  every = Trainer(dataclasses.replace(CONFIG, source_update_every=2),
+                  mesh_lib.make_mesh(jax.devices()[:1]))
+  s1, m1 = run_iterations(one, one.init(jax.random.PRNGKey(5)[None]), 2)
+  s2, m2 = run_iterations(every, every.init(jax.random.PRNGKey(5)[None]), 2)
+  assert int(s2.learner.updates[0]) == 4
+  for (path, a), b in zip(jax.tree_util.tree_leaves_with_path(s1.learner),
+                          jax.tree.leaves(s2.learner)):
+    np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-5, atol=1e-8,
+                               err_msg=jax.tree_util.keystr(path))
+  assert m1[-1].keys() == m2[-1].keys()
+  np.testing.assert_allclose(m1[-1]["critic_loss"], m2[-1]["critic_loss"], rtol=1e-6)
+
+
 def test_first_episodes_start_at_staggered_phases(trainers):
   """Environments start their first episode at random multiples of the unroll length, so each
   iteration ends some episodes (on unroll boundaries); the shortened first episodes are not
@@ -254,6 +272,8 @@ def test_settings_added_since_older_checkpoints_default_to_what_ran_before():
     (dict(action_noise_correlation=1.0), "action_noise_correlation must be in \\[0, 1\\)"),
     (dict(action_noise_correlation=-0.1), "action_noise_correlation must be in"),
     (dict(learner=LearnerConfig(policy_average_decay=1.0)), "policy_average_decay must be in"),
+    (dict(source_update_every=0), "source_update_every must be a positive integer"),
+    (dict(source_update_every=3), "source_update_every=3 must divide updates_per_iteration=2"),
 ])
 def test_bad_settings_are_refused(change, message):
   with pytest.raises(ValueError, match=message):

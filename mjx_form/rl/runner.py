@@ -61,7 +61,7 @@ ADDED_SETTINGS = {"learner.mpo.action_penalty": False, "learner.mpo.epsilon_pena
                   "learner.clip_critic_actions": False, "learner.sampled_q_bfloat16": False,
                   "policy_head": "paper", "action_noise_correlation": 0.0,
                   "wrap_angles": False, "init_policy": None, "angle_features": False,
-                  "learner.policy_average_decay": 0.0}
+                  "learner.policy_average_decay": 0.0, "source_update_every": 1}
 
 
 # Columns that not every row has (evaluation rows; devices that report memory).
@@ -318,7 +318,9 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
   print_fn(f"{config.task}: {population}{config.num_envs} envs x {config.unroll_length}-step "
            f"unrolls, {config.updates_per_iteration} updates per iteration (updates/env step "
            f"{config.updates_per_env_step:.2e}, replay ratio {config.replay_ratio:.2f}), "
-           f"{total_iterations} iterations, physics {config.physics}, "
+           + (f"the reward source trained on 1 batch in {config.source_update_every}, "
+              if config.source_update_every > 1 else "")
+           + f"{total_iterations} iterations, physics {config.physics}, "
            f"{trainer.mesh.devices.size} {jax.default_backend()} device(s)"
            + (f" ({_LAYOUT_WORDS[trainer.layout]})"
               if trainer.members > 1 and trainer.mesh.devices.size > 1 else ""))

@@ -7,7 +7,8 @@ One call of `Trainer.iteration` (a single jitted program) does, for every member
      discounts, and the task reward only if the reward source asks for it) go to the replay;
   2. standardisation: the observation normaliser's EMA is updated with the new observations;
   3. learn: `updates_per_iteration` learner updates, each on `batch_size` unrolls sampled
-     from the replay and relabelled by the reward source.
+     from the replay and relabelled by the reward source, which trains on the first of every
+     `source_update_every` of those batches (every batch by default).
 Python only loops over iterations (logging, evaluation, checkpoints).
 
 Sharding (`LAYOUTS`): the environments' batch [P * N] is split over the mesh's batch axis.
@@ -73,6 +74,10 @@ class TrainConfig:
   batch_size: int = 64  # unrolls per learner update
   replay_capacity: int = 10_000  # unrolls
   updates_per_iteration: int = 8  # learner updates per collected unroll of every env
+  # The reward source trains (`update`: FORM's imitator step) on the first of every k learner
+  # batches and relabels every batch with its current state; 1: on every batch (the paper's
+  # imitator). A divisor of updates_per_iteration.
+  source_update_every: int = 1
   network_width: int = 256
   policy_head: str = "paper"  # the policy's Gaussian head (networks.POLICY_HEADS)
   # c of the actors' noise e_t = c e_{t-1} + sqrt(1 - c^2) xi_t (action = mean + scale e_t): 0
@@ -101,7 +106,7 @@ class TrainConfig:
     if self.task not in tasks.TASKS:
       raise ValueError(f"unknown task {self.task!r}; valid tasks: {', '.join(tasks.TASKS)}")
     for name in ("num_envs", "unroll_length", "batch_size", "replay_capacity",
-                 "updates_per_iteration", "network_width", "eval_envs"):
+                 "updates_per_iteration", "source_update_every", "network_width", "eval_envs"):
       value = getattr(self, name)
       if not isinstance(value, int) or value <= 0:
         raise ValueError(f"{name} must be a positive integer, got {value!r}")
@@ -109,6 +114,9 @@ class TrainConfig:
       if getattr(self, name) % num_devices:
         raise ValueError(f"{name}={getattr(self, name)} must be a multiple of the number of "
                          f"devices ({num_devices})")
+    if self.updates_per_iteration % self.source_update_every:
+      raise ValueError(f"source_update_every={self.source_update_every} must divide "
+                       f"updates_per_iteration={self.updates_per_iteration}")
     networks_lib.policy_head(self.policy_head)  # ValueError naming the valid heads
     if self.num_envs > self.replay_capacity:
       raise ValueError(f"replay_capacity={self.replay_capacity} must hold at least one "
@@ -532,8 +540,10 @@ class Trainer:
              "physics_errors": total(traj["error"])}
     return env_state, running, noise, unrolls, stats
 
-  def _learn(self, learner, source, norm, buffer, settings: dict, keys: jax.Array):
-    """One learner update of every member; keys [P, 2]. Returns (learner, source, metrics)."""
+  def _learn(self, learner, source, norm, buffer, settings: dict, keys: jax.Array,
+             train_source: bool = True):
+    """One learner update of every member; keys [P, 2]. Returns (learner, source, metrics).
+    Without `train_source` the source only relabels (its state and metrics unchanged)."""
     cfg = self.config
     learner_values, _, source_values = grid.split(settings)
     sample_key, source_key, update_key = jnp.moveaxis(
@@ -541,8 +551,11 @@ class Trainer:
     batch = jax.vmap(lambda b, k: replay.sample(b, k, cfg.batch_size))(buffer, sample_key)
     batch = jax.lax.with_sharding_constraint(batch, self._member_batch)  # [P, B, ...]
     # Settings members may override come in as each member's entry of a [P] array.
-    source, source_metrics = jax.vmap(lambda s, b, k, v: self._source_with(v).update(s, b, k))(
-        source, batch, source_key, source_values)
+    source_metrics = {}
+    if train_source:
+      source, source_metrics = jax.vmap(
+          lambda s, b, k, v: self._source_with(v).update(s, b, k))(
+              source, batch, source_key, source_values)
     rewards, reward_metrics = jax.vmap(lambda s, b, v: self._source_with(v).relabel(s, b))(
         source, batch, source_values)
     def update(learner, norm, batch, rewards, key, values):
@@ -566,13 +579,26 @@ class Trainer:
         state.normalizer, unrolls["observation"][:, :, :-1])
     buffer = jax.vmap(replay.insert)(state.replay, unrolls)
 
-    def learn(carry, keys):
-      learner, source, metrics = self._learn(*carry, norm, buffer, state.settings, keys)
+    k = cfg.source_update_every
+
+    def learn(carry, keys):  # keys [k, P, 2]: an update that trains the source, k - 1 that do not
+      learner, source, metrics = self._learn(*carry, norm, buffer, state.settings, keys[0])
+      if k > 1:
+        def relabel_only(learner, key):
+          learner, _, more = self._learn(learner, source, norm, buffer, state.settings, key,
+                                         train_source=False)
+          return learner, more
+        learner, more = jax.lax.scan(relabel_only, learner, keys[1:])  # [k - 1, P]
+        # every update's learner and reward metrics, the source's of its one step
+        metrics = {name: (value + jnp.sum(more[name], axis=0)) / k if name in more else value
+                   for name, value in metrics.items()}
       return (learner, source), metrics
 
     learn_keys = jax.vmap(lambda k: jax.random.split(k, cfg.updates_per_iteration))(learn_key)
-    (learner, source), metrics = jax.lax.scan(learn, (state.learner, state.source),
-                                              jnp.swapaxes(learn_keys, 0, 1))  # [U, P, 2]
+    learn_keys = jnp.swapaxes(learn_keys, 0, 1)  # [U, P, 2]
+    (learner, source), metrics = jax.lax.scan(
+        learn, (state.learner, state.source),
+        learn_keys.reshape((-1, k) + learn_keys.shape[1:]))  # [U / k, k, P, 2]
     metrics = {**jax.tree.map(lambda m: jnp.mean(m, axis=0), metrics), **stats}
     state = TrainState(learner=learner, normalizer=norm, replay=buffer, env=env_state,
                        episode_return=running, source=source, noise=noise, key=key,
