@@ -318,10 +318,11 @@ def parse_args(argv=None) -> argparse.Namespace:
                          "running mean and sd (mjx_form/imitation/form.py); raw: log pD - log pI "
                          "as the paper (default: --preset's)")
   form.add_argument("--imitator_every", type=int, default=1, metavar="K",
-                    help="train the imitator model on the first of every K learner batches "
-                         "(a divisor of --updates_per_iteration); every batch is still "
-                         "relabelled with the current imitator. 1 (default): every batch, as "
-                         "the paper; not measured otherwise")
+                    help="train the imitator model (and fold a batch into its "
+                         "standardisation and the reward's running mean and sd) on the first "
+                         "of every K learner batches (a divisor of --updates_per_iteration); "
+                         "every batch is still relabelled with the current imitator. 1 "
+                         "(default): every batch, as the paper; not measured otherwise")
   form.add_argument("--reward_clip", type=float, default=None,
                     help="bound the FORM reward's tail: clip it to this many running standard "
                          "deviations around its running mean, in the learner's reward and in "
@@ -492,6 +493,9 @@ def recipe_hint(args: argparse.Namespace, error: ValueError) -> str:
             "since 2026-11-29, mjx_form/imitation/settings.py; a run started before resumes "
             "with --no-clip_critic_actions --epsilon_scale 1e-5, one started with other flags "
             "with those flags)")
+  if "source_update_every" in error.keys:
+    return (" (a run started with --imitator_every K resumes with it; one started without it, "
+            "without it)")
   if args.method == "expert" and recipe_applies(args):
     return (f" ({args.task}'s expert runs take its recipe, mjx_form/rl/recipes.py; a run "
             "started with the paper's settings, or before the recipe had these keys, resumes "

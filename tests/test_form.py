@@ -797,6 +797,9 @@ def test_form_flags_are_refused_for_other_methods(capsys, monkeypatch, tmp_path)
   refused = checkpoint.CheckpointError("differs", ("learner.policy_average_decay",))
   assert "--policy_average_decay 0 for none" in cli.recipe_hint(
       cli.parse_args(["--resume"]), refused)
+  refused = checkpoint.CheckpointError("differs", ("source_update_every",))
+  assert "started with --imitator_every K resumes with it" in cli.recipe_hint(
+      cli.parse_args(["--resume"]), refused)
   # and one refused for the critic's clip or MPO's scale bound (walker_walk's and
   # quadruped_run's FORM entries set them since 2026-11-29)
   refused = checkpoint.CheckpointError("differs", ("learner.mpo.epsilon_scale",))

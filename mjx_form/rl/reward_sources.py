@@ -9,7 +9,8 @@ is never written to the replay, so no learner code can read it.
 A source is an object with:
   needs_task_reward: bool
   init(key, observation_size, action_size) -> source state (a pytree, replicated)
-  update(state, batch, key) -> (state, metrics): called once per learner update, before relabel
+  update(state, batch, key) -> (state, metrics): called before relabel on every learner
+      update's batch, or with `TrainConfig.source_update_every` k on the first of every k
   relabel(state, batch) -> (rewards [B, T], metrics)
   settings() -> dict: what the source's results depend on beyond the TrainConfig (its model
       settings, the checksum of a demonstrator), JSON; stored with checkpoints and records

@@ -74,9 +74,10 @@ class TrainConfig:
   batch_size: int = 64  # unrolls per learner update
   replay_capacity: int = 10_000  # unrolls
   updates_per_iteration: int = 8  # learner updates per collected unroll of every env
-  # The reward source trains (`update`: FORM's imitator step) on the first of every k learner
-  # batches and relabels every batch with its current state; 1: on every batch (the paper's
-  # imitator). A divisor of updates_per_iteration.
+  # The reward source trains (`update`: FORM's imitator step, and its running statistics: the
+  # imitator's observation standardisation, the reward's mean and sd) on the first of every k
+  # learner batches and relabels every batch with its current state; 1: on every batch (the
+  # paper's imitator). A divisor of updates_per_iteration.
   source_update_every: int = 1
   network_width: int = 256
   policy_head: str = "paper"  # the policy's Gaussian head (networks.POLICY_HEADS)
@@ -563,6 +564,9 @@ class Trainer:
       return learner_lib.update(self.networks, config, learner, norm, batch, rewards, key)
     learner, metrics = jax.vmap(update)(learner, norm, batch, rewards, update_key,
                                         learner_values)
+    # (`_iteration` averages the source's metrics over its steps, the others over all updates)
+    assert not source_metrics.keys() & (metrics.keys() | reward_metrics.keys()), (
+        "a reward source's update metric shares its name with a learner or relabel metric")
     return learner, source, {**metrics, **source_metrics, **reward_metrics}
 
   def _iteration(self, state: TrainState) -> tuple[TrainState, dict]:
@@ -594,7 +598,8 @@ class Trainer:
                    for name, value in metrics.items()}
       return (learner, source), metrics
 
-    learn_keys = jax.vmap(lambda k: jax.random.split(k, cfg.updates_per_iteration))(learn_key)
+    learn_keys = jax.vmap(lambda key: jax.random.split(key, cfg.updates_per_iteration))(
+        learn_key)
     learn_keys = jnp.swapaxes(learn_keys, 0, 1)  # [U, P, 2]
     (learner, source), metrics = jax.lax.scan(
         learn, (state.learner, state.source),
