@@ -25,7 +25,10 @@ batches are not):
   - form_loop:   the source's part and the learner's update on its rewards, as the training
                  loop runs them, with bf16_sampled_q's learner (FORM's runs also keep an
                  average policy and may set T, the critic's clip or epsilon_scale: a few
-                 element-wise operations more or none) to compare with it.
+                 element-wise operations more or none) to compare with it;
+  - form_loop_every4: form_loop with the imitator trained on 1 update in 4 and every batch
+                 relabelled (`--imitator_every 4`; the loop's nested scan, here a conditional
+                 on the update's index: the same work).
 Records `kind: update_speed` with `update_ms` (or `retrace_ms`). `--profile N` also runs each
 update variant's program once under the profiler and prints and records (`profile`) the N source
 lines with the most device time per update (`device_profile.py`).
@@ -62,7 +65,8 @@ from mjx_form.imitation.form import Demonstrator, FormReward  # noqa: E402
 from mjx_form.rl import learner, normalizer, retrace  # noqa: E402
 from mjx_form.rl.networks import Critic, Networks, make_networks  # noqa: E402
 
-FORM_VARIANTS = ("form_source", "form_log_pd", "form_loop")
+FORM_VARIANTS = ("form_source", "form_log_pd", "form_loop", "form_loop_every4")
+EVERY = {"form_loop_every4": 4}  # a variant's source_update_every (1 where not named)
 VARIANTS = ("base", "samples_1", "highest", "tiled_critic", "bf16_sampled_q", *FORM_VARIANTS)
 
 
@@ -106,7 +110,12 @@ def form_fn(variant: str, source: FormReward, networks, config: learner.LearnerC
         return (d, total + em.transition_log_prob(source.model, d.params, d.normalizer, x,
                                                   x_next).mean()), None
       state, rest = carry  # rest: form_loop's learner state, form_source's running sum
-      state, _ = source.update(state, moved, key)
+      every = EVERY.get(variant, 1)
+      if every > 1:  # (an unbatched predicate: only the branch taken runs)
+        state = jax.lax.cond(jnp.mod(i, every) == 0,
+                             lambda s: source.update(s, moved, key)[0], lambda s: s, state)
+      else:
+        state, _ = source.update(state, moved, key)
       rewards, _ = source.relabel(state, moved)
       if variant == "form_source":  # (the rewards kept live through the sum)
         return (state, rest + rewards.mean()), None
@@ -132,8 +141,11 @@ def program(variant: str, name: str, env, norm, batch, rewards, key, updates: in
     else:
       carry = (state, learner.init(networks, config, key, obs_size, action_size))
     carry = jax.tree.map(lambda x: jnp.array(x, copy=True), carry)  # (a buffer per leaf)
+    extra = {"effect_model": source.config.to_dict()}
+    if variant in EVERY:
+      extra["source_update_every"] = EVERY[variant]
     return (form_fn(variant, source, networks, config, updates), (carry, norm, batch, key),
-            config, {"effect_model": source.config.to_dict()})
+            config, extra)
   config = learner.LearnerConfig()
   if variant == "samples_1":
     config = dataclasses.replace(config, num_action_samples=1)

@@ -129,6 +129,7 @@ def test_update_speed_times_forms_work_per_learner_update(tmp_path, capsys):
     assert r["settings"]["effect_model"] == expected
     assert r["settings"]["learner"]["sampled_q_bfloat16"] is True
     assert (r["settings"]["batch_size"], r["settings"]["unroll_length"]) == (3, 7)
+    assert r["settings"].get("source_update_every", 1) == bench.EVERY.get(r["variant"], 1)
     # --profile 3: the three costliest source lines of the variant's program, per update
     assert 1 <= len(r["profile"]) <= 3 and 0 < sum(p["share"] for p in r["profile"]) <= 1 + 1e-9
     assert all(p["us"] > 0 and p["where"] for p in r["profile"]), r["profile"]
