@@ -219,13 +219,34 @@ def test_evaluation_scores_episodes_with_the_demonstrator(form_trainer):
   state, _ = _iterate(form_trainer, 1)
   inputs = form_trainer.evaluation_inputs(state)
   assert set(inputs) == {"source", "source_settings"} and inputs["source_settings"] == {}
-  returns, scores = form_trainer.evaluate(state.learner.policy, state.normalizer,
+  returns, scores = form_trainer.evaluate((state.learner.policy,), (state.normalizer,),
                                           form_trainer.keys(1), **inputs)
+  returns, scores = returns[0], scores[0]  # (the one policy's)
   assert np.asarray(scores).shape == (1, CONFIG.eval_envs)
   want_returns, want_scores = _evaluation_reference(form_trainer, state, [_demonstrator()])
   np.testing.assert_allclose(np.asarray(returns), want_returns, rtol=1e-4, atol=1e-3)
   np.testing.assert_allclose(np.asarray(scores), want_scores, rtol=1e-4, atol=1e-3)
   assert np.ptp(want_scores) > 0 or abs(want_scores[0, 0]) > 1.0  # (not a constant of nothing)
+
+
+def test_policies_evaluated_together_each_give_their_own_episodes(form_trainer):
+  """Several policies evaluated in one call (the online and the average policy at each
+  evaluation; the final and the kept ones at the end) give what each gives alone: the same
+  starts, each stepped with its own policy and normaliser, its own returns and log pD."""
+  state, _ = _iterate(form_trainer, 1)
+  other_policy = jax.tree.map(lambda w: 1.5 * w + 0.05, state.learner.policy)
+  other_norm = state.normalizer._replace(mean=state.normalizer.mean + 0.3)
+  returns, scores = jax.device_get(form_trainer.evaluate(
+      (state.learner.policy, other_policy), (state.normalizer, other_norm),
+      form_trainer.keys(1), **form_trainer.evaluation_inputs(state)))
+  assert returns.shape == scores.shape == (2, 1, CONFIG.eval_envs)
+  other = state._replace(learner=state.learner._replace(policy=other_policy),
+                         normalizer=other_norm)
+  for k, alone in enumerate((state, other)):
+    want_returns, want_scores = _evaluation_reference(form_trainer, alone, [_demonstrator()])
+    np.testing.assert_allclose(returns[k], want_returns, rtol=1e-4, atol=1e-3)
+    np.testing.assert_allclose(scores[k], want_scores, rtol=1e-4, atol=1e-3)
+  assert np.abs(scores[0] - scores[1]).max() > 0.1  # (the two policies' episodes differ)
 
 
 def test_an_ensemble_runs_in_the_compiled_loop_on_two_devices(form_trainer):
@@ -259,8 +280,9 @@ def test_members_may_differ_in_how_an_ensemble_makes_log_pd():
   start = population.init(population.keys())
   np.testing.assert_array_equal(start.settings["ensemble_log_pd"], [0, 1])
   returns, scores = jax.device_get(population.evaluate(
-      start.learner.policy, start.normalizer, population.keys(1),
+      (start.learner.policy,), (start.normalizer,), population.keys(1),
       **population.evaluation_inputs(start)))
+  returns, scores = returns[0], scores[0]
   np.testing.assert_array_equal(returns[0], returns[1])  # (the same episodes)
   assert np.all(scores[1] < scores[0] - 0.1), scores
   after, m = population.iteration(start)  # (`start` donated)
@@ -327,8 +349,9 @@ def test_demonstrators_per_member_give_each_member_its_own(form_trainer):
                              metrics[0]["demonstrator_log_prob"], rtol=1e-4, atol=1e-3)
   # Evaluation: member i's episodes scored by its own demonstrator; the other layout's
   # evaluation of the same state scores the same.
-  scored = [np.asarray(t.evaluate(state.learner.policy, state.normalizer, t.keys(1),
-                                  **t.evaluation_inputs(state))[1]) for t in (population, spread)]
+  scored = [np.asarray(t.evaluate((state.learner.policy,), (state.normalizer,), t.keys(1),
+                                  **t.evaluation_inputs(state))[1][0])
+            for t in (population, spread)]
   np.testing.assert_allclose(scored[0], _evaluation_reference(population, state, demos)[1],
                              rtol=1e-4, atol=1e-3)
   np.testing.assert_allclose(scored[1], scored[0], rtol=1e-4, atol=1e-3)

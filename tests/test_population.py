@@ -65,8 +65,8 @@ def _members_of(trainer, state, i):
 
 def test_members_are_the_runs_their_seeds_and_settings_give_alone(population):
   pop_state, pop_metrics = run_iterations(population, population.init(population.keys()), 3)
-  pop_returns = np.asarray(population.evaluate(pop_state.learner.policy,
-                                               pop_state.normalizer, population.keys(1)))
+  pop_returns = np.asarray(population.evaluate((pop_state.learner.policy,),
+                                               (pop_state.normalizer,), population.keys(1)))[0]
   assert pop_returns.shape == (2, CONFIG.eval_envs)
   # The population's environments and replay are split over both devices.
   assert len(pop_state.env.obs.sharding.device_set) == 2
@@ -75,8 +75,8 @@ def test_members_are_the_runs_their_seeds_and_settings_give_alone(population):
     single = Trainer(config, mesh_lib.make_mesh())  # a single run with the member's settings
     key = jax.random.PRNGKey(seed)[None]
     state, metrics = run_iterations(single, single.init(key), 3)
-    returns = np.asarray(single.evaluate(state.learner.policy, state.normalizer,
-                                         jax.random.PRNGKey(seed + 1)[None]))
+    returns = np.asarray(single.evaluate((state.learner.policy,), (state.normalizer,),
+                                         jax.random.PRNGKey(seed + 1)[None]))[0]
     ours = dict(jax.tree_util.tree_leaves_with_path(_members_of(population, pop_state, i)))
     theirs = dict(jax.tree_util.tree_leaves_with_path(_members_of(single, state, 0)))
     for path, b in theirs.items():
@@ -316,15 +316,16 @@ def test_final_evaluation_of_members_that_differ_in_the_wrap(population, tmp_pat
   for i, path in enumerate(paths):
     runner.export_policy(population, state, i, path, {"env_steps": 0})
   rows = [{"env_steps": 0, "wall_s": 0.0} for _ in paths]
-  runs, evaluate = [], population.evaluate
+  runs, evaluate = [], population.evaluate  # (each call: how many policies it evaluates)
   monkeypatch.setattr(population, "evaluate",
-                      lambda *a, **k: runs.append(1) or evaluate(*a, **k))
+                      lambda *a, **k: runs.append(len(a[0])) or evaluate(*a, **k))
   lines = []  # (a kind of best policy that a member lacks is left out, and the run says so)
   runner._final_evaluation(population, state,
                            {"best": paths, "best_log_pd": [paths[0], str(tmp_path / "none.npz")]},
                            rows, CONFIG.eval_envs, None, 0, ["seed 0", "seed 1"],
                            print_fn=lines.append)
-  assert len(runs) == 2  # (no final files given: the best policy is evaluated afresh)
+  # (no final files given: the best policy is evaluated afresh, beside the final one)
+  assert runs == [2]
   for row in rows:  # the best policies are the state's own: the same returns as the final ones
     np.testing.assert_allclose(row["best_policy_return"], row["final_policy_return"], rtol=1e-5)
     assert "best_log_pd_policy_return" not in row
@@ -347,7 +348,7 @@ def test_final_evaluation_of_members_that_differ_in_the_wrap(population, tmp_pat
     runner._final_evaluation(population, state, bests, rows, CONFIG.eval_envs,
                              results.ResultWriter(str(finals)), 0, ["seed 0", "seed 1"],
                              print_fn=lines.append, final_paths=paths)
-    assert len(runs) == 2, bests
+    assert runs == [2], bests  # (in one call)
     records = results.read_records(str(finals))
     assert [(r["policy"], r.get("same_policy_as")) for r in records] == [
         ("final", None), ("final", None), ("best", same[0]), ("best", same[0]),

@@ -85,7 +85,7 @@ def trainers():
   with count_compiles() as compiles:
     for trainer in trainers:
       state, _ = trainer.iteration(trainer.init(key))
-      jax.block_until_ready(trainer.evaluate(state.learner.policy, state.normalizer, key))
+      jax.block_until_ready(trainer.evaluate((state.learner.policy,), (state.normalizer,), key))
   FIRST_CALL_COMPILES.extend(compiles)
   return trainers
 
@@ -569,9 +569,11 @@ def test_expert_learns_reacher_easy():
   trainer = Trainer(config)
   state = trainer.init(trainer.keys())
   eval_key = trainer.keys(1)
-  before = float(np.mean(trainer.evaluate(state.learner.policy, state.normalizer, eval_key)))
+  before = float(np.mean(trainer.evaluate((state.learner.policy,), (state.normalizer,),
+                                          eval_key)))
   state, metrics = run_iterations(trainer, state, 100)
-  after = float(np.mean(trainer.evaluate(state.learner.policy, state.normalizer, eval_key)))
+  after = float(np.mean(trainer.evaluate((state.learner.policy,), (state.normalizer,),
+                                         eval_key)))
   assert after >= before + 150, (before, after)
   # The sampling policy improved too (episodes end in every iteration: starts are staggered).
   train_returns = np.array([m["train_return"] for m in metrics])

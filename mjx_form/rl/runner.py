@@ -265,10 +265,17 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
     with open(config_path) as f:
       checkpoint.check_config(config_path, json.load(f), full_config, RESUMABLE, ADDED_SETTINGS)
   eval_keys = trainer.keys(1)
+  # The policy averaged over updates (`policy_average_decay`) is evaluated beside the online one,
+  # on the same starts and in the same call. (In a population, members at decay 0 beside
+  # averaging ones keep a copy of their policy: not evaluated, exported or recorded as an
+  # average.)
+  averaging = [trainer.member_config(i).learner.policy_average_decay > 0
+               for i in range(trainer.members)]
+  averages = any(averaging)  # (the state keeps average policies: Trainer._init_learner)
   print_fn("compiling the run's programs (init, iteration, evaluation) ...")
   compile_start = time.perf_counter()
   with results.count_persistent_cache_hits() as cache_hits:
-    trainer.compile_ahead(eval_keys)
+    trainer.compile_ahead(eval_keys, policies_per_evaluation=2 if averages else 1)
   print_fn(f"compiled in {time.perf_counter() - compile_start:.0f}s"
            + (f" ({cache_hits[0]} programs from the persistent cache)" if cache_hits[0] else ""))
   state = trainer.init(trainer.keys())
@@ -281,7 +288,8 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
   elif initial_policy is not None:
     state = trainer.start_from(state, initial_policy.params, initial_policy.normalizer)
     meta = initial_policy.metadata
-    returns, _ = _evaluated(trainer, state, state.learner.policy, state.normalizer, eval_keys)
+    [(returns, _)] = _evaluated(trainer, state, [(state.learner.policy, state.normalizer)],
+                                eval_keys)
     print_fn(f"every member starts from {meta['task']}'s policy {meta['sha256'][:12]} "
              f"(exported at {meta.get('env_steps') or 0:,} env steps): it evaluates "
              f"{returns.mean():.1f} on {config.task} ({returns.size} episodes)")
@@ -293,12 +301,6 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
   for d in dirs:
     os.makedirs(d, exist_ok=True)
   scored = ("eval_demonstrator_log_prob",) if trainer.evaluation_inputs(state) else ()
-  # The policy averaged over updates (`policy_average_decay`) is evaluated beside the online one.
-  # (In a population, members at decay 0 beside averaging ones keep a copy of their policy: not
-  # evaluated, exported or recorded as an average.)
-  averaging = [trainer.member_config(i).learner.policy_average_decay > 0
-               for i in range(trainer.members)]
-  averages = any(averaging)  # (the state keeps average policies: Trainer._init_learner)
   average_columns = tuple(f"{k}_average" for k in ("eval_return", "eval_return_std", *scored)
                           ) if averages else ()
   logs = [CsvLog(d, _OPTIONAL_COLUMNS + scored + average_columns) for d in dirs]
@@ -347,11 +349,11 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
     evaluate = iteration % eval_every == 0 or last
     if evaluate:
       t0 = time.perf_counter()
-      returns, scores = _evaluated(trainer, state, state.learner.policy, state.normalizer,
-                                   eval_keys)
-      if averages:  # (the same episodes' starts)
-        average_returns, average_scores = _evaluated(
-            trainer, state, state.learner.average_policy, state.normalizer, eval_keys)
+      held = [state.learner.policy] + ([state.learner.average_policy] if averages else [])
+      evaluated = _evaluated(trainer, state, [(h, state.normalizer) for h in held], eval_keys)
+      returns, scores = evaluated[0]
+      if averages:
+        average_returns, average_scores = evaluated[1]
       eval_seconds += time.perf_counter() - t0
     wall = wall_offset + time.perf_counter() - call_start
     peak = results.peak_memory_bytes()
@@ -452,18 +454,29 @@ def _final_evaluation(trainer: Trainer, state, best_paths: dict[str, list[str]],
              if final_paths else [])
     policies.append(("average", None, sha256(files) if files and all(averaging) else None))
   policies += chosen_from_average
-  done = {}  # each member's sha256s -> (name, returns [P, n], scores [P, n] or None)
-  for name, paths, shas in policies:
-    same = done.get(shas) if shas is not None else None
-    if same is not None:
-      first, returns, scores = same
+  # Each distinct policy (by its members' sha256s, where known) is evaluated once, and all of
+  # them together (`_evaluated`); a repeat's records are the first's.
+  first_of = {}  # each member's sha256s -> the index in `policies` of the first with them
+  pending = []  # (index in `policies`, (policy, normaliser))
+  for j, (name, paths, shas) in enumerate(policies):
+    if shas is not None and shas in first_of:
+      continue
+    if shas is not None:
+      first_of[shas] = j
+    held = state.learner.average_policy if name == "average" else state.learner.policy
+    pending.append((j, _stacked(trainer, state, paths) if paths is not None
+                    else (held, state.normalizer)))
+  evaluated = dict(zip([j for j, _ in pending],
+                       _evaluated(trainer, state, [pair for _, pair in pending], keys,
+                                  num_envs=episodes)))
+  for j, (name, paths, shas) in enumerate(policies):
+    same = None
+    if j in evaluated:
+      returns, scores = evaluated[j]
     else:
-      held = state.learner.average_policy if name == "average" else state.learner.policy
-      policy, norm = (_stacked(trainer, state, paths) if paths is not None
-                      else (held, state.normalizer))
-      returns, scores = _evaluated(trainer, state, policy, norm, keys, num_envs=episodes)
-      if shas is not None:
-        done[shas] = (name, returns, scores)
+      first = first_of[shas]
+      same = policies[first][0]
+      returns, scores = evaluated[first]
     for i in range(trainer.members):
       if (name == "average" or name in _AVERAGE_BEST_NAMES) and not averaging[i]:
         continue
@@ -475,7 +488,7 @@ def _final_evaluation(trainer: Trainer, state, best_paths: dict[str, list[str]],
       print_fn((f"{labels[i]}: " if trainer.members > 1 else "")
                + (f"fresh evaluation of the {_POLICY_WORDS[name]} over {returns.shape[1]} "
                   f"episodes: {result}" if same is None else
-                  f"the {_POLICY_WORDS[name]} holds the {_POLICY_WORDS[first]}'s arrays: "
+                  f"the {_POLICY_WORDS[name]} holds the {_POLICY_WORDS[same]}'s arrays: "
                   f"{result}, not evaluated again"))
       if curve is not None:
         curve.write(**_record_base(trainer, i), kind="final_return", policy=name,
@@ -483,7 +496,7 @@ def _final_evaluation(trainer: Trainer, state, best_paths: dict[str, list[str]],
                     final_return_std=float(returns[i].std()), **scored,
                     episodes=int(returns.shape[1]),
                     **({"policy_sha256": shas[i]} if shas is not None else {}),
-                    **({"same_policy_as": same[0]} if same is not None else {}),
+                    **({"same_policy_as": same} if same is not None else {}),
                     env_steps=rows[i]["env_steps"], wall_s=rows[i]["wall_s"], finished=finished,
                     settings=_record_settings(trainer, i, total_env_steps))
 
@@ -517,14 +530,29 @@ def _stacked(trainer: Trainer, state, paths: list[str]):
                                                    trainer.state_sharding.normalizer))
 
 
-def _evaluated(trainer: Trainer, state, policy, norm, keys, num_envs: int | None = None):
-  """Evaluation returns [P, n] and, where the run's source scores the episodes (FORM: their
-  mean log pD per transition, `Trainer.evaluate`), the scores [P, n], else None."""
+# The most environments one evaluation call steps (members x policies x episodes) where it
+# evaluates several policies: more policies go to further calls.
+EVALUATION_ENVS = 8192
+
+
+def _evaluated(trainer: Trainer, state, pairs: list, keys, num_envs: int | None = None
+               ) -> list[tuple[np.ndarray, np.ndarray | None]]:
+  """For each (policy [P, ...], normaliser [P, ...]) of `pairs`, in order, its evaluation's
+  returns [P, n] and, where the run's source scores the episodes (FORM: their mean log pD per
+  transition, `Trainer.evaluate`), the scores [P, n], else None. The pairs are evaluated
+  together, on the same starts (`keys`), up to EVALUATION_ENVS environments per call."""
+  n = num_envs or trainer.config.eval_envs
+  per_call = max(1, EVALUATION_ENVS // (trainer.members * n))
   more = {} if num_envs is None else {"num_envs": num_envs}
-  out = trainer.evaluate(policy, norm, keys, **trainer.evaluation_inputs(state), **more)
-  if isinstance(out, tuple):
-    return np.asarray(out[0]), np.asarray(out[1])
-  return np.asarray(out), None
+  out = []
+  for start in range(0, len(pairs), per_call):
+    chunk = pairs[start:start + per_call]
+    result = trainer.evaluate(tuple(p for p, _ in chunk), tuple(m for _, m in chunk), keys,
+                              **trainer.evaluation_inputs(state), **more)
+    returns, scores = result if isinstance(result, tuple) else (result, None)
+    out += [(np.asarray(returns[j]), None if scores is None else np.asarray(scores[j]))
+            for j in range(len(chunk))]
+  return out
 
 
 def _rate(steps_per_s: float) -> str:

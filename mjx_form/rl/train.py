@@ -330,16 +330,18 @@ class Trainer:
     """[P, 2]: PRNGKey(seed + offset) of each member (offset 0 starts a run, 1 evaluates)."""
     return jnp.stack([jax.random.PRNGKey(s + offset) for s in self.seeds])
 
-  def compile_ahead(self, keys: jax.Array) -> None:
-    """Compiles `init`, `iteration` and `evaluate` at once, in threads, before their first call.
+  def compile_ahead(self, keys: jax.Array, policies_per_evaluation: int = 1) -> None:
+    """Compiles `init`, `iteration` and `evaluate` (of `policies_per_evaluation` policies at
+    once) together, in threads, before their first call.
 
     Without it each program compiles at its first call, one after the other; XLA compiles in
     parallel threads (tracing takes turns), so a run starts sooner. The compiled programs land in
     JAX's cache; the later calls (`keys` [P, 2] of the kind that will be passed) reuse them.
     """
     state = self.abstract_state
+    k = policies_per_evaluation
     jobs = [(self.init, (keys,), {}), (self.iteration, (state,), {}),
-            (self.evaluate, (state.learner.policy, state.normalizer, keys),
+            (self.evaluate, ((state.learner.policy,) * k, (state.normalizer,) * k, keys),
              self.evaluation_inputs(state))]
     with concurrent.futures.ThreadPoolExecutor(len(jobs)) as pool:
       compiled = [f.result() for f in [pool.submit(lambda f=f, a=a, k=k: f.lower(*a, **k)
@@ -612,26 +614,40 @@ class Trainer:
 
   # --- evaluation -------------------------------------------------------------------------
 
-  def _evaluate(self, policy_params, norm: normalizer.NormalizerState, keys: jax.Array,
+  def _evaluate(self, policies: tuple, norms: tuple, keys: jax.Array,
                 num_envs: int | None = None, source=None, source_settings=None):
-    """Task returns [P, num_envs] (default eval_envs) of full episodes with each member's
-    policy's mean action; policy_params and norm [P, ...], keys [P, 2] (`keys(1)`). With the
+    """Task returns [K, P, num_envs] (default eval_envs) of full episodes with the mean action of
+    each of K policies per member (`policies`, `norms`: K trees [P, ...] each, e.g. the online
+    and the average policy), all K on the same starts (keys [P, 2], `keys(1)`) and stepped as
+    one batch: an episode is 1000 steps one after the other, each step's cost set by latency
+    more than by the batch on a GPU, so K policies at once cost about what one does. With the
     members' `source` states (a source with `evaluation_log_prob`, e.g. FORM's) and their own
     values of its settings (`source_settings`, [P] each), also each episode's mean score of its
-    transitions [P, num_envs], each member's by its own source: (returns, scores)."""
+    transitions [K, P, num_envs], each member's by its own source: (returns, scores)."""
     n = num_envs or self.config.eval_envs
-    reset_keys = jax.vmap(lambda k: jax.random.split(k, n))(keys).reshape(-1, 2)
-    states = self.auto_reset.reset_from_keys(reset_keys)  # (its info keys too: and the
-    states = jax.lax.with_sharding_constraint(states, self._batch)  # sharding: one step trace)
-    by_member = lambda x: x.reshape((self.members, n) + x.shape[1:])
+    k, p = len(policies), self.members
+    # Each member's envs [K * n]: its n starts once per policy (the members stay the outer
+    # axis, as the batch is sharded).
+    reset_keys = jax.vmap(lambda key: jnp.tile(jax.random.split(key, n), (k, 1)))(keys)
+    states = self.auto_reset.reset_from_keys(reset_keys.reshape(-1, 2))  # (its info keys too:
+    states = jax.lax.with_sharding_constraint(states, self._batch)  # and sharding: one step trace)
+    by_member = lambda x: x.reshape((p, k * n) + x.shape[1:])
+    stack = lambda trees: jax.tree.map(lambda *x: jnp.stack(x, axis=1), *trees)  # [P, K, ...]
+    policy_params, norm = stack(policies), stack(norms)
+
+    def act(obs):  # obs [P * K * n, D] -> the policies' mean actions [P * K * n, A]
+      obs = obs.reshape((p, k, n, obs.shape[-1]))
+      apply = lambda params, norm, obs: self.networks.policy.apply(
+          params, normalizer.normalize(norm, obs)).mode()
+      action = jax.vmap(jax.vmap(apply))(policy_params, norm, obs)  # [P, K, n, A]
+      return action.reshape((-1, action.shape[-1]))
 
     def step(carry, _):
       env_state, total, score = carry
-      action = self._policies(policy_params, norm, env_state.obs).mode()
       step_all = jax.vmap(self.env.step)
       if self.per_device_env_steps:
         step_all = mesh_lib.per_device(step_all, self._batch)
-      stepped = step_all(env_state, action.reshape((-1, action.shape[-1])))
+      stepped = step_all(env_state, act(env_state.obs))
       # (one episode, no reset: obs -> stepped.obs is a transition; after a physics error the
       # state stands still, its steps scored as x -> x as its rewards are 0)
       if source is not None:
@@ -641,12 +657,13 @@ class Trainer:
                 source_settings or {}).reshape(-1)
       return (stepped, total + stepped.reward, score), None
 
-    zeros = jnp.zeros(reset_keys.shape[:1])
+    zeros = jnp.zeros(p * k * n)
     (_, total, score), _ = jax.lax.scan(step, (states, zeros, zeros), None,
                                         length=env_lib.EPISODE_LENGTH)
+    by_policy = lambda x: jnp.swapaxes(x.reshape((p, k, n)), 0, 1)  # [K, P, n]
     if source is None:
-      return by_member(total)
-    return by_member(total), by_member(score) / env_lib.EPISODE_LENGTH
+      return by_policy(total)
+    return by_policy(total), by_policy(score) / env_lib.EPISODE_LENGTH
 
 
 def program_bytes(compiled) -> int | None:
