@@ -51,7 +51,7 @@ def time_evaluation(trainer: Trainer, state, policies: int, episodes: int, repea
   return best
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
   parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
   parser.add_argument("--tasks", nargs="+", default=["walker_stand"])
   parser.add_argument("--members", type=int, default=3)
@@ -60,7 +60,7 @@ def main() -> None:
   parser.add_argument("--repeats", type=int, default=2)
   parser.add_argument("--physics", default="fast")
   parser.add_argument("--out", default=None, help="JSON lines file for the records")
-  args = parser.parse_args()
+  args = parser.parse_args(argv)
   for name in args.tasks:
     if name not in tasks.TASKS:
       parser.error(f"unknown task {name!r}; valid tasks: {', '.join(tasks.TASKS)}")

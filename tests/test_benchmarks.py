@@ -111,6 +111,25 @@ def test_scaling_measures_weak_scaling_and_builds_populations_over_the_devices(t
   assert "has 2 device(s)" in capsys.readouterr().err
 
 
+def test_evaluation_speed_times_policies_evaluated_together(tmp_path, capsys):
+  """benchmarks/evaluation_speed.py, tiny sizes: a record per number of policies, the time of
+  one call and per policy; bad sizes refused."""
+  bench = load_script("evaluation_speed", folder="benchmarks")
+  out = tmp_path / "evaluation.jsonl"
+  bench.main(["--tasks", "reacher_easy", "--members", "2", "--episodes", "2", "--policies",
+              "1", "2", "--repeats", "1", "--out", str(out)])
+  records = [json.loads(line) for line in open(out)]
+  assert [(r["kind"], r["members"], r["episodes"], r["policies"]) for r in records] == [
+      ("evaluation_speed", 2, 2, 1), ("evaluation_speed", 2, 2, 2)]
+  for r in records:
+    assert r["seconds"] > 0 and r["seconds_per_policy"] == pytest.approx(
+        r["seconds"] / r["policies"])
+  assert "2 member(s) x 2 policies x 2 episodes" in capsys.readouterr().out
+  for bad in (["--policies", "0"], ["--tasks", "nope"]):
+    with pytest.raises(SystemExit):
+      bench.main(bad)
+
+
 def test_update_speed_times_forms_work_per_learner_update(tmp_path, capsys):
   """benchmarks/update_speed.py's FORM variants, tiny sizes: one record each, with the task's
   effect-model settings and the learner FORM runs with (sampled Q in bf16)."""

@@ -356,6 +356,19 @@ def test_demonstrators_per_member_give_each_member_its_own(form_trainer):
                              rtol=1e-4, atol=1e-3)
   np.testing.assert_allclose(scored[1], scored[0], rtol=1e-4, atol=1e-3)
   assert np.abs(scored[0][0] - scored[0][1]).min() > 0.1  # (the members' episodes differ)
+  # Two policies per member in one call ([K, P, n]): each member's and each policy's own
+  # episodes, in either layout (the batch is [P, K, n], members outermost).
+  other = jax.tree.map(lambda w: 1.5 * w + 0.05, state.learner.policy)
+  other_norm = state.normalizer._replace(mean=state.normalizer.mean + 0.3)
+  for t in (population, spread):
+    inputs = t.evaluation_inputs(state)
+    together = np.asarray(t.evaluate((state.learner.policy, other), (state.normalizer, other_norm),
+                                     t.keys(1), **inputs)[1])
+    alone = [np.asarray(t.evaluate((p,), (m,), t.keys(1), **inputs)[1][0])
+             for p, m in ((state.learner.policy, state.normalizer), (other, other_norm))]
+    assert together.shape == (2, 2, CONFIG.eval_envs)
+    np.testing.assert_allclose(together, np.stack(alone), rtol=1e-4, atol=1e-3)
+    assert np.abs(alone[0] - alone[1]).min() > 0.1  # (the policies' episodes differ)
   # (the two demonstrators score the same transitions differently, through the members' states)
   obs = jnp.asarray(np.random.default_rng(2).normal(size=(3, 5, D)), jnp.float32)
   scores = [np.asarray(source.log_probs(population.member(state.source, i), obs)[0])

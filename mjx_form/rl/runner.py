@@ -41,6 +41,7 @@ from __future__ import annotations
 import csv
 import dataclasses
 import json
+import math
 import os
 import time
 
@@ -288,8 +289,9 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
   elif initial_policy is not None:
     state = trainer.start_from(state, initial_policy.params, initial_policy.normalizer)
     meta = initial_policy.metadata
-    [(returns, _)] = _evaluated(trainer, state, [(state.learner.policy, state.normalizer)],
-                                eval_keys)
+    # (beside its average, a copy of it here: the periodic evaluations' program, compiled)
+    held = [state.learner.policy] + ([state.learner.average_policy] if averages else [])
+    returns, _ = _evaluated(trainer, state, [(h, state.normalizer) for h in held], eval_keys)[0]
     print_fn(f"every member starts from {meta['task']}'s policy {meta['sha256'][:12]} "
              f"(exported at {meta.get('env_steps') or 0:,} env steps): it evaluates "
              f"{returns.mean():.1f} on {config.task} ({returns.size} episodes)")
@@ -531,7 +533,9 @@ def _stacked(trainer: Trainer, state, paths: list[str]):
 
 
 # The most environments one evaluation call steps (members x policies x episodes) where it
-# evaluates several policies: more policies go to further calls.
+# evaluates several policies: more policies go to further calls of equal size. (An evaluation's
+# environments are held beside the training state; the iteration's memory check does not count
+# them.)
 EVALUATION_ENVS = 8192
 
 
@@ -540,15 +544,19 @@ def _evaluated(trainer: Trainer, state, pairs: list, keys, num_envs: int | None 
   """For each (policy [P, ...], normaliser [P, ...]) of `pairs`, in order, its evaluation's
   returns [P, n] and, where the run's source scores the episodes (FORM: their mean log pD per
   transition, `Trainer.evaluate`), the scores [P, n], else None. The pairs are evaluated
-  together, on the same starts (`keys`), up to EVALUATION_ENVS environments per call."""
+  together, on the same starts (`keys`), up to EVALUATION_ENVS environments per call; calls
+  are of one size (the last padded with a repeat of its first pair): one program."""
   n = num_envs or trainer.config.eval_envs
-  per_call = max(1, EVALUATION_ENVS // (trainer.members * n))
+  calls = math.ceil(len(pairs) / max(1, EVALUATION_ENVS // (trainer.members * n)))
+  per_call = math.ceil(len(pairs) / calls)
   more = {} if num_envs is None else {"num_envs": num_envs}
   out = []
   for start in range(0, len(pairs), per_call):
     chunk = pairs[start:start + per_call]
-    result = trainer.evaluate(tuple(p for p, _ in chunk), tuple(m for _, m in chunk), keys,
-                              **trainer.evaluation_inputs(state), **more)
+    padded = chunk + chunk[:1] * (per_call - len(chunk))
+    result = jax.device_get(trainer.evaluate(
+        tuple(p for p, _ in padded), tuple(m for _, m in padded), keys,
+        **trainer.evaluation_inputs(state), **more))
     returns, scores = result if isinstance(result, tuple) else (result, None)
     out += [(np.asarray(returns[j]), None if scores is None else np.asarray(scores[j]))
             for j in range(len(chunk))]

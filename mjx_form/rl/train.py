@@ -637,9 +637,8 @@ class Trainer:
 
     def act(obs):  # obs [P * K * n, D] -> the policies' mean actions [P * K * n, A]
       obs = obs.reshape((p, k, n, obs.shape[-1]))
-      apply = lambda params, norm, obs: self.networks.policy.apply(
-          params, normalizer.normalize(norm, obs)).mode()
-      action = jax.vmap(jax.vmap(apply))(policy_params, norm, obs)  # [P, K, n, A]
+      pi = jax.vmap(self._policies, in_axes=1, out_axes=1)(policy_params, norm, obs)
+      action = pi.mode()  # [P, K, n, A]
       return action.reshape((-1, action.shape[-1]))
 
     def step(carry, _):
