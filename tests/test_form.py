@@ -249,6 +249,28 @@ def test_policies_evaluated_together_each_give_their_own_episodes(form_trainer):
   assert np.abs(scores[0] - scores[1]).max() > 0.1  # (the two policies' episodes differ)
 
 
+def test_policies_beyond_the_env_limit_go_to_calls_of_one_size(form_trainer, monkeypatch):
+  """The runner's evaluations: policies beyond EVALUATION_ENVS environments go to further calls
+  of one size (the last padded, one program), each policy's own returns and log pD in order."""
+  from mjx_form.rl import runner
+  state, _ = _iterate(form_trainer, 1)
+  pairs = [(jax.tree.map(lambda w: scale * w, state.learner.policy), state.normalizer)
+           for scale in (1.0, 1.5, 2.0)]
+  keys = form_trainer.keys(1)
+  calls, evaluate = [], form_trainer.evaluate  # (each call: how many policies it evaluates)
+  monkeypatch.setattr(form_trainer, "evaluate",
+                      lambda *a, **k: calls.append(len(a[0])) or evaluate(*a, **k))
+  together = runner._evaluated(form_trainer, state, pairs, keys)
+  monkeypatch.setattr(runner, "EVALUATION_ENVS", 2 * CONFIG.eval_envs)  # two policies a call
+  split = runner._evaluated(form_trainer, state, pairs, keys)
+  assert calls == [3, 2, 2]
+  for (returns, scores), (want_returns, want_scores) in zip(split, together):
+    np.testing.assert_allclose(returns, want_returns, rtol=1e-4, atol=1e-3)
+    np.testing.assert_allclose(scores, want_scores, rtol=1e-4, atol=1e-3)
+  assert min(np.abs(together[i][1] - together[j][1]).max()
+             for i, j in ((0, 1), (0, 2), (1, 2))) > 0.1  # (the three policies differ)
+
+
 def test_an_ensemble_runs_in_the_compiled_loop_on_two_devices(form_trainer):
   """An ensemble's stacked demonstrators go through the compiled loop with the batch sharded
   over two devices: an ensemble of one model twice trains as that model alone (the same log pD

@@ -276,7 +276,8 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
   print_fn("compiling the run's programs (init, iteration, evaluation) ...")
   compile_start = time.perf_counter()
   with results.count_persistent_cache_hits() as cache_hits:
-    trainer.compile_ahead(eval_keys, policies_per_evaluation=2 if averages else 1)
+    trainer.compile_ahead(eval_keys, policies_per_evaluation=_per_call(
+        trainer, 2 if averages else 1, trainer.config.eval_envs))
   print_fn(f"compiled in {time.perf_counter() - compile_start:.0f}s"
            + (f" ({cache_hits[0]} programs from the persistent cache)" if cache_hits[0] else ""))
   state = trainer.init(trainer.keys())
@@ -539,6 +540,12 @@ def _stacked(trainer: Trainer, state, paths: list[str]):
 EVALUATION_ENVS = 8192
 
 
+def _per_call(trainer: Trainer, policies: int, episodes: int) -> int:
+  """How many of `policies` policies one evaluation call takes (`_evaluated`)."""
+  calls = math.ceil(policies / max(1, EVALUATION_ENVS // (trainer.members * episodes)))
+  return math.ceil(policies / calls)
+
+
 def _evaluated(trainer: Trainer, state, pairs: list, keys, num_envs: int | None = None
                ) -> list[tuple[np.ndarray, np.ndarray | None]]:
   """For each (policy [P, ...], normaliser [P, ...]) of `pairs`, in order, its evaluation's
@@ -546,9 +553,7 @@ def _evaluated(trainer: Trainer, state, pairs: list, keys, num_envs: int | None 
   transition, `Trainer.evaluate`), the scores [P, n], else None. The pairs are evaluated
   together, on the same starts (`keys`), up to EVALUATION_ENVS environments per call; calls
   are of one size (the last padded with a repeat of its first pair): one program."""
-  n = num_envs or trainer.config.eval_envs
-  calls = math.ceil(len(pairs) / max(1, EVALUATION_ENVS // (trainer.members * n)))
-  per_call = math.ceil(len(pairs) / calls)
+  per_call = _per_call(trainer, len(pairs), num_envs or trainer.config.eval_envs)
   more = {} if num_envs is None else {"num_envs": num_envs}
   out = []
   for start in range(0, len(pairs), per_call):

@@ -339,9 +339,9 @@ class Trainer:
     JAX's cache; the later calls (`keys` [P, 2] of the kind that will be passed) reuse them.
     """
     state = self.abstract_state
-    k = policies_per_evaluation
+    held = policies_per_evaluation
     jobs = [(self.init, (keys,), {}), (self.iteration, (state,), {}),
-            (self.evaluate, ((state.learner.policy,) * k, (state.normalizer,) * k, keys),
+            (self.evaluate, ((state.learner.policy,) * held, (state.normalizer,) * held, keys),
              self.evaluation_inputs(state))]
     with concurrent.futures.ThreadPoolExecutor(len(jobs)) as pool:
       compiled = [f.result() for f in [pool.submit(lambda f=f, a=a, k=k: f.lower(*a, **k)
