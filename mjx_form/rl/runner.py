@@ -291,8 +291,7 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
     state = trainer.start_from(state, initial_policy.params, initial_policy.normalizer)
     meta = initial_policy.metadata
     # (beside its average, a copy of it here: the periodic evaluations' program, compiled)
-    held = [state.learner.policy] + ([state.learner.average_policy] if averages else [])
-    returns, _ = _evaluated(trainer, state, [(h, state.normalizer) for h in held], eval_keys)[0]
+    returns, _ = _evaluated(trainer, state, _held(state, averages), eval_keys)[0]
     print_fn(f"every member starts from {meta['task']}'s policy {meta['sha256'][:12]} "
              f"(exported at {meta.get('env_steps') or 0:,} env steps): it evaluates "
              f"{returns.mean():.1f} on {config.task} ({returns.size} episodes)")
@@ -352,8 +351,7 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
     evaluate = iteration % eval_every == 0 or last
     if evaluate:
       t0 = time.perf_counter()
-      held = [state.learner.policy] + ([state.learner.average_policy] if averages else [])
-      evaluated = _evaluated(trainer, state, [(h, state.normalizer) for h in held], eval_keys)
+      evaluated = _evaluated(trainer, state, _held(state, averages), eval_keys)
       returns, scores = evaluated[0]
       if averages:
         average_returns, average_scores = evaluated[1]
@@ -544,6 +542,13 @@ def _per_call(trainer: Trainer, policies: int, episodes: int) -> int:
   """How many of `policies` policies one evaluation call takes (`_evaluated`)."""
   calls = math.ceil(policies / max(1, EVALUATION_ENVS // (trainer.members * episodes)))
   return math.ceil(policies / calls)
+
+
+def _held(state, averages: bool) -> list:
+  """What a periodic evaluation evaluates: (policy, normaliser) of the state's online policy
+  and, where the run keeps one (`averages`), of its average policy."""
+  return [(state.learner.policy, state.normalizer)] + (
+      [(state.learner.average_policy, state.normalizer)] if averages else [])
 
 
 def _evaluated(trainer: Trainer, state, pairs: list, keys, num_envs: int | None = None
