@@ -489,8 +489,8 @@ def recipe_hint(args: argparse.Namespace, error: ValueError) -> str:
   if (args.method == "form" and {"learner.clip_critic_actions", "learner.mpo.epsilon_scale"}
       & set(error.keys) and set(settings.LEARNER_KEYS) & set(settings.run_settings(args.task))
       and args.preset != "paper"):
-    return (" (walker_walk's and quadruped_run's FORM runs take the expert recipes' learner "
-            "since 2026-11-29, mjx_form/imitation/settings.py; a run started before resumes "
+    return (f" ({args.task}'s FORM runs take the expert recipes' learner since 2026-11-29, "
+            "mjx_form/imitation/settings.py; a run started before resumes "
             "with --no-clip_critic_actions --epsilon_scale 1e-5, one started with other flags "
             "with those flags)")
   if "source_update_every" in error.keys:
