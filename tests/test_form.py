@@ -1181,6 +1181,48 @@ def test_a_demonstrator_that_does_not_fit_is_refused_before_anything_is_recorded
         resume=False, physics="fast", seed=0, results_path=None, print_fn=lambda line: None)
 
 
+def test_demo_episodes_0_keeps_a_ready_demonstrator_unchecked_and_refuses_training_one(
+    tmp_path, monkeypatch, capsys):
+  """--demo_episodes 0: the shipped (or given) demonstrator is kept and used without recording
+  the expert's episodes to check it (~40 s of a walker job on a GPU); where none is ready (one
+  would be trained), the run is refused by name before anything is recorded or written; the
+  parser refuses it beside --demos, --save_demos and --train_demonstrator."""
+  from mjx_form.imitation import pipeline
+  recorded = _stub_recording(monkeypatch, pipeline, episodes=2)
+  env = tasks.make("reacher_easy")
+  config = settings.effect_model_config("reacher_easy", env)
+  lines = []
+  source = pipeline.prepare(env, config, {}, pipeline.Artefacts(demo_episodes=0),
+                            str(tmp_path / "run"), resume=False, physics="fast", seed=0,
+                            results_path=None, print_fn=lines.append)
+  shipped = tasks.bundled_demonstrator("reacher_easy")
+  assert not recorded
+  assert source.demonstrator_sha256 == effect_models.load_effect_model(shipped).metadata["sha256"]
+  assert open(tmp_path / "run" / "demonstrator.npz", "rb").read() == open(shipped, "rb").read()
+  assert "--demo_episodes 0: the demonstrator is not checked on demonstrations" in lines
+  assert not any("its log-likelihood on this run's" in line for line in lines)
+  with pytest.raises(pipeline.PipelineError, match="--demo_episodes 0 .* none is ready for "
+                     "reacher_easy"):
+    pipeline.prepare(env, config, {}, pipeline.Artefacts(demo_episodes=0, train_demonstrator=True),
+                     str(tmp_path / "trains"), resume=False, physics="fast", seed=0,
+                     results_path=None, print_fn=lines.append)
+  assert not recorded and not (tmp_path / "trains").exists()
+  # (with the default, the same ready demonstrator is checked on recorded episodes)
+  pipeline.prepare(env, config, {}, pipeline.Artefacts(), str(tmp_path / "checked"),
+                   resume=False, physics="fast", seed=0, results_path=None,
+                   print_fn=lines.append)
+  assert recorded == [1]
+  cli = load_script("run")
+  for extra in (["--demos", "d.npz"], ["--save_demos", "d.npz"], ["--train_demonstrator"]):
+    with pytest.raises(SystemExit):
+      cli.parse_args(["--task", "reacher_easy", "--demo_episodes", "0", *extra])
+    assert "--demo_episodes 0 (no demonstrations" in capsys.readouterr().err
+  with pytest.raises(SystemExit):
+    cli.parse_args(["--task", "reacher_easy", "--demo_episodes", "-1"])
+  assert "--demo_episodes must be >= 0, got -1" in capsys.readouterr().err
+  assert cli.parse_args(["--task", "reacher_easy", "--demo_episodes", "0"]).demo_episodes == 0
+
+
 def _reacher_easy_demonstrator_files(tmp_path) -> tuple[str, str, str]:
   """(the shipped reacher_easy demonstrator, a former one, the former one's model written as if
   trained at L2 1: a file of other settings)."""

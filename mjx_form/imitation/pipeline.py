@@ -60,7 +60,8 @@ class Artefacts:
   # with member_demonstrators and train_demonstrator: the seeds of the draws trained, one per
   # member, side by side in one program
   draw_seeds: tuple[int, ...] = ()
-  demo_episodes: int | None = None  # None: 1000 to train a demonstrator, 16 to check one
+  # None: 1000 to train a demonstrator, 16 to check a ready one; 0: do not check a ready one
+  demo_episodes: int | None = None
   train_demonstrator: bool = False  # train even where one is shipped
   save_demos: str | None = None  # also write the recorded demonstrations here
   training: demonstrator_lib.DemonstratorTraining = demonstrator_lib.DemonstratorTraining()
@@ -157,12 +158,18 @@ def prepare(env, config: em.EffectModelConfig, explicit: dict, artefacts: Artefa
       print_fn(why + "; training one with this run's")
   if ready:  # ready demonstrators: refused, if they do not fit, before recording
     config, demonstrators, sha256 = (members_of if per_member else ensemble)(ready, explicit)
+  if artefacts.demo_episodes == 0 and not ready:
+    raise PipelineError("--demo_episodes 0 skips the check of a ready demonstrator; none is "
+                        f"ready for {env.name} with this run's settings, and training one needs "
+                        "demonstrations (give --demo_episodes N or --demos FILE)")
   episodes = artefacts.demo_episodes or (DEFAULT_CHECK_EPISODES if ready
                                          else DEFAULT_TRAINING_EPISODES)
   can_record = artefacts.demos is not None or artefacts.expert is not None or (
       env.name in tasks.bundled_experts())
   demos_obs = None
-  if not ready or can_record:
+  if artefacts.demo_episodes == 0:
+    print_fn("--demo_episodes 0: the demonstrator is not checked on demonstrations")
+  elif not ready or can_record:
     demos_obs, demos_info = demonstrations(env, artefacts, episodes, physics, seed, print_fn)
   else:
     print_fn(f"no expert for {env.name}: the demonstrator is not checked on demonstrations")
