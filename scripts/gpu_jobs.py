@@ -270,6 +270,9 @@ def start(jobs_file: Path, folder: Path, deadline_s: float, num_gpus: int | None
   jobs = parse_jobs(jobs_file.read_text(), len(gpus))
   if (folder / "status.json").exists():
     raise JobsError(f"{folder} already holds a sitting (status.json); pick another --dir")
+  if folder.exists() and any(folder.iterdir()):  # (an earlier sitting's records would be packed)
+    raise JobsError(f"{folder} is not empty ({', '.join(sorted(p.name for p in folder.iterdir()))}"
+                    "); pick another --dir")
   for sub in ("logs", "res", "runs"):
     (folder / sub).mkdir(parents=True, exist_ok=True)
   (folder / "jobs.json").write_text(json.dumps({"jobs": jobs, "gpus": gpus,

@@ -71,6 +71,12 @@ def test_start_poll_copy_and_pack(tmp_path, capsys, monkeypatch):
   assert gpu_jobs.main(["start", str(jobs), "--dir", str(folder), "--gpus", "1"]) == 0
   assert gpu_jobs.main(["start", str(jobs), "--dir", str(folder), "--gpus", "1"]) == 2
   assert "already holds a sitting" in capsys.readouterr().err
+  # A folder with an earlier sitting's logs but no status.json (seen on a reused GPU host,
+  # 2026-11-29): its records would be packed with this sitting's.
+  (tmp_path / "used" / "logs").mkdir(parents=True)
+  (tmp_path / "used" / "logs" / "old.log").write_text("old")
+  assert gpu_jobs.main(["start", str(jobs), "--dir", str(tmp_path / "used"), "--gpus", "1"]) == 2
+  assert "is not empty (logs); pick another --dir" in capsys.readouterr().err
   assert gpu_jobs.main(["poll", "--dir", str(folder), "--wait", "60", "--out", str(out)]) == 0
   printed = capsys.readouterr().out
   assert "every job has ended" in printed and "step 2" in printed and "noise" not in printed
