@@ -221,6 +221,11 @@ def parse_args(argv=None) -> argparse.Namespace:
                           "staggered starts did); by default first episodes start at random "
                           "phases so that every iteration collects every phase of an episode")
   train.add_argument("--eval_every", type=int, default=10, help="iterations between evaluations")
+  train.add_argument("--eval_on_host", action="store_true",
+                     help="run the periodic evaluations on the host's CPU while training goes on "
+                          "(their rows are written once done; the final ones stay on the "
+                          "accelerator): for a GPU, whose evaluation steps its episodes one "
+                          "step after another while the CPU is idle")
   train.add_argument("--checkpoint_every", type=int, default=50, help="iterations")
   train.add_argument("--max_seconds", type=float, default=None,
                      help="stop training (checkpointed, policy exported) once this many "
@@ -658,7 +663,7 @@ def main(argv=None) -> int:
                         checkpoint_replay=not args.lean_checkpoints, results_path=results_path,
                         final_eval_envs=args.final_eval_envs, mesh=mesh, reward_source=source,
                         seeds=seeds, overrides=overrides, initial_policy=initial,
-                        print_fn=say)
+                        eval_on_host=args.eval_on_host, print_fn=say)
     except ValueError as e:  # bad settings or artefacts, an existing run, another config
       print(f"error: {e}{recipe_hint(args, e)}", file=sys.stderr)
       return 2

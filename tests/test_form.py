@@ -3,6 +3,7 @@ that never sees the task reward, and `scripts/run.py --method form` through ever
 the README's main command on (reacher_easy, small sizes; the loop runs over the 2 forced host
 devices)."""
 
+import csv
 import dataclasses
 import json
 import os
@@ -269,6 +270,62 @@ def test_policies_beyond_the_env_limit_go_to_calls_of_one_size(form_trainer, mon
     np.testing.assert_allclose(scores, want_scores, rtol=1e-4, atol=1e-3)
   assert min(np.abs(together[i][1] - together[j][1]).max()
              for i, j in ((0, 1), (0, 2), (1, 2))) > 0.1  # (the three policies differ)
+
+
+def test_evaluations_on_the_host_write_what_evaluations_on_the_accelerator_write(tmp_path,
+                                                                                  monkeypatch):
+  """`eval_on_host` (run.py --eval_on_host): a FORM population with an average policy, trained
+  on one device and evaluated on the other (standing in for a GPU and its host's CPU), writes
+  the same rows, records and kept policies as evaluating on the training's device: evaluations
+  every 2 iterations, a checkpoint every 3 (which waits for the evaluation before it), the
+  last iteration's, the final ones; also where each evaluation is still running until it is
+  waited for (the rows behind it held back). The rows come in order, each once."""
+  from mjx_form.rl import runner
+  assert jax.device_count() == 2  # (tests/conftest.py)
+  config = dataclasses.replace(CONFIG, learner=dataclasses.replace(
+      CONFIG.learner, policy_average_decay=0.5))
+  out = {}
+  host = {"eval_on_host": True, "host_device": jax.devices()[1]}
+  for name, more in (("accelerator", {}), ("host", host), ("late", host)):
+    if name == "late":  # (done only once waited for)
+      monkeypatch.setattr(runner._Evaluation, "done", lambda self: self.results is not None)
+    run_dir, curve = tmp_path / name, tmp_path / f"{name}.jsonl"
+    runner.run(config, str(run_dir), 7 * config.env_steps_per_iteration, eval_every=2,
+               checkpoint_every=3, final_eval_envs=2, results_path=str(curve),
+               mesh=mesh_lib.make_mesh(jax.devices()[:1]),
+               reward_source=FormReward(EFFECT, _demonstrator()), seeds=(0, 1),
+               print_fn=lambda *_: None, **more)
+    out[name] = run_dir, results.read_records(str(curve))
+  timing = {"wall_s", "eval_s", "steps_per_s", "peak_memory_bytes", "startup_s", "time",
+            "persistent_cache_hits", "settings"}
+  (run_dir, records) = out["accelerator"]
+  for host_dir, host_records in (out["host"], out["late"]):
+    _same_run_written(run_dir, records, host_dir, host_records, timing)
+
+
+def _same_run_written(run_dir, records, host_dir, host_records, timing):
+  from mjx_form.rl import runner
+  assert [r["kind"] for r in host_records] == [r["kind"] for r in records]
+  assert sum(r["kind"] == "learning_curve" for r in records) == 2 * 4  # (iterations 2, 4, 6, 7)
+  for record, host_record in zip(records, host_records):
+    assert host_record.keys() == record.keys()
+    for k, v in record.items():
+      if k not in timing:
+        assert host_record[k] == (pytest.approx(v, rel=1e-5, abs=1e-4)
+                                  if isinstance(v, float) else v), k
+    if record["kind"] == "learning_curve":
+      assert host_record["settings"] == {**record["settings"], "eval_on_host": True}
+  for seed in ("seed0", "seed1"):
+    rows = [{k: v for k, v in r.items() if k not in timing}
+            for r in csv.DictReader(open(run_dir / seed / "progress.csv"))]
+    host_rows = [{k: v for k, v in r.items() if k not in timing}
+                 for r in csv.DictReader(open(host_dir / seed / "progress.csv"))]
+    assert [r["iteration"] for r in host_rows] == [str(i) for i in range(1, 8)]
+    assert host_rows == rows
+    assert sum(r["eval_demonstrator_log_prob_average"] != "" for r in rows) == 4
+    for file in ("best_policy.npz", "best_log_pd_policy.npz", runner.AVERAGE_BEST[0][2],
+                 "policy.npz", runner.AVERAGE_FILE):
+      assert (host_dir / seed / file).read_bytes() == (run_dir / seed / file).read_bytes(), file
 
 
 def test_an_ensemble_runs_in_the_compiled_loop_on_two_devices(form_trainer):

@@ -38,6 +38,7 @@ Run directory layout:
 
 from __future__ import annotations
 
+import concurrent.futures
 import csv
 import dataclasses
 import json
@@ -49,13 +50,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from mjx_form import mesh as mesh_lib
 from mjx_form.files import checkpoint, experts, policy_io, results
 from mjx_form.rl import grid, normalizer
 from mjx_form.rl.learner import LearnerConfig
 from mjx_form.rl.train import TrainConfig, Trainer, iterations_for
 
 # Settings that may change when a run is resumed (they do not change what is computed).
-RESUMABLE = ("total_env_steps", "log_every", "eval_every", "checkpoint_every")
+RESUMABLE = ("total_env_steps", "log_every", "eval_every", "checkpoint_every", "eval_on_host")
 # Settings added since checkpoints were first written, with the value that does what runs did
 # before them: a checkpoint whose config lacks one resumes only with that value.
 ADDED_SETTINGS = {"learner.mpo.action_penalty": False, "learner.mpo.epsilon_penalty": 1e-3,
@@ -211,7 +213,7 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
         checkpoint_replay: bool = True, final_eval_envs: int = 0, mesh=None, reward_source=None,
         seeds: tuple[int, ...] | None = None, overrides: tuple[dict, ...] | None = None,
         initial_policy: experts.Expert | None = None, seconds_before: float = 0.0,
-        print_fn=print) -> list[dict]:
+        eval_on_host: bool = False, host_device=None, print_fn=print) -> list[dict]:
   """Trains until `total_env_steps`; returns each member's last logged row (with its final
   evaluation).
 
@@ -236,10 +238,18 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
   `initial_policy`: a trained policy (of this task or another with its observation layout) that
   every member starts from (`Trainer.start_from`; a resumed run continues from its checkpoint);
   `config.init_policy` must name it (`experts.policy_id`).
+  `eval_on_host`: the periodic evaluations run on the host's CPU (`host_device`, default the
+  first CPU device) while training goes on: the same program and starts, on copies of the
+  evaluated policies; an evaluation's rows (progress line, CSV, record, best policies) are
+  written once it is done, in order, their `wall_s` that of their iteration (the evaluation's
+  time not in it). Due while the last one runs, an evaluation waits for it; so does a checkpoint
+  and the run's end (`eval_s`: the time spent waiting). The final evaluations stay on the
+  accelerator.
   """
   run_settings = {"total_env_steps": total_env_steps, "log_every": log_every,
                   "eval_every": eval_every, "checkpoint_every": checkpoint_every,
-                  "checkpoint_replay": checkpoint_replay}
+                  "checkpoint_replay": checkpoint_replay,
+                  **({"eval_on_host": True} if eval_on_host else {})}
   ckpt_dir = os.path.join(os.path.abspath(directory), "checkpoints")
   config_path = os.path.join(directory, "config.json")
   check_run_dir(directory, resume)
@@ -273,11 +283,19 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
   averaging = [trainer.member_config(i).learner.policy_average_decay > 0
                for i in range(trainer.members)]
   averages = any(averaging)  # (the state keeps average policies: Trainer._init_learner)
-  print_fn("compiling the run's programs (init, iteration, evaluation) ...")
+  periodic = _per_call(trainer, 2 if averages else 1, trainer.config.eval_envs)
+  print_fn("compiling the run's programs (init, iteration, evaluation"
+           + (" on the host" if eval_on_host else "") + ") ...")
   compile_start = time.perf_counter()
   with results.count_persistent_cache_hits() as cache_hits:
-    trainer.compile_ahead(eval_keys, policies_per_evaluation=_per_call(
-        trainer, 2 if averages else 1, trainer.config.eval_envs))
+    host = None
+    with concurrent.futures.ThreadPoolExecutor(1) as pool:
+      if eval_on_host:  # (its program compiles beside the others)
+        built = pool.submit(_HostEvaluation, trainer, host_device, eval_keys, periodic)
+      trainer.compile_ahead(eval_keys, policies_per_evaluation=periodic,
+                            evaluation=not eval_on_host)
+      if eval_on_host:
+        host = built.result()
   print_fn(f"compiled in {time.perf_counter() - compile_start:.0f}s"
            + (f" ({cache_hits[0]} programs from the persistent cache)" if cache_hits[0] else ""))
   state = trainer.init(trainer.keys())
@@ -335,6 +353,37 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
   rows = [{"iteration": start_iteration, "env_steps": start_iteration * steps_per_iteration,
            "wall_s": wall_offset} for _ in dirs]
   stopped = False  # by max_seconds, before total_env_steps
+  # Each iteration's rows wait here, in order, for their evaluation (done at once on the
+  # accelerator; on the host once its program has run): [(rows, flags, evaluation or None)].
+  waiting = []
+
+  def write_rows(block: bool) -> None:
+    """Writes the waiting rows whose evaluation is done (all of them, waiting, with `block`)."""
+    nonlocal eval_seconds
+    while waiting:
+      member_rows, flags, evaluation = waiting[0]
+      if evaluation is not None:
+        if not (block or evaluation.done()):
+          return
+        t0 = time.perf_counter()
+        evaluation.wait()  # (at once where done)
+        eval_seconds += time.perf_counter() - t0
+      waiting.pop(0)
+      for i, row in enumerate(member_rows):
+        if evaluation is not None:
+          _take_evaluation(trainer, row, i, evaluation, averaging[i], kept, best_values,
+                           best_paths)
+        row["eval_s"] = eval_seconds
+        if flags["log"]:
+          logs[i].write(row)
+          prefix = f"{labels[i]}: " if trainer.members > 1 else ""
+          print_fn(prefix + _progress_line(row, total_iterations, steps_per_iteration))
+        if curve is not None and evaluation is not None:
+          _write_curve_point(curve, trainer, i, row, eval_episodes=evaluation.episodes,
+                             total_env_steps=total_env_steps, startup=startup,
+                             on_host=host is not None)
+        rows[i] = row
+
   while int(state.iteration) < total_iterations:
     t0 = time.perf_counter()
     state, metrics = trainer.iteration(state)
@@ -349,52 +398,35 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
                    and time.perf_counter() - budget_start >= max_seconds)
     last = finished or out_of_time
     evaluate = iteration % eval_every == 0 or last
+    evaluation = None
     if evaluate:
+      if host is not None:
+        write_rows(block=True)  # (one evaluation at a time on the host)
       t0 = time.perf_counter()
-      evaluated = _evaluated(trainer, state, _held(state, averages), eval_keys)
-      returns, scores = evaluated[0]
-      if averages:
-        average_returns, average_scores = evaluated[1]
+      if host is not None:
+        evaluation = host.start(state, _held(state, averages))
+      else:
+        evaluation = _Evaluation.now(trainer, state, _held(state, averages), eval_keys)
       eval_seconds += time.perf_counter() - t0
     wall = wall_offset + time.perf_counter() - call_start
     peak = results.peak_memory_bytes()
     checkpointed = iteration % checkpoint_every == 0 or last
     updates = np.asarray(state.learner.updates)
+    member_rows = []
     for i in range(trainer.members):
+      # Wall clock of the run so far (compilation included, and an evaluation on the
+      # accelerator); eval_s is the part spent in evaluation (or waiting for one) in this process.
       row = {"iteration": iteration, "env_steps": iteration * steps_per_iteration,
              "updates": int(updates[i]),
              "steps_per_s": timed_steps / timed_seconds if timed_seconds else float("nan"),
-             **{k: _scalar(v[i]) for k, v in metrics.items()}}
-      if evaluate:
-        row.update(eval_return=float(returns[i].mean()), eval_return_std=float(returns[i].std()))
-        if scores is not None:  # (FORM: log pD of the evaluation episodes, no task reward)
-          row["eval_demonstrator_log_prob"] = float(scores[i].mean())
-        if averaging[i]:
-          row.update(eval_return_average=float(average_returns[i].mean()),
-                     eval_return_std_average=float(average_returns[i].std()))
-          if average_scores is not None:
-            row["eval_demonstrator_log_prob_average"] = float(average_scores[i].mean())
-        for name, key, _ in kept:  # (a member at decay 0 has no average's key: keeps none)
-          if row.get(key, -np.inf) > best_values[name][i]:
-            best_values[name][i] = row[key]
-            if name in _AVERAGE_BEST_NAMES:
-              export_policy(trainer, state, i, best_paths[name][i], _average_row(row),
-                            params=state.learner.average_policy)
-            else:
-              export_policy(trainer, state, i, best_paths[name][i], row)
-      # Wall clock of the run so far (compilation and evaluation included); eval_s is the part
-      # spent in evaluation in this process.
-      row.update(wall_s=wall, eval_s=eval_seconds)
+             **{k: _scalar(v[i]) for k, v in metrics.items()}, "wall_s": wall}
       if peak is not None:
         row["peak_memory_bytes"] = peak
-      if iteration % log_every == 0 or last or evaluate or checkpointed:
-        logs[i].write(row)
-        prefix = f"{labels[i]}: " if trainer.members > 1 else ""
-        print_fn(prefix + _progress_line(row, total_iterations, steps_per_iteration))
-      if curve is not None and evaluate:
-        _write_curve_point(curve, trainer, i, row, eval_episodes=returns.shape[1],
-                           total_env_steps=total_env_steps, startup=startup)
-      rows[i] = row
+      member_rows.append(row)
+    waiting.append((member_rows, {"log": iteration % log_every == 0 or last or evaluate
+                                  or checkpointed}, evaluation))
+    # (the rows before a checkpoint are written before it: a resumed run's CSV has no gap)
+    write_rows(block=checkpointed)
     if checkpointed:
       checkpoint.save(ckpt_dir, iteration, _checkpointed(state, checkpoint_replay), full_config)
     if out_of_time and not finished:
@@ -404,6 +436,7 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
                f"(checkpointed; continue with --resume)")
       stopped = True
       break
+  write_rows(block=True)
 
   exported = int(state.iteration) > start_iteration
   if exported:
@@ -551,26 +584,118 @@ def _held(state, averages: bool) -> list:
       [(state.learner.average_policy, state.normalizer)] if averages else [])
 
 
-def _evaluated(trainer: Trainer, state, pairs: list, keys, num_envs: int | None = None
-               ) -> list[tuple[np.ndarray, np.ndarray | None]]:
-  """For each (policy [P, ...], normaliser [P, ...]) of `pairs`, in order, its evaluation's
-  returns [P, n] and, where the run's source scores the episodes (FORM: their mean log pD per
-  transition, `Trainer.evaluate`), the scores [P, n], else None. The pairs are evaluated
-  together, on the same starts (`keys`), up to EVALUATION_ENVS environments per call; calls
-  are of one size (the last padded with a repeat of its first pair): one program."""
+def _dispatched(trainer: Trainer, pairs: list, keys, inputs: dict, num_envs: int | None = None
+                ) -> list:
+  """Starts the evaluation of each (policy [P, ...], normaliser [P, ...]) of `pairs` together,
+  on the same starts (`keys`), up to EVALUATION_ENVS environments per call; calls are of one
+  size (the last padded with a repeat of its first pair): one program. `inputs`: the
+  evaluation's source inputs (`Trainer.evaluation_inputs`). Returns the calls' outputs, not
+  waited for (`_gathered`)."""
   per_call = _per_call(trainer, len(pairs), num_envs or trainer.config.eval_envs)
   more = {} if num_envs is None else {"num_envs": num_envs}
-  out = []
+  outputs = []
   for start in range(0, len(pairs), per_call):
     chunk = pairs[start:start + per_call]
     padded = chunk + chunk[:1] * (per_call - len(chunk))
-    result = jax.device_get(trainer.evaluate(
-        tuple(p for p, _ in padded), tuple(m for _, m in padded), keys,
-        **trainer.evaluation_inputs(state), **more))
+    outputs.append((len(chunk), trainer.evaluate(
+        tuple(p for p, _ in padded), tuple(m for _, m in padded), keys, **inputs, **more)))
+  return outputs
+
+
+def _gathered(outputs: list) -> list[tuple[np.ndarray, np.ndarray | None]]:
+  """`_dispatched`'s outputs as, for each pair in order, its returns [P, n] and, where the
+  run's source scores the episodes (FORM: their mean log pD per transition,
+  `Trainer.evaluate`), the scores [P, n], else None (one transfer per call)."""
+  out = []
+  for count, result in outputs:
+    result = jax.device_get(result)
     returns, scores = result if isinstance(result, tuple) else (result, None)
     out += [(np.asarray(returns[j]), None if scores is None else np.asarray(scores[j]))
-            for j in range(len(chunk))]
+            for j in range(count)]
   return out
+
+
+def _evaluated(trainer: Trainer, state, pairs: list, keys, num_envs: int | None = None
+               ) -> list[tuple[np.ndarray, np.ndarray | None]]:
+  """For each (policy, normaliser) of `pairs`, in order, its evaluation's returns [P, n] and
+  scores [P, n] or None (`_dispatched`, `_gathered`), on the accelerator, waited for."""
+  return _gathered(_dispatched(trainer, pairs, keys, trainer.evaluation_inputs(state),
+                               num_envs))
+
+
+@dataclasses.dataclass
+class _Evaluation:
+  """A periodic evaluation of `pairs` (the (policy, normaliser) it evaluates: the state's, or
+  copies of them on the host), done (`results`) or running (`outputs` of `_dispatched`)."""
+
+  pairs: list
+  episodes: int
+  outputs: list | None = None
+  results: list | None = None
+
+  @classmethod
+  def now(cls, trainer: Trainer, state, pairs: list, keys) -> "_Evaluation":
+    return cls(pairs, trainer.config.eval_envs, results=_evaluated(trainer, state, pairs, keys))
+
+  def done(self) -> bool:
+    return self.results is not None or all(
+        leaf.is_ready() for _, out in self.outputs for leaf in jax.tree.leaves(out))
+
+  def wait(self) -> None:
+    if self.results is None:
+      self.results = _gathered(self.outputs)
+      self.outputs = None
+
+
+class _HostEvaluation:
+  """Periodic evaluations on the host's CPU (`device`, default the first CPU device): the
+  run's evaluation program for a copy of its trainer there, compiled on construction for
+  `policies` policies per call; `start` copies what it evaluates there and returns at once."""
+
+  def __init__(self, trainer: Trainer, device, keys, policies: int):
+    self.device = device or jax.devices("cpu")[0]
+    with jax.default_device(self.device):  # (the environment's model is placed there too)
+      self.trainer = Trainer(trainer.config, mesh_lib.make_mesh([self.device]), trainer.source,
+                             trainer.seeds, trainer.overrides)
+    self.keys = jax.device_put(keys, self.device)
+    state = self.trainer.abstract_state
+    self.trainer.evaluate.lower(
+        (state.learner.policy,) * policies, (state.normalizer,) * policies, self.keys,
+        **self.trainer.evaluation_inputs(state)).compile()
+
+  def start(self, state, pairs: list) -> _Evaluation:
+    # (copies, done before the next iteration takes over the state's buffers, even where the
+    # host is the training's device)
+    pairs, inputs = jax.block_until_ready(jax.device_put(
+        (pairs, self.trainer.evaluation_inputs(state)), self.device, may_alias=False))
+    return _Evaluation(pairs, self.trainer.config.eval_envs,
+                       outputs=_dispatched(self.trainer, pairs, self.keys, inputs))
+
+
+def _take_evaluation(trainer: Trainer, row: dict, member: int, evaluation: _Evaluation,
+                     averaging: bool, kept: list, best_values: dict, best_paths: dict) -> None:
+  """Puts member `member`'s part of a done periodic `evaluation` into its `row` and exports
+  each kept policy (`kept`: BEST and AVERAGE_BEST entries) it beats, from the pairs evaluated."""
+  i = member
+  (returns, scores), (policy, norm) = evaluation.results[0], evaluation.pairs[0]
+  row.update(eval_return=float(returns[i].mean()), eval_return_std=float(returns[i].std()))
+  if scores is not None:  # (FORM: log pD of the evaluation episodes, no task reward)
+    row["eval_demonstrator_log_prob"] = float(scores[i].mean())
+  if averaging:
+    average_returns, average_scores = evaluation.results[1]
+    row.update(eval_return_average=float(average_returns[i].mean()),
+               eval_return_std_average=float(average_returns[i].std()))
+    if average_scores is not None:
+      row["eval_demonstrator_log_prob_average"] = float(average_scores[i].mean())
+  for name, key, _ in kept:  # (a member at decay 0 has no average's key: keeps none)
+    if row.get(key, -np.inf) > best_values[name][i]:
+      best_values[name][i] = row[key]
+      if name in _AVERAGE_BEST_NAMES:
+        export_policy(trainer, None, i, best_paths[name][i], _average_row(row),
+                      params=evaluation.pairs[1][0], normalizer=evaluation.pairs[1][1])
+      else:
+        export_policy(trainer, None, i, best_paths[name][i], row, params=policy,
+                      normalizer=norm)
 
 
 def _rate(steps_per_s: float) -> str:
@@ -709,7 +834,8 @@ _CURVE_FIELDS = (
 
 
 def _write_curve_point(writer: results.ResultWriter, trainer: Trainer, member: int, row: dict, *,
-                       eval_episodes: int, total_env_steps: int, startup: dict) -> None:
+                       eval_episodes: int, total_env_steps: int, startup: dict,
+                       on_host: bool = False) -> None:
   """One `kind: learning_curve` record: evaluation return at this point of the run.
 
   `startup`: `startup_s`, this call's seconds before its first iteration,
@@ -718,7 +844,7 @@ def _write_curve_point(writer: results.ResultWriter, trainer: Trainer, member: i
   and `start_iteration`, the iteration this call started from (0, or its checkpoint's).
   """
   settings = {**_record_settings(trainer, member, total_env_steps),
-              "eval_episodes": eval_episodes}
+              "eval_episodes": eval_episodes, **({"eval_on_host": True} if on_host else {})}
   writer.write(compact=True, kind="learning_curve", **_record_base(trainer, member),
                settings=settings,
                **startup,
@@ -740,11 +866,12 @@ def export_source(trainer: Trainer, state, member: int, directory: str, row: dic
 
 
 def export_policy(trainer: Trainer, state, member: int, path: str, row: dict,
-                  params=None) -> None:
+                  params=None, normalizer=None) -> None:
   """Writes a member's policy (`params`, [P, ...]; default the state's online policy) and its
-  observation normaliser (a small, pickle-free file)."""
+  observation normaliser (`normalizer`, [P, ...]; default the state's) as a small,
+  pickle-free file."""
   env, cfg = trainer.env, trainer.member_config(member)
-  norm = trainer.member(state.normalizer, member)
+  norm = trainer.member(state.normalizer if normalizer is None else normalizer, member)
   params = state.learner.policy if params is None else params
   arrays = {"policy": jax.device_get(trainer.member(params, member)),
             "normalizer": {"mean": np.asarray(norm.mean), "var": np.asarray(norm.var),

@@ -330,9 +330,10 @@ class Trainer:
     """[P, 2]: PRNGKey(seed + offset) of each member (offset 0 starts a run, 1 evaluates)."""
     return jnp.stack([jax.random.PRNGKey(s + offset) for s in self.seeds])
 
-  def compile_ahead(self, keys: jax.Array, policies_per_evaluation: int = 1) -> None:
-    """Compiles `init`, `iteration` and `evaluate` (of `policies_per_evaluation` policies at
-    once) together, in threads, before their first call.
+  def compile_ahead(self, keys: jax.Array, policies_per_evaluation: int = 1,
+                    evaluation: bool = True) -> None:
+    """Compiles `init`, `iteration` and (`evaluation`) `evaluate` of `policies_per_evaluation`
+    policies at once together, in threads, before their first call.
 
     Without it each program compiles at its first call, one after the other; XLA compiles in
     parallel threads (tracing takes turns), so a run starts sooner. The compiled programs land in
@@ -340,9 +341,9 @@ class Trainer:
     """
     state = self.abstract_state
     held = policies_per_evaluation
-    jobs = [(self.init, (keys,), {}), (self.iteration, (state,), {}),
-            (self.evaluate, ((state.learner.policy,) * held, (state.normalizer,) * held, keys),
-             self.evaluation_inputs(state))]
+    jobs = [(self.init, (keys,), {}), (self.iteration, (state,), {})] + ([
+        (self.evaluate, ((state.learner.policy,) * held, (state.normalizer,) * held, keys),
+         self.evaluation_inputs(state))] if evaluation else [])
     with concurrent.futures.ThreadPoolExecutor(len(jobs)) as pool:
       compiled = [f.result() for f in [pool.submit(lambda f=f, a=a, k=k: f.lower(*a, **k)
                                                    .compile()) for f, a, k in jobs]]
