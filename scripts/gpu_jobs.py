@@ -184,6 +184,9 @@ def _form_models(run, args) -> str:
     path, file, _ = pipeline.shipped_demonstrator(env, config)
     where = ("shipped" if path else "trained (the shipped one has other settings)" if file
              else "trained (none shipped)")
+  if where.startswith("trained") and args.demo_episodes == 0:
+    raise ValueError("--demo_episodes 0 skips the check of a ready demonstrator; this job's "
+                     f"would be {where}, from demonstrations")
   if where.startswith("trained") and args.member_demonstrators:
     first = run.demonstrator_seed_of(args)
     where += f", one draw per member, seeds {first}-{first + run.population_size(args) - 1}"

@@ -223,8 +223,10 @@ def parse_args(argv=None) -> argparse.Namespace:
   train.add_argument("--eval_every", type=int, default=10, help="iterations between evaluations")
   train.add_argument("--eval_on_host", action="store_true",
                      help="run the periodic evaluations on the host's CPU while training goes on "
-                          "(their rows are written once done; the final ones stay on the "
-                          "accelerator): for a GPU, whose evaluation steps its episodes one "
+                          "(their rows are written once done; the final evaluations stay on "
+                          "the accelerator; the run's end waits for a running one, and where "
+                          "--max_seconds stops it, its last iteration is not evaluated "
+                          "periodically): for a GPU, whose evaluation steps its episodes one "
                           "step after another while the CPU is idle")
   train.add_argument("--checkpoint_every", type=int, default=50, help="iterations")
   train.add_argument("--max_seconds", type=float, default=None,
@@ -407,9 +409,10 @@ def parse_args(argv=None) -> argparse.Namespace:
                  f"({args.updates_per_iteration}), got {args.imitator_every}")
   if args.demo_episodes is not None and args.demo_episodes < 0:
     parser.error(f"--demo_episodes must be >= 0, got {args.demo_episodes}")
-  if args.demo_episodes == 0 and (args.save_demos or args.demos or args.train_demonstrator):
+  if args.demo_episodes == 0 and (args.save_demos or args.demos or args.expert
+                                  or args.train_demonstrator):
     parser.error("--demo_episodes 0 (no demonstrations: the ready demonstrator unchecked) "
-                 "goes with neither --save_demos, --demos nor --train_demonstrator")
+                 "goes with neither --save_demos, --demos, --expert nor --train_demonstrator")
   if args.final_eval_envs < 0:
     parser.error(f"--final_eval_envs must be >= 0, got {args.final_eval_envs}")
   for name in ("policy_average_decay", "epsilon_scale"):  # (--grid's checks of them)

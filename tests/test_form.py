@@ -301,6 +301,14 @@ def test_evaluations_on_the_host_write_what_evaluations_on_the_accelerator_write
   (run_dir, records) = out["accelerator"]
   for host_dir, host_records in (out["host"], out["late"]):
     _same_run_written(run_dir, records, host_dir, host_records, timing)
+  # Everything the host's program holds lies on the host device: its environment's model too
+  # (MJX would place it on the first device of the default backend, a GPU).
+  trainer = Trainer(config, mesh_lib.make_mesh(jax.devices()[:1]),
+                    FormReward(EFFECT, _demonstrator()))
+  host = runner._HostEvaluation(trainer, jax.devices()[1], trainer.keys(1), 1)
+  assert {d for leaf in jax.tree.leaves(host.trainer.env.mjx_model)
+          if isinstance(leaf, jax.Array) for d in leaf.devices()} == {jax.devices()[1]}
+  assert host.keys.devices() == {jax.devices()[1]}
 
 
 def _same_run_written(run_dir, records, host_dir, host_records, timing):
@@ -1270,7 +1278,8 @@ def test_demo_episodes_0_keeps_a_ready_demonstrator_unchecked_and_refuses_traini
                    print_fn=lines.append)
   assert recorded == [1]
   cli = load_script("run")
-  for extra in (["--demos", "d.npz"], ["--save_demos", "d.npz"], ["--train_demonstrator"]):
+  for extra in (["--demos", "d.npz"], ["--save_demos", "d.npz"], ["--expert", "e.npz"],
+                ["--train_demonstrator"]):
     with pytest.raises(SystemExit):
       cli.parse_args(["--task", "reacher_easy", "--demo_episodes", "0", *extra])
     assert "--demo_episodes 0 (no demonstrations" in capsys.readouterr().err

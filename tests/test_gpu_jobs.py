@@ -263,7 +263,11 @@ def test_check_parses_run_jobs_as_run_does_and_names_a_bad_one(tmp_path, capsys)
                      "tasks/demonstrators/reacher_hard.npz", "angle_increments"),
                     ("--task reacher_hard --method form --no-turn_invariant --demonstrator "
                      "benchmarks/demonstrators/reacher_hard_plain.npz --demonstrator "
-                     "tasks/demonstrators/reacher_hard.npz", "turn-invariance period")):
+                     "tasks/demonstrators/reacher_hard.npz", "turn-invariance period"),
+                    # (run.py's pipeline refuses it only once JAX has started on the GPU)
+                    ("--task walker_run --method form --demo_episodes 0",
+                     "--demo_episodes 0 skips the check of a ready demonstrator; this job's "
+                     "would be trained (none shipped)")):
     jobs.write_text(f"bad: python scripts/run.py {bad}\n")
     assert gpu_jobs.main(["check", str(jobs)]) == 2
     err = capsys.readouterr().err

@@ -239,11 +239,14 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
   every member starts from (`Trainer.start_from`; a resumed run continues from its checkpoint);
   `config.init_policy` must name it (`experts.policy_id`).
   `eval_on_host`: the periodic evaluations run on the host's CPU (`host_device`, default the
-  first CPU device) while training goes on: the same program and starts, on copies of the
-  evaluated policies; an evaluation's rows (progress line, CSV, record, best policies) are
-  written once it is done, in order, their `wall_s` that of their iteration (the evaluation's
-  time not in it). Due while the last one runs, an evaluation waits for it; so does a checkpoint
-  and the run's end (`eval_s`: the time spent waiting). The final evaluations stay on the
+  first CPU device) while training goes on: the same evaluation (program and starts) on copies
+  of the evaluated policies, in the host's arithmetic (its returns differ from an accelerator's
+  in rounding, e.g. a GPU's TF32 products, which grows over 1000-step episodes; the records say
+  `eval_on_host`). An evaluation's rows (progress line, CSV, record, best policies) are written
+  once it is done, in order, with their iteration's `wall_s` (its own evaluation's time not in
+  it). Due while the last one runs, an evaluation waits for it; so does a checkpoint and the
+  run's end, after `max_seconds` too (`eval_s` counts the waits). The last iteration of a run
+  that `max_seconds` stopped is not evaluated periodically; the final evaluations stay on the
   accelerator.
   """
   run_settings = {"total_env_steps": total_env_steps, "log_every": log_every,
@@ -309,7 +312,12 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
     state = trainer.start_from(state, initial_policy.params, initial_policy.normalizer)
     meta = initial_policy.metadata
     # (beside its average, a copy of it here: the periodic evaluations' program, compiled)
-    returns, _ = _evaluated(trainer, state, _held(state, averages), eval_keys)[0]
+    if host is not None:
+      evaluation = host.start(state, _held(state, averages))
+      evaluation.wait()
+      returns = evaluation.results[0][0]
+    else:
+      returns, _ = _evaluated(trainer, state, _held(state, averages), eval_keys)[0]
     print_fn(f"every member starts from {meta['task']}'s policy {meta['sha256'][:12]} "
              f"(exported at {meta.get('env_steps') or 0:,} env steps): it evaluates "
              f"{returns.mean():.1f} on {config.task} ({returns.size} episodes)")
@@ -359,7 +367,7 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
 
   def write_rows(block: bool) -> None:
     """Writes the waiting rows whose evaluation is done (all of them, waiting, with `block`)."""
-    nonlocal eval_seconds
+    nonlocal eval_seconds  # (a wait counts in the rows of the iterations after it)
     while waiting:
       member_rows, flags, evaluation = waiting[0]
       if evaluation is not None:
@@ -373,7 +381,6 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
         if evaluation is not None:
           _take_evaluation(trainer, row, i, evaluation, averaging[i], kept, best_values,
                            best_paths)
-        row["eval_s"] = eval_seconds
         if flags["log"]:
           logs[i].write(row)
           prefix = f"{labels[i]}: " if trainer.members > 1 else ""
@@ -397,7 +404,9 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
     out_of_time = (max_seconds is not None
                    and time.perf_counter() - budget_start >= max_seconds)
     last = finished or out_of_time
-    evaluate = iteration % eval_every == 0 or last
+    # (on the host, the last iteration of a run that `max_seconds` stopped is not evaluated:
+    # its final evaluations, on the accelerator, come after it at once)
+    evaluate = iteration % eval_every == 0 or (last and (host is None or finished))
     evaluation = None
     if evaluate:
       if host is not None:
@@ -415,11 +424,13 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
     member_rows = []
     for i in range(trainer.members):
       # Wall clock of the run so far (compilation included, and an evaluation on the
-      # accelerator); eval_s is the part spent in evaluation (or waiting for one) in this process.
+      # accelerator); eval_s is the part spent in evaluation (or waiting for one on the host)
+      # in this process.
       row = {"iteration": iteration, "env_steps": iteration * steps_per_iteration,
              "updates": int(updates[i]),
              "steps_per_s": timed_steps / timed_seconds if timed_seconds else float("nan"),
-             **{k: _scalar(v[i]) for k, v in metrics.items()}, "wall_s": wall}
+             **{k: _scalar(v[i]) for k, v in metrics.items()}, "wall_s": wall,
+             "eval_s": eval_seconds}
       if peak is not None:
         row["peak_memory_bytes"] = peak
       member_rows.append(row)
@@ -654,7 +665,7 @@ class _HostEvaluation:
 
   def __init__(self, trainer: Trainer, device, keys, policies: int):
     self.device = device or jax.devices("cpu")[0]
-    with jax.default_device(self.device):  # (the environment's model is placed there too)
+    with jax.default_device(self.device):  # (its environment's model is placed there too)
       self.trainer = Trainer(trainer.config, mesh_lib.make_mesh([self.device]), trainer.source,
                              trainer.seeds, trainer.overrides)
     self.keys = jax.device_put(keys, self.device)

@@ -101,7 +101,9 @@ def compile_model(root: ET.Element, assets: dict[str, bytes]) -> mujoco.MjModel:
 
 
 def put_model(mj_model: mujoco.MjModel) -> mjx.Model:
-  return mjx.put_model(mj_model, impl="jax")
+  """The MJX model, on JAX's default device (`jax.default_device` where one is set: MJX itself
+  would take the first device of the default backend)."""
+  return mjx.put_model(mj_model, device=jax.config.jax_default_device, impl="jax")
 
 
 def without_actuation(mj_model: mujoco.MjModel) -> mjx.Model:
