@@ -30,7 +30,7 @@ import time
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
-from mjx_form.cpu import configure_cpu_xla  # noqa: E402  (before JAX starts)
+from mjx_form.cpu import configure_cpu_xla, one_device_per_core  # noqa: E402  (before JAX starts)
 
 configure_cpu_xla()
 
@@ -639,8 +639,14 @@ def main(argv=None) -> int:
   if args.list:
     print("\n".join(tasks.TASKS))
     return 0
+  if args.eval_on_host:
+    one_device_per_core()  # (before JAX starts; the evaluations' batch is split over them)
   use_compilation_cache(args.compilation_cache)
   mesh = mesh_lib.make_mesh()
+  if args.eval_on_host and jax.default_backend() == "cpu":
+    print("error: --eval_on_host evaluates on the host's CPU beside an accelerator; this run "
+          "trains on the CPU itself (no accelerator found)", file=sys.stderr)
+    return 2
   if args.method in ("expert", "form"):
     seeds, overrides = grid.expand(args.seeds or (args.seed,), args.grid)
     name = (f"seed{seeds[0]}" if len(set(seeds)) == 1 else "seeds" + "_".join(

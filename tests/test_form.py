@@ -275,8 +275,9 @@ def test_policies_beyond_the_env_limit_go_to_calls_of_one_size(form_trainer, mon
 def test_evaluations_on_the_host_write_what_evaluations_on_the_accelerator_write(tmp_path,
                                                                                   monkeypatch):
   """`eval_on_host` (run.py --eval_on_host): a FORM population with an average policy, trained
-  on one device and evaluated on the other (standing in for a GPU and its host's CPU), writes
-  the same rows, records and kept policies as evaluating on the training's device: evaluations
+  on one device and evaluated on both, its batch split over them (standing in for a GPU and
+  its host's CPU devices), writes the same rows, records and kept policies as evaluating on
+  the training's device: evaluations
   every 2 iterations, a checkpoint every 3 (which waits for the evaluation before it), the
   last iteration's, the final ones; also where each evaluation is still running until it is
   waited for (the rows behind it held back). The rows come in order, each once."""
@@ -285,7 +286,7 @@ def test_evaluations_on_the_host_write_what_evaluations_on_the_accelerator_write
   config = dataclasses.replace(CONFIG, learner=dataclasses.replace(
       CONFIG.learner, policy_average_decay=0.5))
   out = {}
-  host = {"eval_on_host": True, "host_device": jax.devices()[1]}
+  host = {"eval_on_host": True}  # (on both devices: the default, every CPU device)
   for name, more in (("accelerator", {}), ("host", host), ("late", host)):
     if name == "late":  # (done only once waited for)
       monkeypatch.setattr(runner._Evaluation, "done", lambda self: self.results is not None)
@@ -305,19 +306,26 @@ def test_evaluations_on_the_host_write_what_evaluations_on_the_accelerator_write
   # (MJX would place it on the first device of the default backend, a GPU).
   trainer = Trainer(config, mesh_lib.make_mesh(jax.devices()[:1]),
                     FormReward(EFFECT, _demonstrator()))
-  host = runner._HostEvaluation(trainer, jax.devices()[1], trainer.keys(1), 1)
+  host = runner._HostEvaluation(trainer, jax.devices()[1:], trainer.keys(1), 1)
   assert {d for leaf in jax.tree.leaves(host.trainer.env.mjx_model)
           if isinstance(leaf, jax.Array) for d in leaf.devices()} == {jax.devices()[1]}
   assert host.keys.devices() == {jax.devices()[1]}
+  # By default, the host's CPU devices, as many as divide the evaluation's batch and the
+  # environments: here both (2 members x 2 policies x 2 episodes, 4 environments) or one.
+  assert runner._HostEvaluation(trainer, None, trainer.keys(1), 1).devices == jax.devices()
+  odd = dataclasses.replace(config, num_envs=3, eval_envs=3)
+  trainer = Trainer(odd, mesh_lib.make_mesh(jax.devices()[:1]), FormReward(EFFECT,
+                                                                         _demonstrator()))
+  assert runner._HostEvaluation(trainer, None, trainer.keys(1), 1).devices == jax.devices()[:1]
 
 
-def test_a_run_stopped_by_max_seconds_skips_its_last_host_evaluation(tmp_path):
+def test_a_run_stopped_by_max_seconds_skips_its_last_host_evaluation(tmp_path, capsys):
   """With `eval_on_host`, a run that `max_seconds` stops does not start a host evaluation of its
   last iteration (its end would wait for it; the final evaluations on the accelerator come next):
   its last row has no periodic evaluation, and its final_return records are written; evaluating
   on the accelerator, the same stop evaluates the last iteration."""
   from mjx_form.rl import runner
-  for more, evaluated in (({"eval_on_host": True, "host_device": jax.devices()[1]}, False),
+  for more, evaluated in (({"eval_on_host": True, "host_devices": jax.devices()[1:]}, False),
                           ({}, True)):
     curve = tmp_path / f"{evaluated}.jsonl"
     rows = runner.run(CONFIG, str(tmp_path / str(evaluated)), 50 * CONFIG.env_steps_per_iteration,
@@ -328,6 +336,36 @@ def test_a_run_stopped_by_max_seconds_skips_its_last_host_evaluation(tmp_path):
     assert rows[0]["iteration"] == 1 and ("eval_return" in rows[0]) == evaluated
     kinds = [r["kind"] for r in results.read_records(str(curve))]
     assert kinds.count("learning_curve") == int(evaluated) and "final_return" in kinds
+  # run.py --eval_on_host asks JAX for a CPU device per core (too late here: JAX has started)
+  # and refuses a run that trains on the CPU itself, before anything is written.
+  assert not cpu.one_device_per_core()
+  cli = load_script("run")
+  assert cli.main(["--task", "reacher_easy", "--eval_on_host", "--run_dir",
+                   str(tmp_path / "cpu")]) == 2
+  assert "--eval_on_host evaluates on the host's CPU beside an accelerator" in (
+      capsys.readouterr().err)
+  assert not (tmp_path / "cpu").exists()
+
+
+def _same(value, want, what: str):
+  """`value` is `want`, numbers (and numbers as CSV text) to float rounding: the host's batch,
+  split over its devices, is computed in other vector widths (last bits of log pD differ)."""
+  if isinstance(want, dict):
+    assert value.keys() == want.keys(), what
+    for k in want:
+      _same(value[k], want[k], f"{what}.{k}")
+  elif isinstance(want, float) or (isinstance(want, str) and _number(want)):
+    assert float(value) == pytest.approx(float(want), rel=1e-5, abs=1e-4, nan_ok=True), what
+  else:
+    assert value == want, what
+
+
+def _number(text: str) -> bool:
+  try:
+    float(text)
+    return True
+  except ValueError:
+    return False
 
 
 def _same_run_written(run_dir, records, host_dir, host_records, timing):
@@ -335,11 +373,8 @@ def _same_run_written(run_dir, records, host_dir, host_records, timing):
   assert [r["kind"] for r in host_records] == [r["kind"] for r in records]
   assert sum(r["kind"] == "learning_curve" for r in records) == 2 * 4  # (iterations 2, 4, 6, 7)
   for record, host_record in zip(records, host_records):
-    assert host_record.keys() == record.keys()
-    for k, v in record.items():
-      if k not in timing:
-        assert host_record[k] == (pytest.approx(v, rel=1e-5, abs=1e-4)
-                                  if isinstance(v, float) else v), k
+    _same({k: v for k, v in host_record.items() if k not in timing},
+          {k: v for k, v in record.items() if k not in timing}, record["kind"])
     if record["kind"] == "learning_curve":
       assert host_record["settings"] == {**record["settings"], "eval_on_host": True}
   for seed in ("seed0", "seed1"):
@@ -348,11 +383,16 @@ def _same_run_written(run_dir, records, host_dir, host_records, timing):
     host_rows = [{k: v for k, v in r.items() if k not in timing}
                  for r in csv.DictReader(open(host_dir / seed / "progress.csv"))]
     assert [r["iteration"] for r in host_rows] == [str(i) for i in range(1, 8)]
-    assert host_rows == rows
+    for host_row, row in zip(host_rows, rows):
+      _same(host_row, row, f"{seed} row {row['iteration']}")
     assert sum(r["eval_demonstrator_log_prob_average"] != "" for r in rows) == 4
     for file in ("best_policy.npz", "best_log_pd_policy.npz", runner.AVERAGE_BEST[0][2],
-                 "policy.npz", runner.AVERAGE_FILE):
-      assert (host_dir / seed / file).read_bytes() == (run_dir / seed / file).read_bytes(), file
+                 "policy.npz", runner.AVERAGE_FILE):  # (the same arrays; their evaluations)
+      (arrays, meta), (want_arrays, want_meta) = (
+          policy_io.load_policy(str(d / seed / file)) for d in (host_dir, run_dir))
+      jax.tree.map(np.testing.assert_array_equal, arrays, want_arrays)
+      _same({k: v for k, v in meta.items() if k != "sha256"},
+            {k: v for k, v in want_meta.items() if k != "sha256"}, file)
 
 
 def test_an_ensemble_runs_in_the_compiled_loop_on_two_devices(form_trainer):

@@ -213,7 +213,7 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
         checkpoint_replay: bool = True, final_eval_envs: int = 0, mesh=None, reward_source=None,
         seeds: tuple[int, ...] | None = None, overrides: tuple[dict, ...] | None = None,
         initial_policy: experts.Expert | None = None, seconds_before: float = 0.0,
-        eval_on_host: bool = False, host_device=None, print_fn=print) -> list[dict]:
+        eval_on_host: bool = False, host_devices=None, print_fn=print) -> list[dict]:
   """Trains until `total_env_steps`; returns each member's last logged row (with its final
   evaluation).
 
@@ -238,8 +238,9 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
   `initial_policy`: a trained policy (of this task or another with its observation layout) that
   every member starts from (`Trainer.start_from`; a resumed run continues from its checkpoint);
   `config.init_policy` must name it (`experts.policy_id`).
-  `eval_on_host`: the periodic evaluations run on the host's CPU (`host_device`, default the
-  first CPU device) while training goes on: the same evaluation (program and starts) on copies
+  `eval_on_host`: the periodic evaluations run on the host's CPU (`host_devices`, default its
+  CPU devices: the batch split over them, see `_HostEvaluation`) while training goes on: the
+  same evaluation (program and starts) on copies
   of the evaluated policies, in the host's arithmetic (its returns differ from an accelerator's
   in rounding, e.g. a GPU's TF32 products, which grows over 1000-step episodes; the records say
   `eval_on_host`). An evaluation's rows (progress line, CSV, record, best policies) are written
@@ -294,7 +295,7 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
     host = None
     with concurrent.futures.ThreadPoolExecutor(1) as pool:
       if eval_on_host:  # (its program compiles beside the others)
-        built = pool.submit(_HostEvaluation, trainer, host_device, eval_keys, periodic)
+        built = pool.submit(_HostEvaluation, trainer, host_devices, eval_keys, periodic)
       trainer.compile_ahead(eval_keys, policies_per_evaluation=periodic,
                             evaluation=not eval_on_host)
       if eval_on_host:
@@ -659,26 +660,35 @@ class _Evaluation:
 
 
 class _HostEvaluation:
-  """Periodic evaluations on the host's CPU (`device`, default the first CPU device): the
-  run's evaluation program for a copy of its trainer there, compiled on construction for
-  `policies` policies per call; `start` copies what it evaluates there and returns at once."""
+  """Periodic evaluations on the host's CPU: the run's evaluation program for a copy of its
+  trainer on a mesh of CPU devices (`devices`, default all of them: XLA steps a batch on one
+  CPU device with little of its cores, so run.py's --eval_on_host asks JAX for one per core,
+  and the batch is split over as many as divide it), compiled on construction for `policies`
+  policies per call; `start` copies what it evaluates there and returns at once."""
 
-  def __init__(self, trainer: Trainer, device, keys, policies: int):
-    self.device = device or jax.devices("cpu")[0]
-    with jax.default_device(self.device):  # (its environment's model is placed there too)
-      self.trainer = Trainer(trainer.config, mesh_lib.make_mesh([self.device]), trainer.source,
+  def __init__(self, trainer: Trainer, devices, keys, policies: int):
+    devices = list(devices or jax.devices("cpu"))
+    batch = trainer.members * policies * trainer.config.eval_envs
+    count = max(n for n in range(1, len(devices) + 1)
+                if batch % n == 0 and trainer.config.num_envs % n == 0)
+    self.devices = devices[:count]
+    with jax.default_device(self.devices[0]):  # (its environment's model is placed there)
+      self.trainer = Trainer(trainer.config, mesh_lib.make_mesh(self.devices), trainer.source,
                              trainer.seeds, trainer.overrides)
-    self.keys = jax.device_put(keys, self.device)
+    self.placed = self.trainer._replicated  # (what the program takes, as it was compiled)
+    self.keys = jax.device_put(keys, self.placed)
     state = self.trainer.abstract_state
+    like = lambda tree: jax.tree.map(
+        lambda a: jax.ShapeDtypeStruct(a.shape, a.dtype, sharding=self.placed), tree)
     self.trainer.evaluate.lower(
-        (state.learner.policy,) * policies, (state.normalizer,) * policies, self.keys,
-        **self.trainer.evaluation_inputs(state)).compile()
+        like((state.learner.policy,) * policies), like((state.normalizer,) * policies),
+        self.keys, **like(self.trainer.evaluation_inputs(state))).compile()
 
   def start(self, state, pairs: list) -> _Evaluation:
-    # (copies, done before the next iteration takes over the state's buffers, even where the
-    # host is the training's device)
-    pairs, inputs = jax.block_until_ready(jax.device_put(
-        (pairs, self.trainer.evaluation_inputs(state)), self.device, may_alias=False))
+    # (copies, done before the next iteration takes over the state's buffers: copied where they
+    # lie first, as placing them may keep a buffer where the host is the training's device)
+    pairs, inputs = jax.block_until_ready(jax.device_put(jax.tree.map(
+        lambda x: x.copy(), (pairs, self.trainer.evaluation_inputs(state))), self.placed))
     return _Evaluation(pairs, self.trainer.config.eval_envs,
                        outputs=_dispatched(self.trainer, pairs, self.keys, inputs))
 
