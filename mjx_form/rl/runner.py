@@ -240,10 +240,9 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
   `config.init_policy` must name it (`experts.policy_id`).
   `eval_on_host`: the periodic evaluations run on the host's CPU (`host_devices`, default its
   CPU devices: the batch split over them, see `_HostEvaluation`) while training goes on: the
-  same evaluation (program and starts) on copies
-  of the evaluated policies, in the host's arithmetic (its returns differ from an accelerator's
-  in rounding, e.g. a GPU's TF32 products, which grows over 1000-step episodes; the records say
-  `eval_on_host`). An evaluation's rows (progress line, CSV, record, best policies) are written
+  same evaluation (program and starts) on copies of the evaluated policies, in the host's
+  arithmetic (its returns differ from an accelerator's in rounding, e.g. a GPU's TF32
+  products, which grows over 1000-step episodes; the records say `eval_on_host`). An evaluation's rows (progress line, CSV, record, best policies) are written
   once it is done, in order, with their iteration's `wall_s` (its own evaluation's time not in
   it). Due while the last one runs, an evaluation waits for it; so does a checkpoint and the
   run's end, after `max_seconds` too (`eval_s` counts the waits). The last iteration of a run
@@ -662,7 +661,7 @@ class _Evaluation:
 class _HostEvaluation:
   """Periodic evaluations on the host's CPU: the run's evaluation program for a copy of its
   trainer on a mesh of CPU devices (`devices`, default all of them: XLA steps a batch on one
-  CPU device with little of its cores, so run.py's --eval_on_host asks JAX for one per core,
+  CPU device with few of its cores, so run.py's --eval_on_host asks JAX for one per core,
   and the batch is split over as many as divide it), compiled on construction for `policies`
   policies per call; `start` copies what it evaluates there and returns at once."""
 
@@ -693,11 +692,10 @@ class _HostEvaluation:
                        outputs=_dispatched(self.trainer, pairs, self.keys, inputs))
 
 
-def _take_evaluation(trainer: Trainer, row: dict, member: int, evaluation: _Evaluation,
+def _take_evaluation(trainer: Trainer, row: dict, i: int, evaluation: _Evaluation,
                      averaging: bool, kept: list, best_values: dict, best_paths: dict) -> None:
-  """Puts member `member`'s part of a done periodic `evaluation` into its `row` and exports
-  each kept policy (`kept`: BEST and AVERAGE_BEST entries) it beats, from the pairs evaluated."""
-  i = member
+  """Puts member i's part of a done periodic `evaluation` into its `row` and exports each kept
+  policy (`kept`: BEST and AVERAGE_BEST entries) it beats, from the pairs evaluated."""
   (returns, scores), (policy, norm) = evaluation.results[0], evaluation.pairs[0]
   row.update(eval_return=float(returns[i].mean()), eval_return_std=float(returns[i].std()))
   if scores is not None:  # (FORM: log pD of the evaluation episodes, no task reward)
