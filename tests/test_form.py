@@ -277,10 +277,10 @@ def test_evaluations_on_the_host_write_what_evaluations_on_the_accelerator_write
   """`eval_on_host` (run.py --eval_on_host): a FORM population with an average policy, trained
   on one device and evaluated on both, its batch split over them (standing in for a GPU and
   its host's CPU devices), writes the same rows, records and kept policies as evaluating on
-  the training's device: evaluations
-  every 2 iterations, a checkpoint every 3 (which waits for the evaluation before it), the
-  last iteration's, the final ones; also where each evaluation is still running until it is
-  waited for (the rows behind it held back). The rows come in order, each once."""
+  the training's device: evaluations every 2 iterations, a checkpoint every 3 (which waits for
+  the evaluation before it), the last iteration's, the final ones; also where each evaluation
+  is still running until it is waited for (the rows behind it held back). The rows come in
+  order, each once."""
   from mjx_form.rl import runner
   assert jax.device_count() == 2  # (tests/conftest.py)
   config = dataclasses.replace(CONFIG, learner=dataclasses.replace(
@@ -1310,7 +1310,7 @@ def test_demo_episodes_0_keeps_a_ready_demonstrator_unchecked_and_refuses_traini
   """--demo_episodes 0: the shipped (or given) demonstrator is kept and used without recording
   the expert's episodes to check it (~40 s of a walker job on a GPU); where none is ready (one
   would be trained), the run is refused by name before anything is recorded or written; the
-  parser refuses it beside --demos, --save_demos and --train_demonstrator."""
+  parser refuses it beside --demos, --save_demos, --expert and --train_demonstrator."""
   from mjx_form.imitation import pipeline
   recorded = _stub_recording(monkeypatch, pipeline, episodes=2)
   env = tasks.make("reacher_easy")
