@@ -322,20 +322,19 @@ def test_evaluations_on_the_host_write_what_evaluations_on_the_accelerator_write
 def test_a_run_stopped_by_max_seconds_skips_its_last_host_evaluation(tmp_path, capsys):
   """With `eval_on_host`, a run that `max_seconds` stops does not start a host evaluation of its
   last iteration (its end would wait for it; the final evaluations on the accelerator come next):
-  its last row has no periodic evaluation, and its final_return records are written; evaluating
-  on the accelerator, the same stop evaluates the last iteration."""
+  its last row has no periodic evaluation, and its final_return records are written. (On the
+  accelerator the same stop evaluates the last iteration: test_train's
+  test_command_line_trains_resumes_and_refuses_mismatches.)"""
   from mjx_form.rl import runner
-  for more, evaluated in (({"eval_on_host": True, "host_devices": jax.devices()[1:]}, False),
-                          ({}, True)):
-    curve = tmp_path / f"{evaluated}.jsonl"
-    rows = runner.run(CONFIG, str(tmp_path / str(evaluated)), 50 * CONFIG.env_steps_per_iteration,
-                      eval_every=10, max_seconds=1e-3, final_eval_envs=2,
-                      results_path=str(curve), mesh=mesh_lib.make_mesh(jax.devices()[:1]),
-                      reward_source=FormReward(EFFECT, _demonstrator()),
-                      print_fn=lambda *_: None, **more)
-    assert rows[0]["iteration"] == 1 and ("eval_return" in rows[0]) == evaluated
-    kinds = [r["kind"] for r in results.read_records(str(curve))]
-    assert kinds.count("learning_curve") == int(evaluated) and "final_return" in kinds
+  curve = tmp_path / "curve.jsonl"
+  rows = runner.run(CONFIG, str(tmp_path / "run"), 50 * CONFIG.env_steps_per_iteration,
+                    eval_every=10, max_seconds=1e-3, final_eval_envs=2, results_path=str(curve),
+                    mesh=mesh_lib.make_mesh(jax.devices()[:1]),
+                    reward_source=FormReward(EFFECT, _demonstrator()), print_fn=lambda *_: None,
+                    eval_on_host=True, host_devices=jax.devices()[1:])
+  assert rows[0]["iteration"] == 1 and "eval_return" not in rows[0]
+  kinds = [r["kind"] for r in results.read_records(str(curve))]
+  assert "learning_curve" not in kinds and "final_return" in kinds
   # run.py --eval_on_host asks JAX for a CPU device per core (too late here: JAX has started)
   # and refuses a run that trains on the CPU itself, before anything is written.
   assert not cpu.one_device_per_core()
