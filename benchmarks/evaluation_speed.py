@@ -20,7 +20,6 @@ from __future__ import annotations
 import argparse
 import os
 import sys
-import time
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
@@ -42,13 +41,9 @@ def time_evaluation(trainer: Trainer, state, policies: int, episodes: int, repea
   state's policy per member over `episodes` episodes each (after a warm-up call: compiled)."""
   args = ((state.learner.policy,) * policies, (state.normalizer,) * policies, trainer.keys(1))
   inputs = {**trainer.evaluation_inputs(state), "num_envs": episodes}
-  jax.block_until_ready(trainer.evaluate(*args, **inputs))
-  best = float("inf")
-  for _ in range(repeats):
-    start = time.perf_counter()
-    jax.block_until_ready(trainer.evaluate(*args, **inputs))
-    best = min(best, time.perf_counter() - start)
-  return best
+  call = lambda: jax.block_until_ready(trainer.evaluate(*args, **inputs))
+  call()
+  return common.best_time(call, repeats)
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -291,16 +291,20 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
            + (" on the host" if eval_on_host else "") + ") ...")
   compile_start = time.perf_counter()
   with results.count_persistent_cache_hits() as cache_hits:
-    host = None
+    # (the host's evaluation program compiles beside the others)
     with concurrent.futures.ThreadPoolExecutor(1) as pool:
-      if eval_on_host:  # (its program compiles beside the others)
-        built = pool.submit(_HostEvaluation, trainer, host_devices, eval_keys, periodic)
+      built = (pool.submit(_HostEvaluation, trainer, host_devices, eval_keys, periodic)
+               if eval_on_host else None)
       trainer.compile_ahead(eval_keys, policies_per_evaluation=periodic,
                             evaluation=not eval_on_host)
-      if eval_on_host:
-        host = built.result()
+      host = built.result() if built else None
   print_fn(f"compiled in {time.perf_counter() - compile_start:.0f}s"
            + (f" ({cache_hits[0]} programs from the persistent cache)" if cache_hits[0] else ""))
+  # A periodic evaluation of the state's policies (and average ones): on the host, running
+  # when this returns; on the accelerator, done.
+  start_evaluation = lambda state: (
+      host.start(state, _held(state, averages)) if host is not None
+      else _Evaluation.now(trainer, state, _held(state, averages), eval_keys))
   state = trainer.init(trainer.keys())
   # This call's time before its first iteration: building, tracing, compiling, init.
   startup = {"startup_s": time.perf_counter() - call_start,
@@ -312,12 +316,9 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
     state = trainer.start_from(state, initial_policy.params, initial_policy.normalizer)
     meta = initial_policy.metadata
     # (beside its average, a copy of it here: the periodic evaluations' program, compiled)
-    if host is not None:
-      evaluation = host.start(state, _held(state, averages))
-      evaluation.wait()
-      returns = evaluation.results[0][0]
-    else:
-      returns, _ = _evaluated(trainer, state, _held(state, averages), eval_keys)[0]
+    evaluation = start_evaluation(state)
+    evaluation.wait()
+    returns = evaluation.results[0][0]
     print_fn(f"every member starts from {meta['task']}'s policy {meta['sha256'][:12]} "
              f"(exported at {meta.get('env_steps') or 0:,} env steps): it evaluates "
              f"{returns.mean():.1f} on {config.task} ({returns.size} episodes)")
@@ -362,14 +363,14 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
            "wall_s": wall_offset} for _ in dirs]
   stopped = False  # by max_seconds, before total_env_steps
   # Each iteration's rows wait here, in order, for their evaluation (done at once on the
-  # accelerator; on the host once its program has run): [(rows, flags, evaluation or None)].
+  # accelerator; on the host once its program has run): [(rows, logged, evaluation or None)].
   waiting = []
 
   def write_rows(block: bool) -> None:
     """Writes the waiting rows whose evaluation is done (all of them, waiting, with `block`)."""
     nonlocal eval_seconds  # (a wait counts in the rows of the iterations after it)
     while waiting:
-      member_rows, flags, evaluation = waiting[0]
+      member_rows, logged, evaluation = waiting[0]
       if evaluation is not None:
         if not (block or evaluation.done()):
           return
@@ -381,7 +382,7 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
         if evaluation is not None:
           _take_evaluation(trainer, row, i, evaluation, averaging[i], kept, best_values,
                            best_paths)
-        if flags["log"]:
+        if logged:
           logs[i].write(row)
           prefix = f"{labels[i]}: " if trainer.members > 1 else ""
           print_fn(prefix + _progress_line(row, total_iterations, steps_per_iteration))
@@ -409,13 +410,9 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
     evaluate = iteration % eval_every == 0 or (last and (host is None or finished))
     evaluation = None
     if evaluate:
-      if host is not None:
-        write_rows(block=True)  # (one evaluation at a time on the host)
+      write_rows(block=True)  # (one evaluation at a time on the host; at once otherwise)
       t0 = time.perf_counter()
-      if host is not None:
-        evaluation = host.start(state, _held(state, averages))
-      else:
-        evaluation = _Evaluation.now(trainer, state, _held(state, averages), eval_keys)
+      evaluation = start_evaluation(state)
       eval_seconds += time.perf_counter() - t0
     wall = wall_offset + time.perf_counter() - call_start
     peak = results.peak_memory_bytes()
@@ -434,8 +431,8 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
       if peak is not None:
         row["peak_memory_bytes"] = peak
       member_rows.append(row)
-    waiting.append((member_rows, {"log": iteration % log_every == 0 or last or evaluate
-                                  or checkpointed}, evaluation))
+    waiting.append((member_rows, iteration % log_every == 0 or last or evaluate or checkpointed,
+                    evaluation))
     # (the rows before a checkpoint are written before it: a resumed run's CSV has no gap)
     write_rows(block=checkpointed)
     if checkpointed:
@@ -676,12 +673,8 @@ class _HostEvaluation:
                              trainer.seeds, trainer.overrides)
     self.placed = self.trainer._replicated  # (what the program takes, as it was compiled)
     self.keys = jax.device_put(keys, self.placed)
-    state = self.trainer.abstract_state
-    like = lambda tree: jax.tree.map(
-        lambda a: jax.ShapeDtypeStruct(a.shape, a.dtype, sharding=self.placed), tree)
-    self.trainer.evaluate.lower(
-        like((state.learner.policy,) * policies), like((state.normalizer,) * policies),
-        self.keys, **like(self.trainer.evaluation_inputs(state))).compile()
+    held, norms, inputs = self.trainer.evaluation_example(policies, self.placed)
+    self.trainer.evaluate.lower(held, norms, self.keys, **inputs).compile()
 
   def start(self, state, pairs: list) -> _Evaluation:
     # (copies, done before the next iteration takes over the state's buffers: copied where they

@@ -340,14 +340,24 @@ class Trainer:
     JAX's cache; the later calls (`keys` [P, 2] of the kind that will be passed) reuse them.
     """
     state = self.abstract_state
-    held = policies_per_evaluation
-    jobs = [(self.init, (keys,), {}), (self.iteration, (state,), {})] + ([
-        (self.evaluate, ((state.learner.policy,) * held, (state.normalizer,) * held, keys),
-         self.evaluation_inputs(state))] if evaluation else [])
+    held, norms, inputs = self.evaluation_example(policies_per_evaluation)
+    jobs = [(self.init, (keys,), {}), (self.iteration, (state,), {})] + (
+        [(self.evaluate, (held, norms, keys), inputs)] if evaluation else [])
     with concurrent.futures.ThreadPoolExecutor(len(jobs)) as pool:
       compiled = [f.result() for f in [pool.submit(lambda f=f, a=a, k=k: f.lower(*a, **k)
                                                    .compile()) for f, a, k in jobs]]
     check_memory(compiled[1], self.mesh, f"{self.members} member(s) of {self.config.task}")
+
+  def evaluation_example(self, policies: int, sharding=None) -> tuple[tuple, tuple, dict]:
+    """Abstract `evaluate` arguments but the keys, for `policies` policies per member: the
+    policies, their normalisers and `evaluation_inputs`, placed as the state is, or every
+    leaf by `sharding`."""
+    state = self.abstract_state
+    if sharding is not None:
+      state = jax.tree.map(lambda a: jax.ShapeDtypeStruct(a.shape, a.dtype, sharding=sharding),
+                           state)
+    return ((state.learner.policy,) * policies, (state.normalizer,) * policies,
+            self.evaluation_inputs(state))
 
   def evaluation_inputs(self, state) -> dict:
     """The keyword arguments `evaluate` takes for `state` (the one call form, compiled ahead
