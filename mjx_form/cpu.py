@@ -22,7 +22,7 @@ def configure_cpu_xla(extra_flags: str = "") -> None:
 def one_device_per_core() -> bool:
   """Asks JAX for one CPU device per core, for evaluations on the host beside an accelerator
   (`--eval_on_host`: XLA steps a batch on one CPU device with few of its cores; 96 walker
-  episodes took 15.0 s split over the 2-core CPU's 2 devices, 25.6 s on one).
+  episodes took 14.6 s split over the 2-core CPU's 2 devices, 23.9 s on one).
   False where JAX has started (too late to ask)."""
   import jax
 
