@@ -22,12 +22,13 @@ def configure_cpu_xla(extra_flags: str = "") -> None:
 def one_device_per_core() -> bool:
   """Asks JAX for one CPU device per core, for evaluations on the host beside an accelerator
   (`--eval_on_host`: XLA steps a batch on one CPU device with few of its cores; 96 walker
-  episodes took 14.6 s split over the 2-core CPU's 2 devices, 23.9 s on one).
+  episodes took 14.6 s split over the 2-core CPU's 2 devices, 23.9 s on one). The cores are
+  those this process may run on (`taskset`, or `gpu_jobs.py`'s share of the host per GPU).
   False where JAX has started (too late to ask)."""
   import jax
 
   try:
-    jax.config.update("jax_num_cpu_devices", os.cpu_count() or 1)
+    jax.config.update("jax_num_cpu_devices", len(os.sched_getaffinity(0)) or 1)
   except RuntimeError:
     return False
   return True

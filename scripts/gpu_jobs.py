@@ -28,7 +28,9 @@ The jobs file has one job per line, `NAME: COMMAND` (blank lines and `#` comment
 `NAME gpus=N: COMMAND` gives a job N GPUs (default 1). Jobs start in order as soon as enough
 GPUs are free; one that would start after the deadline is skipped. Each job runs from the
 working directory in its own session with `CUDA_VISIBLE_DEVICES` set to its GPUs (of those
-the machine lists, or of an inherited CUDA_VISIBLE_DEVICES) and these variables:
+the machine lists, or of an inherited CUDA_VISIBLE_DEVICES), pinned to its GPUs' share of the
+host's cores (each GPU owns an equal slice, so that one job's `--eval_on_host` does not take
+the cores of another's), and these variables:
   RES   the folder for its records (`--results $RES/NAME.jsonl`), brought back at every poll;
   RUNS  the folder for its run directories (`--run_dir $RUNS/NAME`), packed at the end;
   LEFT  seconds left until the deadline at the job's start (`--max_seconds $LEFT` makes a
@@ -213,6 +215,15 @@ def machine_gpus() -> list[str]:
   return [str(i) for i in range(sum(line.startswith("GPU ") for line in out.splitlines()))]
 
 
+def core_shares(gpus: list[str], cores: list[int]) -> dict[str, list[int]]:
+  """Each GPU's equal slice of `cores` (in order; all of them for each GPU where there are
+  fewer cores than GPUs)."""
+  if len(cores) < len(gpus):
+    return {g: list(cores) for g in gpus}
+  n = len(gpus)
+  return {g: cores[i * len(cores) // n:(i + 1) * len(cores) // n] for i, g in enumerate(gpus)}
+
+
 def schedule(jobs: list[dict], gpus: list[str], folder: Path, end_time: float,
              poll_s: float = 2.0) -> None:
   """Runs `jobs` in order on the devices `gpus`, each as soon as it has enough free ones (one
@@ -220,6 +231,7 @@ def schedule(jobs: list[dict], gpus: list[str], folder: Path, end_time: float,
   folder/status.json whenever a job starts or ends; returns when every job has ended."""
   start = time.time()
   free, running, status = list(gpus), {}, {j["name"]: {"state": "waiting"} for j in jobs}
+  shares = core_shares(gpus, sorted(os.sched_getaffinity(0)))
   waiting = list(jobs)
   write_status(folder, status)
   while waiting or running:
@@ -233,11 +245,13 @@ def schedule(jobs: list[dict], gpus: list[str], folder: Path, end_time: float,
       mine, free = free[:job["gpus"]], free[job["gpus"]:]
       env = {**os.environ, "CUDA_VISIBLE_DEVICES": ",".join(mine),
              "RES": str(folder / "res"), "RUNS": str(folder / "runs"), "LEFT": str(left)}
+      cores = sorted({c for g in mine for c in shares[g]})
       log = open(folder / "logs" / f"{job['name']}.log", "w")
       process = subprocess.Popen(["bash", "-c", job["cmd"]], env=env, stdout=log,
-                                 stderr=subprocess.STDOUT, start_new_session=True)
+                                 stderr=subprocess.STDOUT, start_new_session=True,
+                                 preexec_fn=lambda: os.sched_setaffinity(0, cores))
       running[job["name"]] = (process, mine, log)
-      status[job["name"]] = {"state": "running", "gpus": mine, "left_s": left,
+      status[job["name"]] = {"state": "running", "gpus": mine, "cores": len(cores), "left_s": left,
                              "started_s": round(time.time() - start, 1)}
       write_status(folder, status)
     time.sleep(poll_s)

@@ -8,6 +8,8 @@ import dataclasses
 import json
 import os
 import re
+import subprocess
+import sys
 
 import jax
 import jax.numpy as jnp
@@ -344,6 +346,19 @@ def test_a_run_stopped_by_max_seconds_skips_its_last_host_evaluation(tmp_path, c
   assert "--eval_on_host evaluates on the host's CPU beside an accelerator" in (
       capsys.readouterr().err)
   assert not (tmp_path / "cpu").exists()
+
+
+def test_one_cpu_device_per_core_this_process_may_run_on():
+  """--eval_on_host's CPU devices count the cores of the process's affinity (gpu_jobs.py pins
+  each job to its GPUs' share of the host), not every core of the machine."""
+  code = ("import os; os.sched_setaffinity(0, sorted(os.sched_getaffinity(0))[:1]); "
+          "from mjx_form import cpu; assert cpu.one_device_per_core(); "
+          "import jax; print(len(jax.devices('cpu')))")
+  flags = " ".join(f for f in os.environ["XLA_FLAGS"].split()  # (the tests' 2 CPU devices)
+                   if not f.startswith("--xla_force_host_platform_device_count"))
+  out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
+                       env={**os.environ, "JAX_PLATFORMS": "cpu", "XLA_FLAGS": flags})
+  assert out.stdout.split()[-1] == "1"
 
 
 def _same(value, want, what: str):

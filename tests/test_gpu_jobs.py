@@ -52,6 +52,24 @@ def test_jobs_wait_for_free_gpus_and_get_their_own(tmp_path):
   assert (tmp_path / "all_done").exists()
 
 
+def test_each_gpu_owns_an_equal_share_of_the_cores_and_its_jobs_run_on_it(tmp_path):
+  assert gpu_jobs.core_shares(["0", "1"], list(range(32))) == {"0": list(range(16)),
+                                                               "1": list(range(16, 32))}
+  assert gpu_jobs.core_shares(list("abc"), [0, 2, 4, 6, 8]) == {"a": [0], "b": [2, 4],
+                                                                "c": [6, 8]}
+  assert gpu_jobs.core_shares(list("abc"), [5, 7]) == {g: [5, 7] for g in "abc"}
+  cores = sorted(os.sched_getaffinity(0))
+  shares = gpu_jobs.core_shares(["0", "1"], cores)
+  where = "python3 -c 'import os; print(*sorted(os.sched_getaffinity(0)))' >"
+  jobs = gpu_jobs.parse_jobs(f"a: {where} $RES/a.txt; sleep 0.5\nb: {where} $RES/b.txt\n"
+                             f"c gpus=2: {where} $RES/c.txt\n", num_gpus=2)
+  gpu_jobs.schedule(jobs, ["0", "1"], sitting(tmp_path), time.time() + 100, poll_s=0.05)
+  seen = {n: [int(c) for c in (tmp_path / "res" / f"{n}.txt").read_text().split()] for n in "abc"}
+  assert seen == {"a": shares["0"], "b": shares["1"], "c": sorted(set(shares["0"] + shares["1"]))}
+  status = json.loads((tmp_path / "status.json").read_text())
+  assert status["c"]["cores"] == len(seen["c"])
+
+
 def test_a_job_that_would_start_after_the_deadline_is_skipped(tmp_path):
   jobs = gpu_jobs.parse_jobs("a: sleep 2\nb: touch $RES/b\n", num_gpus=1)
   gpu_jobs.schedule(jobs, ["0"], sitting(tmp_path), time.time() + 1.8, poll_s=0.05)
