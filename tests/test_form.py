@@ -10,6 +10,8 @@ import os
 import re
 import subprocess
 import sys
+import time
+import types
 
 import jax
 import jax.numpy as jnp
@@ -321,10 +323,12 @@ def test_evaluations_on_the_host_write_what_evaluations_on_the_accelerator_write
   assert runner._HostEvaluation(trainer, None, trainer.keys(1), 1).devices == jax.devices()[:1]
 
 
-def test_a_run_stopped_by_max_seconds_skips_its_last_host_evaluation(tmp_path, capsys):
+def test_a_run_stopped_by_max_seconds_skips_its_last_host_evaluation(tmp_path, capsys,
+                                                                      monkeypatch):
   """With `eval_on_host`, a run that `max_seconds` stops does not start a host evaluation of its
   last iteration (its end would wait for it; the final evaluations on the accelerator come next):
-  its last row has no periodic evaluation, and its final_return records are written. (On the
+  its last row has no periodic evaluation, and its final_return records are written; one whose
+  time runs out while the host evaluates trains on until that evaluation is done. (On the
   accelerator the same stop evaluates the last iteration: test_train's
   test_command_line_trains_resumes_and_refuses_mismatches.)"""
   from mjx_form.rl import runner
@@ -337,6 +341,37 @@ def test_a_run_stopped_by_max_seconds_skips_its_last_host_evaluation(tmp_path, c
   assert rows[0]["iteration"] == 1 and "eval_return" not in rows[0]
   kinds = [r["kind"] for r in results.read_records(str(curve))]
   assert "learning_curve" not in kinds and "final_return" in kinds
+  # A run whose time runs out while the host evaluates trains on, starting no evaluation,
+  # until that one is done (here: time runs out as iteration 1's starts, and it takes until
+  # the 4th look), and writes it.
+  clock, looks = [0.0], {}
+  real_start, real_done = runner._HostEvaluation.start, runner._Evaluation.done
+
+  def start(self, state, pairs):
+    clock[0] = 1e9  # (the budget is spent)
+    return real_start(self, state, pairs)
+
+  def done(self):
+    looks[id(self)] = looks.get(id(self), 0) + 1
+    return looks[id(self)] > 3 and real_done(self)
+
+  monkeypatch.setattr(runner, "time", types.SimpleNamespace(
+      perf_counter=lambda: time.perf_counter() + clock[0]))
+  monkeypatch.setattr(runner._HostEvaluation, "start", start)
+  monkeypatch.setattr(runner._Evaluation, "done", done)
+  said = []
+  curve = tmp_path / "curve2.jsonl"
+  rows = runner.run(CONFIG, str(tmp_path / "run2"), 50 * CONFIG.env_steps_per_iteration,
+                    eval_every=1, max_seconds=1e6, final_eval_envs=0, results_path=str(curve),
+                    mesh=mesh_lib.make_mesh(jax.devices()[:1]),
+                    reward_source=FormReward(EFFECT, _demonstrator()), print_fn=said.append,
+                    eval_on_host=True, host_devices=jax.devices()[1:])
+  points = [r for r in results.read_records(str(curve)) if r["kind"] == "learning_curve"]
+  assert [p["iteration"] for p in points] == [1]
+  assert 2 < rows[0]["iteration"] < 50 and "eval_return" not in rows[0]
+  assert any(f"training on for {rows[0]['iteration'] - 2} iteration(s) while the host" in line
+             for line in said)
+  monkeypatch.undo()
   # run.py --eval_on_host asks JAX for a CPU device per core (too late here: JAX has started)
   # and refuses a run that trains on the CPU itself, before anything is written.
   assert not cpu.one_device_per_core()

@@ -362,6 +362,7 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
   rows = [{"iteration": start_iteration, "env_steps": start_iteration * steps_per_iteration,
            "wall_s": wall_offset} for _ in dirs]
   stopped = False  # by max_seconds, before total_env_steps
+  overtime_iterations = 0  # trained past max_seconds while the host finished an evaluation
   # Each iteration's rows wait here, in order, for their evaluation (done at once on the
   # accelerator; on the host once its program has run): [(rows, logged, evaluation or None)].
   waiting = []
@@ -402,12 +403,17 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
       timed_steps += steps_per_iteration
       timed_seconds += seconds
     finished = iteration == total_iterations
-    out_of_time = (max_seconds is not None
-                   and time.perf_counter() - budget_start >= max_seconds)
+    overtime = max_seconds is not None and time.perf_counter() - budget_start >= max_seconds
+    # (on the host, a run out of time trains on, starting no evaluation, until the one running
+    # there is done: the accelerator does not wait idle for it)
+    host_busy = host is not None and any(e is not None and not e.done() for *_, e in waiting)
+    out_of_time = overtime and not host_busy
+    overtime_iterations += overtime and host_busy
     last = finished or out_of_time
     # (on the host, the last iteration of a run that `max_seconds` stopped is not evaluated:
     # its final evaluations, on the accelerator, come after it at once)
-    evaluate = iteration % eval_every == 0 or (last and (host is None or finished))
+    evaluate = ((iteration % eval_every == 0 and not overtime)
+                or (last and (host is None or finished)))
     evaluation = None
     if evaluate:
       write_rows(block=True)  # (one evaluation at a time on the host; at once otherwise)
@@ -440,8 +446,10 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
     if out_of_time and not finished:
       print_fn(f"stopped after {time.perf_counter() - budget_start:.0f}s (--max_seconds "
                f"{max_seconds:g}, counted from the command's start) at iteration "
-               f"{iteration}/{total_iterations} "
-               f"(checkpointed; continue with --resume)")
+               f"{iteration}/{total_iterations}"
+               + (f", training on for {overtime_iterations} iteration(s) while the host "
+                  f"finished its evaluation" if overtime_iterations else "")
+               + " (checkpointed; continue with --resume)")
       stopped = True
       break
   write_rows(block=True)
