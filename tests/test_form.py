@@ -383,6 +383,41 @@ def test_a_run_stopped_by_max_seconds_skips_its_last_host_evaluation(tmp_path, c
   assert not (tmp_path / "cpu").exists()
 
 
+def test_a_checkpoint_due_while_the_host_evaluates_waits_for_its_rows(tmp_path, monkeypatch):
+  """With `eval_on_host`, a checkpoint due as an evaluation starts there is saved at the first
+  iteration after it with every row written (at most checkpoint_every iterations later; the
+  accelerator trains on meanwhile), and a run resumed from it continues the CSV without a gap.
+  (Here each evaluation says it is running the first 3 times it is asked.)"""
+  from mjx_form.rl import runner
+  looks, saved = {}, []
+  real_done, real_save = runner._Evaluation.done, runner.checkpoint.save
+
+  def done(self):
+    looks[id(self)] = looks.get(id(self), 0) + 1
+    return looks[id(self)] > 3 and real_done(self)
+
+  def save(directory, step, *args, **kwargs):
+    saved.append(step)
+    return real_save(directory, step, *args, **kwargs)
+
+  monkeypatch.setattr(runner._Evaluation, "done", done)
+  monkeypatch.setattr(runner.checkpoint, "save", save)
+  more = dict(eval_every=4, checkpoint_every=4, final_eval_envs=0,
+              mesh=mesh_lib.make_mesh(jax.devices()[:1]), print_fn=lambda *_: None,
+              eval_on_host=True, host_devices=jax.devices()[1:])
+  run_dir, steps = str(tmp_path / "run"), CONFIG.env_steps_per_iteration
+  runner.run(CONFIG, run_dir, 9 * steps, reward_source=FormReward(EFFECT, _demonstrator()),
+             **more)
+  assert saved[0] in (6, 7, 8) and saved[-1] == 9  # (without the wait: 4, 8, 9)
+  runner.run(CONFIG, run_dir, 13 * steps, resume=True,
+             reward_source=FormReward(EFFECT, _demonstrator()), **more)
+  with open(os.path.join(run_dir, "progress.csv"), newline="") as f:
+    rows = list(csv.DictReader(f))
+  assert [int(r["iteration"]) for r in rows] == list(range(1, 14))
+  assert [r["eval_return"] != "" for r in rows] == [i % 4 == 0 or i in (9, 13)  # (ends)
+                                                  for i in range(1, 14)]
+
+
 def test_one_cpu_device_per_core_this_process_may_run_on():
   """--eval_on_host's CPU devices count the cores of the process's affinity (gpu_jobs.py pins
   each job to its GPUs' share of the host), not every core of the machine."""

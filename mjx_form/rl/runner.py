@@ -363,6 +363,7 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
            "wall_s": wall_offset} for _ in dirs]
   stopped = False  # by max_seconds, before total_env_steps
   overtime_iterations = 0  # trained past max_seconds while the host finished an evaluation
+  due_since = None  # the iteration since which a checkpoint is due
   # Each iteration's rows wait here, in order, for their evaluation (done at once on the
   # accelerator; on the host once its program has run): [(rows, logged, evaluation or None)].
   waiting = []
@@ -422,7 +423,14 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
       eval_seconds += time.perf_counter() - t0
     wall = wall_offset + time.perf_counter() - call_start
     peak = results.peak_memory_bytes()
-    checkpointed = iteration % checkpoint_every == 0 or last
+    if iteration % checkpoint_every == 0 and due_since is None:
+      due_since = iteration
+    # (on the host, a due checkpoint waits, up to checkpoint_every iterations, for the
+    # evaluation running there: its rows come first, and the accelerator does not wait idle)
+    busy = host is not None and (evaluation is not None or any(
+        e is not None and not e.done() for *_, e in waiting))
+    checkpointed = last or (due_since is not None
+                            and (not busy or iteration - due_since >= checkpoint_every))
     updates = np.asarray(state.learner.updates)
     member_rows = []
     for i in range(trainer.members):
@@ -443,6 +451,7 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
     write_rows(block=checkpointed)
     if checkpointed:
       checkpoint.save(ckpt_dir, iteration, _checkpointed(state, checkpoint_replay), full_config)
+      due_since = None
     if out_of_time and not finished:
       print_fn(f"stopped after {time.perf_counter() - budget_start:.0f}s (--max_seconds "
                f"{max_seconds:g}, counted from the command's start) at iteration "
