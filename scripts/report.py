@@ -946,7 +946,9 @@ def form_table(records: list[dict], expert_returns: dict[str, float] | None = No
   lines = [caption + "return of the final policy in a fresh evaluation after "
            "training, or where the run's time budget stopped it (`stopped` beside its env "
            "steps; `--final_eval_envs` episodes per seed, policy mean action), mean +- "
-           "standard deviation over seeds (each seed: its mean over the episodes); best: the "
+           "standard deviation over seeds (each seed: its mean over the episodes); sampled: the "
+           "final policy on the same episodes with its actions drawn from it each step (runs "
+           "since 2026-11-29); best: the "
            "same for the policy of each run's best periodic evaluation by the task return; by "
            "log pD: by the demonstrator's log pD per transition of the evaluation's episodes, a "
            "choice made without the task reward (`best_log_pd_policy.npz`, runs since 2026-11-28; "
@@ -968,18 +970,19 @@ def form_table(records: list[dict], expert_returns: dict[str, float] | None = No
            "",
            "| task | device | physics | envs | updates / iteration (replay ratio) | "
            "reward, T, effect models | seeds | episodes / seed | env steps "
-           "| wall clock (mean) | FORM return | best policy | by log pD | average policy | "
+           "| wall clock (mean) | FORM return | sampled | best policy | by log pD | average policy | "
            "average by log pD | expert | "
            "fraction | "
            "paper's fraction |" + (" configurations |" if best_per_task else ""),
-           "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"
+           "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"
            + ("---|" if best_per_task else "")]
   for key in sorted(groups, key=lambda k: (_order(k[0]), k[2], k[4], str(k))):
     task, physics, num_envs, updates, env_steps, _, device, variant, _ = key
     final, best = groups[key]["final"], groups[key].get("best", [])
     mean, std = _mean_std([r["final_return"] for r in final])
     best_texts = [f"{_mean_std([r['final_return'] for r in chosen])[0]:.1f}" if chosen else "-"
-                  for chosen in (best, groups[key].get("best_log_pd", []),
+                  for chosen in (groups[key].get("final_sampled", []), best,
+                                 groups[key].get("best_log_pd", []),
                                  groups[key].get("average", []),
                                  groups[key].get("best_log_pd_average", []))]
     wall = _mean_std([r["wall_s"] for r in final])[0]

@@ -254,6 +254,30 @@ def test_policies_evaluated_together_each_give_their_own_episodes(form_trainer):
   assert np.abs(scores[0] - scores[1]).max() > 0.1  # (the two policies' episodes differ)
 
 
+def test_a_policy_evaluated_with_sampled_actions_draws_them_at_its_scale(form_trainer):
+  """`sampled` [K] evaluates a policy with actions drawn from it each step: the policy beside it
+  keeps its mean actions' episodes; the draws differ from the mean actions by the policy's
+  scale (at the smallest scale, 1e-4, the episodes are the mean actions' to rounding)."""
+  state, _ = _iterate(form_trainer, 1)
+  policy, norm, keys = state.learner.policy, state.normalizer, form_trainer.keys(1)
+  inputs = form_trainer.evaluation_inputs(state)
+  alone = jax.device_get(form_trainer.evaluate((policy,), (norm,), keys, **inputs))
+  both = jax.device_get(form_trainer.evaluate((policy, policy), (norm, norm), keys, **inputs,
+                                              sampled=np.array([0.0, 1.0], np.float32)))
+  for got, want in zip(both, alone):  # (returns, log pD): the mean actions' as alone
+    np.testing.assert_allclose(got[0], want[0], rtol=1e-5, atol=1e-4)
+  assert np.abs(both[1][1] - both[1][0]).max() > 0.1  # (the draws' episodes differ)
+  head = policy["params"]["Dense_0"]  # (mean, raw scale): the raw scale at -30 everywhere
+  a = head["bias"].shape[-1] // 2
+  narrow = jax.tree.map(lambda x: x, policy)
+  narrow["params"]["Dense_0"] = {"kernel": head["kernel"].at[..., a:].set(0.0),
+                                 "bias": head["bias"].at[..., a:].set(-30.0)}
+  returns, scores = jax.device_get(form_trainer.evaluate(
+      (narrow, narrow), (norm, norm), keys, **inputs, sampled=np.array([0.0, 1.0], np.float32)))
+  np.testing.assert_allclose(returns[1], returns[0], rtol=1e-3, atol=1e-2)
+  np.testing.assert_allclose(scores[1], scores[0], rtol=1e-3, atol=1e-2)
+
+
 def test_policies_beyond_the_env_limit_go_to_calls_of_one_size(form_trainer, monkeypatch):
   """The runner's evaluations: policies beyond EVALUATION_ENVS environments go to further calls
   of one size (the last padded, one program), each policy's own returns and log pD in order."""
@@ -1137,7 +1161,7 @@ def test_form_command_line_runs_every_stage(tmp_path, capsys):
   assert (first / "demonstrator.npz").read_bytes() == open(
       tasks.bundled_demonstrator("reacher_easy"), "rb").read()
   records = results.read_records(str(curve))
-  assert [r["kind"] for r in records] == ["learning_curve"] + ["final_return"] * 5
+  assert [r["kind"] for r in records] == ["learning_curve"] + ["final_return"] * 6
   assert all(r["method"] == "form" for r in records)
   assert all(np.isfinite(records[0][k]) for k in ("form_reward", "demonstrator_log_prob",
                                                   "imitator_batch_log_prob", "eval_return",
@@ -1156,22 +1180,24 @@ def test_form_command_line_runs_every_stage(tmp_path, capsys):
   assert records[0]["learner_preset"] == "custom"
   # (and the policy averaged over updates, FORM's default: settings.DEFAULT_RUN, with its own
   # best by log pD)
-  assert [r["policy"] for r in records[1:]] == ["final", "best", "best_log_pd", "average",
-                                                "best_log_pd_average"]
+  assert [r["policy"] for r in records[1:]] == ["final", "final_sampled", "best", "best_log_pd",
+                                                "average", "best_log_pd_average"]
   assert re.search(r"eval -?[0-9.]+ \(log pD -?[0-9.]+\)  average policy -?[0-9.]+", out)
   assert records[1]["episodes"] == final_episodes and np.isfinite(records[1]["final_return"])
   # One evaluation, at the end: both best policies are the final one (the same arrays), whose
   # fresh evaluation they repeat rather than run again; so is the average's best the average.
-  assert [r.get("same_policy_as") for r in records[1:]] == [None, "final", "final", None,
+  # (The final policy with sampled actions is its own evaluation.)
+  assert [r.get("same_policy_as") for r in records[1:]] == [None, None, "final", "final", None,
                                                             "average"]
   chosen = policy_io.load_policy(first / "best_log_pd_average_policy.npz")[1]
   assert chosen["sha256"] == policy_io.load_policy(first / "average_policy.npz")[1]["sha256"]
   assert (chosen["eval_return"], chosen["eval_demonstrator_log_prob"]) == (
       records[0]["eval_return_average"], records[0]["eval_demonstrator_log_prob_average"])
-  assert len({(r["final_return"], r["eval_demonstrator_log_prob"]) for r in records[1:4]}) == 1
+  assert len({(r["final_return"], r["eval_demonstrator_log_prob"])
+              for r in (records[1], *records[3:5])}) == 1
   assert re.search(r"the best policy by log pD holds the final policy's arrays: -?[0-9.]+ \+- "
                    r"[0-9.]+ \(log pD -?[0-9.]+\), not evaluated again", out)
-  shas = {r["policy_sha256"] for r in records[1:4]}
+  shas = {r["policy_sha256"] for r in records[1:5]}
   assert shas == {policy_io.load_policy(first / "policy.npz")[1]["sha256"]}
   # The imitator model at the run's end, beside the policy (one update per learner step).
   imitator = effect_models.load_effect_model(first / "imitator.npz", task="reacher_easy")
@@ -1237,9 +1263,9 @@ def test_form_command_line_runs_every_stage(tmp_path, capsys):
   assert meta["demonstrations"]["episodes"] == k and meta["demonstrations"]["file"] == "demos.npz"
   assert meta["demonstrations"]["expert"]["policy_file"] == "reacher_easy.npz"
   assert demos.load_demonstrations(saved, task="reacher_easy").actions.shape == (k, 1000, 2)
-  records = results.read_records(str(curve))[7:]  # (after the first run's and its resume's)
+  records = results.read_records(str(curve))[8:]  # (after the first run's and its resume's)
   kinds = [r["kind"] for r in records]
-  assert kinds == ["effect_model", "learning_curve"] + ["final_return"] * 5
+  assert kinds == ["effect_model", "learning_curve"] + ["final_return"] * 6
   assert len(records[0]["heldout_log_likelihood"]) == 5 and records[0]["steps"] == 20
   assert records[0]["settings"]["max_seconds"] == 500.0  # about half of --max_seconds
   assert records[0]["stopped_by"] == "max_steps"
@@ -1285,8 +1311,8 @@ def test_form_command_line_runs_every_stage(tmp_path, capsys):
   np.testing.assert_allclose(kept.metadata["config"]["period"], period)
   assert "trained with other settings" in capsys.readouterr().out
   assert records[1]["learner_preset"] == "custom"
-  assert [r["policy"] for r in records[2:]] == ["final", "best", "best_log_pd", "average",
-                                                "best_log_pd_average"]
+  assert [r["policy"] for r in records[2:]] == ["final", "final_sampled", "best", "best_log_pd",
+                                                "average", "best_log_pd_average"]
   assert records[2]["episodes"] == final_episodes and np.isfinite(records[2]["final_return"])
 
   # Refusals: exit code 2, the file and the mismatch named, nothing written. (A run given a

@@ -221,7 +221,7 @@ def test_population_from_the_command_line_writes_each_member(tmp_path, capsys):
     assert meta["train_config"]["wrap_angles"] is True
     assert policy_io.load_policy(member / "best_policy.npz")[1]["train_config"]["seed"] == seed
     mine = [r for r in records if r["seed"] == seed]
-    assert [r["kind"] for r in mine] == ["learning_curve"] * 2 + ["final_return"] * 2
+    assert [r["kind"] for r in mine] == ["learning_curve"] * 2 + ["final_return"] * 3
     assert [r["iteration"] for r in mine[:2]] == [1, 2]
     assert all(r["population"] == 2 and r["settings"]["seed"] == seed
                and r["settings"]["learner"]["learning_rate"] == 1e-3
@@ -324,10 +324,12 @@ def test_final_evaluation_of_members_that_differ_in_the_wrap(population, tmp_pat
                            {"best": paths, "best_log_pd": [paths[0], str(tmp_path / "none.npz")]},
                            rows, CONFIG.eval_envs, None, 0, ["seed 0", "seed 1"],
                            print_fn=lines.append)
-  # (no final files given: the best policy is evaluated afresh, beside the final one)
-  assert runs == [2]
+  # (no final files given: the best policy is evaluated afresh, beside the final one, and the
+  # final one with its actions sampled)
+  assert runs == [3]
   for row in rows:  # the best policies are the state's own: the same returns as the final ones
     np.testing.assert_allclose(row["best_policy_return"], row["final_policy_return"], rtol=1e-5)
+    assert "final_sampled_policy_return" in row
     assert "best_log_pd_policy_return" not in row
   assert ("no none.npz for seed 1: the best policy by log pD is not evaluated afresh"
           in lines), lines
@@ -348,13 +350,14 @@ def test_final_evaluation_of_members_that_differ_in_the_wrap(population, tmp_pat
     runner._final_evaluation(population, state, bests, rows, CONFIG.eval_envs,
                              results.ResultWriter(str(finals)), 0, ["seed 0", "seed 1"],
                              print_fn=lines.append, final_paths=paths)
-    assert runs == [2], bests  # (in one call)
+    assert runs == [3], bests  # (in one call, the final policy's actions sampled too)
     records = results.read_records(str(finals))
     assert [(r["policy"], r.get("same_policy_as")) for r in records] == [
-        ("final", None), ("final", None), ("best", same[0]), ("best", same[0]),
-        ("best_log_pd", same[1]), ("best_log_pd", same[1])], bests
+        ("final", None), ("final", None), ("final_sampled", None), ("final_sampled", None),
+        ("best", same[0]), ("best", same[0]), ("best_log_pd", same[1]),
+        ("best_log_pd", same[1])], bests
     assert [r["policy_sha256"] for r in records] == [
-        sha(p) for p in paths + bests["best"] + bests["best_log_pd"]]
+        sha(p) for p in paths + paths + bests["best"] + bests["best_log_pd"]]
     reused = [r for r in records if "same_policy_as" in r]
     for r in reused:  # (its numbers are those of the policy it repeats, member by member)
       twin = next(t for t in records if t["policy"] == r["same_policy_as"]

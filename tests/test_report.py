@@ -57,6 +57,9 @@ def test_form_table_averages_the_final_policy_over_seeds():
   records = [
       _final_return(0, 800.0), _final_return(1, 700.0, wall_s=700.0),
       _final_return(2, 600.0, wall_s=800.0),
+      # the final policy with its actions sampled has its own column
+      _final_return(0, 810.0, policy="final_sampled"),
+      _final_return(1, 790.0, policy="final_sampled"),
       # best policies are their own column; an older record of a seed gives way to the newer
       _final_return(0, 850.0, policy="best"), _final_return(1, 750.0, policy="best"),
       # and those chosen by the evaluations' log pD theirs
@@ -73,13 +76,15 @@ def test_form_table_averages_the_final_policy_over_seeds():
                             demonstration_returns={})
   rows = [line for line in table.splitlines() if line.startswith("| cheetah_run")]
   assert len(rows) == 2, table
-  # 512 envs: seeds 800, 700, 600 -> 700 +- 81.6 (population std), 700 / 875 = 0.80; best:
+  # 512 envs: seeds 800, 700, 600 -> 700 +- 81.6 (population std), 700 / 875 = 0.80;
+  # sampled: (810 + 790) / 2; best:
   # (850 + 750) / 2; by log pD: (820 + 640) / 2; average: (780 + 600) / 2; its by log pD: 610;
   # paper: 827.9 / 930.5 = 0.89; wall clock: the seeds' mean, 700 s.
   assert ("| cheetah_run | `gpu:X` | fast | 512 | - | raw, T - | 3 | 256 | 20.0M | 11.7 min | "
-          "700.0 +- 81.6 | 800.0 | 730.0 | 690.0 | 610.0 | 875.0 | 0.80 | 0.89 |") in rows, rows
+          "700.0 +- 81.6 | 800.0 | 800.0 | 730.0 | 690.0 | 610.0 | 875.0 | 0.80 | 0.89 |"
+          ) in rows, rows
   assert ("| cheetah_run | `gpu:X` | fast | 64 | - | raw, T - | 1 | 256 | 20.0M | 10.0 min | 300.0 | "
-          "- | - | - | - | 875.0 | 0.34 | 0.89 |") in rows, rows  # one seed: no spread
+          "- | - | - | - | - | 875.0 | 0.34 | 0.89 |") in rows, rows  # one seed: no spread
   # A standardised reward or another target period is another row.
   variant = {"reward": {"standardise_reward": True}, "learner": {"target_update_period": 25}}
   table = report.form_table(records + [_final_return(0, 400.0, settings=variant)],
@@ -111,13 +116,13 @@ def test_form_table_averages_the_final_policy_over_seeds():
   assert "| 256 | 20.0M stopped | 10.0 min | 440.0 |" in table, table
   unknown = report.form_table([_final_return(0, 500.0)], expert_returns={},
                               demonstration_returns={})
-  assert "| 500.0 | - | - | - | - | - | - | 0.89 |" in unknown
+  assert "| 500.0 | - | - | - | - | - | - | - | 0.89 |" in unknown
   # The imitation target: the return of the demonstrations behind the run's demonstrator.
   behind = [_final_return(s, v, settings={"reward": {"demonstrator_sha256": "d1"}})
             for s, v in ((0, 900.0), (1, 850.0))]
   table = report.form_table(behind, expert_returns={"cheetah_run": 875.0},
                             demonstration_returns={"d1": 1000.0})
-  assert "| 875.0 +- 25.0 | - | - | - | - | 1000.0 | 0.88 | 0.89 |" in table, table
+  assert "| 875.0 +- 25.0 | - | - | - | - | - | 1000.0 | 0.88 | 0.89 |" in table, table
   # An ensemble's: the mean over its demonstrators' (the expert's return at export where one
   # is unknown); the variant names the ensemble.
   ensemble = {"reward": {"demonstrator_sha256": "d1+d2", "demonstrators": 2}}
@@ -125,7 +130,7 @@ def test_form_table_averages_the_final_policy_over_seeds():
   table = report.form_table(mixed, expert_returns={"cheetah_run": 875.0},
                             demonstration_returns={"d1": 1000.0, "d2": 950.0})
   assert "ensemble of 2 demonstrators" in table and "mean log pD" not in table
-  assert "| 875.0 +- 25.0 | - | - | - | - | 975.0 | 0.90 | 0.89 |" in table, table
+  assert "| 875.0 +- 25.0 | - | - | - | - | - | 975.0 | 0.90 | 0.89 |" in table, table
   averaged = [_final_return(s, v, settings={"reward": {**ensemble["reward"],
                                                             "ensemble_log_pd": "mean"}})
               for s, v in ((0, 900.0), (1, 850.0))]
@@ -133,7 +138,7 @@ def test_form_table_averages_the_final_policy_over_seeds():
       averaged, expert_returns={"cheetah_run": 875.0}, demonstration_returns={})
   table = report.form_table(mixed, expert_returns={"cheetah_run": 875.0},
                             demonstration_returns={"d1": 1000.0})
-  assert "| 875.0 +- 25.0 | - | - | - | - | 875.0 | 1.00 | 0.89 |" in table, table
+  assert "| 875.0 +- 25.0 | - | - | - | - | - | 875.0 | 1.00 | 0.89 |" in table, table
   # Members with a demonstrator each (a population comparing them): one row per demonstrator,
   # named in the variant, against its own demonstrations' return.
   own = [_final_return(s, v, settings={"reward": {"demonstrator_sha256": d,
@@ -142,9 +147,9 @@ def test_form_table_averages_the_final_policy_over_seeds():
   table = report.form_table(own, expert_returns={"cheetah_run": 875.0},
                             demonstration_returns={"d1aaaaaa": 1000.0, "d2bbbbbb": 950.0})
   assert ("| raw, T -, demonstrator d1aaaa of one per member | 1 | 256 | 20.0M | 10.0 min | "
-          "900.0 | - | - | - | - | 1000.0 | 0.90 |") in table, table
+          "900.0 | - | - | - | - | - | 1000.0 | 0.90 |") in table, table
   assert ("| raw, T -, demonstrator d2bbbb of one per member | 1 | 256 | 20.0M | 10.0 min | "
-          "850.0 | - | - | - | - | 950.0 | 0.89 |") in table, table
+          "850.0 | - | - | - | - | - | 950.0 | 0.89 |") in table, table
 
 
 def test_form_table_per_task_keeps_the_best_configuration_of_two_seeds_or_more():
@@ -157,7 +162,7 @@ def test_form_table_per_task_keeps_the_best_configuration_of_two_seeds_or_more()
   rows = [line for line in table.splitlines() if line.startswith("| ")][1:]  # past the header
   assert [row.split(" | ")[:4] for row in rows] == [
       ["| cheetah_run", "`gpu:X`", "fast", "256"], ["| walker_walk", "`gpu:X`", "fast", "512"]]
-  assert rows[0].endswith("| 770.0 +- 10.0 | - | - | - | - | 875.0 | 0.88 | 0.89 | 3 |"), rows
+  assert rows[0].endswith("| 770.0 +- 10.0 | - | - | - | - | - | 875.0 | 0.88 | 0.89 | 3 |"), rows
   assert rows[1].endswith("| 1 |"), rows
 
 

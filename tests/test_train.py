@@ -339,12 +339,13 @@ def test_command_line_trains_resumes_and_refuses_mismatches(tmp_path, capsys, mo
   assert all(r["eval_return"] != "" for r in rows)  # both evaluated (the stop, then the end)
   assert float(rows[1]["wall_s"]) > float(rows[0]["wall_s"]) > 0
   records = results.read_records(str(curve))
-  # The run evaluated its final and its best policy afresh (--final_eval_envs 2) where its
-  # time budget stopped it, marked unfinished, and again at its end.
+  # The run evaluated its final policy (with its mean and with sampled actions) and its best
+  # policy afresh (--final_eval_envs 2) where its time budget stopped it, marked unfinished,
+  # and again at its end.
   finals = [r for r in records if r["kind"] == "final_return"]
   assert [(r["policy"], r["method"], r["episodes"], r["env_steps"], r["finished"])
-          for r in finals] == [("final", "expert", 2, 40, False), ("best", "expert", 2, 40, False),
-                               ("final", "expert", 2, 80, True), ("best", "expert", 2, 80, True)]
+          for r in finals] == [(p, "expert", 2, steps, steps == 80) for steps in (40, 80)
+                               for p in ("final", "final_sampled", "best")]
   assert all(np.isfinite(r["final_return"]) for r in finals)
   records = [r for r in records if r["kind"] != "final_return"]
   assert [(r["kind"], r["task"], r["iteration"], r["env_steps"]) for r in records] == [
@@ -822,7 +823,7 @@ def test_average_policy_is_evaluated_exported_and_recorded(tmp_path, capsys):
   assert [r["eval_return_average"] for r in records if r["kind"] == "learning_curve"] == [
       pytest.approx(float(r["eval_return_average"])) for r in rows]
   finals = {r["policy"]: r for r in records if r["kind"] == "final_return"}
-  assert set(finals) == {"final", "best", "average"}
+  assert set(finals) == {"final", "final_sampled", "best", "average"}
   assert finals["average"]["settings"]["learner"]["policy_average_decay"] == 0.5
 
 
@@ -855,7 +856,8 @@ def test_a_member_at_decay_zero_gets_no_average_policy_records(tmp_path):
                            averaging=[False, True])
   records = results.read_records(str(again))
   assert [(r["settings"]["learner"]["policy_average_decay"], r["policy"]) for r in records] == [
-      (0.0, "final"), (0.5, "final"), (0.5, "average"), (0.5, name)], records
+      (0.0, "final"), (0.5, "final"), (0.0, "final_sampled"), (0.5, "final_sampled"),
+      (0.5, "average"), (0.5, name)], records
   assert not any("not evaluated afresh" in line for line in lines), lines
   assert name + "_policy_return" in rows[1] and name + "_policy_return" not in rows[0]
   assert records[-1]["policy_sha256"] == policy_io.load_policy(chosen[1])[1]["sha256"]

@@ -494,7 +494,9 @@ def _final_evaluation(trainer: Trainer, state, best_paths: dict[str, list[str]],
   gives to float precision, and say so (`same_policy_as`)."""
   keys = trainer.keys(2)
   sha256 = lambda paths: tuple(policy_io.load_policy(p)[1]["sha256"] for p in paths)
-  policies = [("final", None, sha256(final_paths) if final_paths else None)]  # (name, files, shas)
+  final_shas = sha256(final_paths) if final_paths else None
+  # (name, files, shas); the final policy also with its actions drawn from it
+  policies = [("final", None, final_shas), ("final_sampled", None, final_shas)]
   chosen_from_average = []  # (evaluated after the average policy, which they may repeat)
   for name, paths in best_paths.items():
     keeps, missing = _member_files(name, paths, averaging)
@@ -513,27 +515,29 @@ def _final_evaluation(trainer: Trainer, state, best_paths: dict[str, list[str]],
              if final_paths else [])
     policies.append(("average", None, sha256(files) if files and all(averaging) else None))
   policies += chosen_from_average
-  # Each distinct policy (by its members' sha256s, where known) is evaluated once, and all of
-  # them together (`_evaluated`); a repeat's records are the first's.
-  first_of = {}  # each member's sha256s -> the index in `policies` of the first with them
+  # Each distinct policy (by its members' sha256s, where known, and how it acts) is evaluated
+  # once, and all of them together (`_evaluated`); a repeat's records are the first's.
+  first_of = {}  # (each member's sha256s, sampled) -> the index in `policies` of the first
   pending = []  # (index in `policies`, (policy, normaliser))
   for j, (name, paths, shas) in enumerate(policies):
-    if shas is not None and shas in first_of:
+    if shas is not None and (shas, name == "final_sampled") in first_of:
       continue
     if shas is not None:
-      first_of[shas] = j
+      first_of[shas, name == "final_sampled"] = j
     held = state.learner.average_policy if name == "average" else state.learner.policy
     pending.append((j, _stacked(trainer, state, paths) if paths is not None
                     else (held, state.normalizer)))
   evaluated = dict(zip([j for j, _ in pending],
                        _evaluated(trainer, state, [pair for _, pair in pending], keys,
-                                  num_envs=episodes)))
+                                  num_envs=episodes,
+                                  sampled=[policies[j][0] == "final_sampled"
+                                           for j, _ in pending])))
   for j, (name, paths, shas) in enumerate(policies):
     same = None
     if j in evaluated:
       returns, scores = evaluated[j]
     else:
-      first = first_of[shas]
+      first = first_of[shas, name == "final_sampled"]
       same = policies[first][0]
       returns, scores = evaluated[first]
     for i in range(trainer.members):
@@ -609,19 +613,23 @@ def _held(state, averages: bool) -> list:
       [(state.learner.average_policy, state.normalizer)] if averages else [])
 
 
-def _dispatched(trainer: Trainer, pairs: list, keys, inputs: dict, num_envs: int | None = None
-                ) -> list:
+def _dispatched(trainer: Trainer, pairs: list, keys, inputs: dict, num_envs: int | None = None,
+                sampled: list[bool] | None = None) -> list:
   """Starts the evaluation of each (policy [P, ...], normaliser [P, ...]) of `pairs` together,
   on the same starts (`keys`), up to EVALUATION_ENVS environments per call; calls are of one
   size (the last padded with a repeat of its first pair): one program. `inputs`: the
-  evaluation's source inputs (`Trainer.evaluation_inputs`). Returns the calls' outputs, not
-  waited for (`_gathered`)."""
+  evaluation's source inputs (`Trainer.evaluation_inputs`); `sampled`: for each pair, whether
+  its actions are drawn from the policy (default: its mean actions, all). Returns the calls'
+  outputs, not waited for (`_gathered`)."""
   per_call = _per_call(trainer, len(pairs), num_envs or trainer.config.eval_envs)
   more = {} if num_envs is None else {"num_envs": num_envs}
   outputs = []
   for start in range(0, len(pairs), per_call):
     chunk = pairs[start:start + per_call]
     padded = chunk + chunk[:1] * (per_call - len(chunk))
+    if sampled is not None:
+      drawn = sampled[start:start + per_call]
+      more["sampled"] = np.asarray(drawn + drawn[:1] * (per_call - len(drawn)), np.float32)
     outputs.append((len(chunk), trainer.evaluate(
         tuple(p for p, _ in padded), tuple(m for _, m in padded), keys, **inputs, **more)))
   return outputs
@@ -640,12 +648,12 @@ def _gathered(outputs: list) -> list[tuple[np.ndarray, np.ndarray | None]]:
   return out
 
 
-def _evaluated(trainer: Trainer, state, pairs: list, keys, num_envs: int | None = None
-               ) -> list[tuple[np.ndarray, np.ndarray | None]]:
+def _evaluated(trainer: Trainer, state, pairs: list, keys, num_envs: int | None = None,
+               sampled: list[bool] | None = None) -> list[tuple[np.ndarray, np.ndarray | None]]:
   """For each (policy, normaliser) of `pairs`, in order, its evaluation's returns [P, n] and
   scores [P, n] or None (`_dispatched`, `_gathered`), on the accelerator, waited for."""
   return _gathered(_dispatched(trainer, pairs, keys, trainer.evaluation_inputs(state),
-                               num_envs))
+                               num_envs, sampled))
 
 
 @dataclasses.dataclass
@@ -769,7 +777,8 @@ AVERAGE_BEST = (("best_log_pd_average", "eval_demonstrator_log_prob_average",
                  "best_log_pd_average_policy.npz"),)
 _AVERAGE_BEST_NAMES = {name for name, _, _ in AVERAGE_BEST}
 # How progress lines name the policies of the final evaluation.
-_POLICY_WORDS = {"final": "final policy", "best": "best policy",
+_POLICY_WORDS = {"final": "final policy", "final_sampled": "final policy, actions sampled",
+                 "best": "best policy",
                  "best_log_pd": "best policy by log pD", "average": "average policy",
                  "best_log_pd_average": "best average policy by log pD"}
 # The policy averaged over updates, exported beside policy.npz (`policy_average_decay` > 0).

@@ -626,10 +626,12 @@ class Trainer:
   # --- evaluation -------------------------------------------------------------------------
 
   def _evaluate(self, policies: tuple, norms: tuple, keys: jax.Array,
-                num_envs: int | None = None, source=None, source_settings=None):
+                num_envs: int | None = None, source=None, source_settings=None, sampled=None):
     """Task returns [K, P, num_envs] (default eval_envs) of full episodes with the mean action of
     each of K policies per member (`policies`, `norms`: K trees [P, ...] each, e.g. the online
-    and the average policy), all K on the same starts (keys [P, 2], `keys(1)`) and stepped as
+    and the average policy), or, where `sampled` [K] is 1, actions drawn from that policy afresh
+    each step (the policy as the learner trains it, without the actors' correlated noise), all
+    K on the same starts (keys [P, 2], `keys(1)`) and stepped as
     one batch: an episode is 1000 steps one after the other, each step's cost set by latency
     more than by the batch on a GPU, so K policies at once cost about what one does. With the
     members' `source` states (a source with `evaluation_log_prob`, e.g. FORM's) and their own
@@ -646,18 +648,21 @@ class Trainer:
     stack = lambda trees: jax.tree.map(lambda *x: jnp.stack(x, axis=1), *trees)  # [P, K, ...]
     policy_params, norm = stack(policies), stack(norms)
 
-    def act(obs):  # obs [P * K * n, D] -> the policies' mean actions [P * K * n, A]
+    def act(obs, key):  # obs [P * K * n, D], key [P, 2] -> the actions [P * K * n, A]
       obs = obs.reshape((p, k, n, obs.shape[-1]))
       pi = jax.vmap(self._policies, in_axes=1, out_axes=1)(policy_params, norm, obs)
       action = pi.mode()  # [P, K, n, A]
+      if sampled is not None:
+        xi = jax.vmap(lambda key: jax.random.normal(key, action.shape[1:], action.dtype))(key)
+        action = action + sampled[None, :, None, None] * pi.scale * xi
       return action.reshape((-1, action.shape[-1]))
 
-    def step(carry, _):
+    def step(carry, key):
       env_state, total, score = carry
       step_all = jax.vmap(self.env.step)
       if self.per_device_env_steps:
         step_all = mesh_lib.per_device(step_all, self._batch)
-      stepped = step_all(env_state, act(env_state.obs))
+      stepped = step_all(env_state, act(env_state.obs, key))
       # (one episode, no reset: obs -> stepped.obs is a transition; after a physics error the
       # state stands still, its steps scored as x -> x as its rewards are 0)
       if source is not None:
@@ -668,8 +673,10 @@ class Trainer:
       return (stepped, total + stepped.reward, score), None
 
     zeros = jnp.zeros(p * k * n)
-    (_, total, score), _ = jax.lax.scan(step, (states, zeros, zeros), None,
-                                        length=env_lib.EPISODE_LENGTH)
+    # each step's key per member [T, P, 2], apart from the starts' (used where `sampled`)
+    step_keys = jnp.swapaxes(jax.vmap(lambda key: jax.random.split(
+        jax.random.fold_in(key, 1), env_lib.EPISODE_LENGTH))(keys), 0, 1)
+    (_, total, score), _ = jax.lax.scan(step, (states, zeros, zeros), step_keys)
     by_policy = lambda x: jnp.swapaxes(x.reshape((p, k, n)), 0, 1)  # [K, P, n]
     if source is None:
       return by_policy(total)
