@@ -6,8 +6,9 @@ For a run that ended without them (its machine taken back before its end, or sto
 `--max_seconds` before runs evaluated there too): each member's `policy.npz` and
 `best_policy.npz` (and `best_log_pd_policy.npz`, `average_policy.npz` and
 `best_log_pd_average_policy.npz` where the run kept them) are evaluated over
-`--episodes` fresh episodes (policy mean action, as the run's own evaluation), here, e.g. on
-the CPU. Each record copies the member's learning-curve
+`--episodes` fresh episodes (policy mean action, as the run's own evaluation; the final policy
+also with actions drawn from it, `final_sampled`), here, e.g. on the CPU; `--policies` picks
+some of them. Each record copies the member's learning-curve
 record where its final policy was exported, the run's end (task, method, seed, settings, the
 training device, env steps, wall clock), adds the returns, `policy_env_steps` (where the
 policy was exported: the best one's is earlier), `finished` (whether the run reached its env
@@ -15,6 +16,7 @@ steps) and `eval_device` (where this evaluation ran), and is appended to the run
 
   python scripts/evaluate_run.py --run_dir runs/rh_form --episodes 1024
   python scripts/evaluate_run.py --run_dir runs/rh_form --curve benchmarks/results/X.jsonl
+  python scripts/evaluate_run.py --run_dir runs/ws --policies final,final_sampled
 
 A member is matched to its learning-curve records by its policy file's settings (seed and the
 member's own overrides, its reward settings from the run's config.json) and env steps; a member
@@ -81,12 +83,19 @@ def member_record(records: list[dict], policy_meta: dict, path: str,
   return matches[-1]
 
 
-def evaluate(path: str, env, episodes: int, chunk: int, seed: int) -> tuple[np.ndarray, dict]:
-  """Returns [episodes] of the policy file at `path` (mean action) in `env`, the run's task
-  (one task object for every file: its compiled rollout serves them all), and its metadata."""
+POLICIES = ("final", "final_sampled", *(n for n, _, _ in runner.BEST), "average",
+            *(n for n, _, _ in runner.AVERAGE_BEST))
+
+
+def evaluate(path: str, env, episodes: int, chunk: int, seed: int, sampled: bool = False
+             ) -> tuple[np.ndarray, dict]:
+  """Returns [episodes] of the policy file at `path` (mean action, or with `sampled` actions
+  drawn from it afresh each step) in `env`, the run's task (one task object for every file: its
+  compiled rollout serves them all), and its metadata."""
   policy = experts.load_expert(path, env)  # refuses a file of another task, by name
   _, _, returns = experts.record_demonstrations(env, policy, jax.random.PRNGKey(seed), episodes,
-                                                chunk, print_fn=lambda line: None)
+                                                chunk, stochastic=sampled,
+                                                print_fn=lambda line: None)
   return returns, policy.metadata
 
 
@@ -99,9 +108,14 @@ def main(argv=None) -> int:
   parser.add_argument("--episodes", type=int, default=256)
   parser.add_argument("--chunk", type=int, default=512, help="episodes run at once")
   parser.add_argument("--seed", type=int, default=0)
+  parser.add_argument("--policies", default=",".join(POLICIES),
+                      help=f"which, comma-separated (default all: {','.join(POLICIES)})")
   args = parser.parse_args(argv)
   if args.episodes <= 0 or args.chunk <= 0:
     parser.error("--episodes and --chunk must be positive")
+  chosen = [p.strip() for p in args.policies.split(",") if p.strip()]
+  if not chosen or set(chosen) - set(POLICIES):
+    parser.error(f"--policies: expected some of {','.join(POLICIES)}, got {args.policies!r}")
   curve = args.curve or os.path.join(args.run_dir, "learning_curve.jsonl")
   try:
     with open(os.path.join(args.run_dir, "config.json")) as f:
@@ -120,13 +134,19 @@ def main(argv=None) -> int:
     for d, own_settings in zip(dirs, overrides):
       reward_overrides = grid.split(own_settings)[2]
       end = None  # the final policy's record: where the run ended, every record is placed
-      for name, file in (("final", "policy.npz"), *((n, f) for n, _, f in runner.BEST),
-                         ("average", runner.AVERAGE_FILE),
+      for name, file in (("final", "policy.npz"), ("final_sampled", "policy.npz"),
+                         *((n, f) for n, _, f in runner.BEST), ("average", runner.AVERAGE_FILE),
                          *((n, f) for n, _, f in runner.AVERAGE_BEST)):
         path = os.path.join(d, file)
-        if name != "final" and not os.path.exists(path):  # (by log pD: FORM runs; average:
-          continue                                        # runs with --policy_average_decay)
-        returns, meta = evaluate(path, env, args.episodes, args.chunk, args.seed)
+        if name not in ("final", "final_sampled") and not os.path.exists(path):
+          continue  # (by log pD: FORM runs; average: runs with --policy_average_decay)
+        if name not in chosen:
+          # (the final policy's record still places every record: where the run ended)
+          end = end or (member_record(records, experts.load_expert(path, env).metadata, path,
+                                      reward_overrides) if name == "final" else None)
+          continue
+        returns, meta = evaluate(path, env, args.episodes, args.chunk, args.seed,
+                                 sampled=name == "final_sampled")
         own = member_record(records, meta, path, reward_overrides)  # the policy's point
         end = end or own
         total = end.get("settings", {}).get("total_env_steps")
@@ -141,7 +161,9 @@ def main(argv=None) -> int:
             "settings": end["settings"], "policy_env_steps": own["env_steps"],
             "eval_device": results.device_name(), "policy_sha256": meta["sha256"],
             "time": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")})
-        print(f"{os.path.relpath(path, args.run_dir)}: {returns.mean():.1f} +- {returns.std():.1f}"
+        print(f"{os.path.relpath(path, args.run_dir)}"
+              + (" (actions sampled)" if name == "final_sampled" else "")
+              + f": {returns.mean():.1f} +- {returns.std():.1f}"
               f" over {returns.size} episodes (policy of {own['env_steps']:,} env steps)",
               flush=True)
   except (OSError, KeyError, ValueError) as e:  # RunFilesError, policy and task checks

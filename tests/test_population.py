@@ -293,7 +293,7 @@ def test_evaluate_run_scores_a_stopped_population_afterwards(tmp_path, capsys):
                             "--episodes", "2", "--chunk", "2"]) == 0
   finals = results.read_records(str(curve))[2:]
   assert [(r["kind"], r["seed"], r["policy"]) for r in finals] == [
-      ("final_return", s, p) for s in SEEDS for p in ("final", "best")]
+      ("final_return", s, p) for s in SEEDS for p in ("final", "final_sampled", "best")]
   for r in finals:
     own = next(t for t in trained if t["seed"] == r["seed"])
     assert r["settings"] == own["settings"] and r["device"] == own["device"]
@@ -301,8 +301,19 @@ def test_evaluate_run_scores_a_stopped_population_afterwards(tmp_path, capsys):
         40, 40, False, 2)
     assert r["population"] == 2 and r["method"] == "expert" and np.isfinite(r["final_return"])
     member = run_dir / f"seed{r['seed']}_{MEMBER_1_DIR}"
-    name = "policy.npz" if r["policy"] == "final" else "best_policy.npz"
+    name = "best_policy.npz" if r["policy"] == "best" else "policy.npz"
     assert r["policy_sha256"] == policy_io.load_policy(member / name)[1]["sha256"]
+  # --policies picks some (each record placed where the run ended all the same)
+  assert evaluate_run.main(["--run_dir", str(run_dir), "--curve", str(curve), "--episodes", "2",
+                            "--chunk", "2", "--policies", "final_sampled"]) == 0
+  again = results.read_records(str(curve))[2 + len(finals):]
+  assert [(r["seed"], r["policy"], r["env_steps"]) for r in again] == [
+      (s, "final_sampled", 40) for s in SEEDS]
+  assert [r["final_return"] for r in again] == [
+      r["final_return"] for r in finals if r["policy"] == "final_sampled"]  # (same starts)
+  with pytest.raises(SystemExit) as e:
+    evaluate_run.main(["--run_dir", str(run_dir), "--policies", "final,bogus"])
+  assert e.value.code == 2 and "--policies: expected some of" in capsys.readouterr().err
 
 
 def test_final_evaluation_of_members_that_differ_in_the_wrap(population, tmp_path, monkeypatch):
