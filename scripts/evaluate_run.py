@@ -67,15 +67,20 @@ def member_record(records: list[dict], policy_meta: dict, path: str,
   """The learning-curve record of the member whose exported policy has `policy_meta`, at the
   policy's env steps: every setting of its train config equal to the record's, and its own
   reward settings (`reward_overrides`, a population's grid of them) too; the last such record
-  where a resumed run wrote one twice."""
+  where a resumed run wrote one twice. Where there is none, the run's own `final_return`
+  record of the same file (its sha256)."""
   config = policy_meta.get("train_config") or {}
   # (a setting with named values is left out of records at its default, the first of them)
   recorded = lambda reward, k: reward.get(k, grid.CHOICES.get(k, (None,))[0])
-  matches = [r for r in records if r.get("kind") == "learning_curve"
-             and r.get("env_steps") == policy_meta.get("env_steps")
-             and all(r.get("settings", {}).get(k) == v for k, v in config.items())
-             and all(recorded(r.get("settings", {}).get("reward") or {}, k) == v
-                     for k, v in reward_overrides.items())]
+  same = lambda r: (r.get("env_steps") == policy_meta.get("env_steps")
+                    and all(r.get("settings", {}).get(k) == v for k, v in config.items())
+                    and all(recorded(r.get("settings", {}).get("reward") or {}, k) == v
+                            for k, v in reward_overrides.items()))
+  matches = [r for r in records if r.get("kind") == "learning_curve" and same(r)]
+  # (a run stopped by --max_seconds that evaluated on the host has no learning-curve record
+  # at its end: its own fresh evaluation of the same file places it)
+  matches = matches or [r for r in records if r.get("kind") == "final_return" and same(r)
+                        and r.get("policy_sha256") == policy_meta.get("sha256")]
   if not matches:
     raise RunFilesError(f"{path}: no learning-curve records of the curve file match this "
                         f"policy (seed {config.get('seed')}, {policy_meta.get('env_steps')} env "

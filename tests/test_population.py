@@ -311,6 +311,19 @@ def test_evaluate_run_scores_a_stopped_population_afterwards(tmp_path, capsys):
       (s, "final_sampled", 40) for s in SEEDS]
   assert [r["final_return"] for r in again] == [
       r["final_return"] for r in finals if r["policy"] == "final_sampled"]  # (same starts)
+  # A run with no learning-curve record at its end (stopped by --max_seconds, evaluating on
+  # the host) is placed by its own fresh evaluation's record of the same file.
+  ended = tmp_path / "ended.jsonl"
+  ended.write_text("".join(json.dumps(r) + "\n" for r in finals if r["policy"] == "final"))
+  assert evaluate_run.main(["--run_dir", str(run_dir), "--curve", str(ended), "--episodes", "2",
+                            "--chunk", "2", "--policies", "final_sampled"]) == 0
+  placed = results.read_records(str(ended))[len(SEEDS):]
+  assert [(r["seed"], r["policy"], r["env_steps"], r["settings"]) for r in placed] == [
+      (r["seed"], "final_sampled", 40, r["settings"]) for r in finals if r["policy"] == "final"]
+  ended.write_text("".join(json.dumps({**r, "policy_sha256": "0" * 64}) + "\n"
+                           for r in finals if r["policy"] == "final"))  # (another file's)
+  assert evaluate_run.main(["--run_dir", str(run_dir), "--curve", str(ended)]) == 2
+  assert "no learning-curve records" in capsys.readouterr().err
   with pytest.raises(SystemExit) as e:
     evaluate_run.main(["--run_dir", str(run_dir), "--policies", "final,bogus"])
   assert e.value.code == 2 and "--policies: expected some of" in capsys.readouterr().err
