@@ -45,6 +45,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import functools
 import io
 import json
 import os
@@ -249,7 +250,7 @@ def schedule(jobs: list[dict], gpus: list[str], folder: Path, end_time: float,
       log = open(folder / "logs" / f"{job['name']}.log", "w")
       process = subprocess.Popen(["bash", "-c", job["cmd"]], env=env, stdout=log,
                                  stderr=subprocess.STDOUT, start_new_session=True,
-                                 preexec_fn=lambda: os.sched_setaffinity(0, cores))
+                                 preexec_fn=functools.partial(os.sched_setaffinity, 0, cores))
       running[job["name"]] = (process, mine, log)
       status[job["name"]] = {"state": "running", "gpus": mine, "cores": len(cores), "left_s": left,
                              "started_s": round(time.time() - start, 1)}

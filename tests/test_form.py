@@ -409,8 +409,8 @@ def test_a_run_stopped_by_max_seconds_skips_its_last_host_evaluation(tmp_path, c
 
 def test_a_checkpoint_due_while_the_host_evaluates_waits_for_its_rows(tmp_path, monkeypatch):
   """With `eval_on_host`, a checkpoint due as an evaluation starts there is saved at the first
-  iteration after it with every row written (at most checkpoint_every iterations later; the
-  accelerator trains on meanwhile), and a run resumed from it continues the CSV without a gap.
+  iteration after it with every row written (the accelerator trains on meanwhile), and a run
+  resumed from it continues the CSV without a gap.
   (Here each evaluation says it is running the first 3 times it is asked.)"""
   from mjx_form.rl import runner
   looks, saved = {}, []
@@ -432,7 +432,7 @@ def test_a_checkpoint_due_while_the_host_evaluates_waits_for_its_rows(tmp_path, 
   run_dir, steps = str(tmp_path / "run"), CONFIG.env_steps_per_iteration
   runner.run(CONFIG, run_dir, 9 * steps, reward_source=FormReward(EFFECT, _demonstrator()),
              **more)
-  assert saved[0] in (6, 7, 8) and saved[-1] == 9  # (without the wait: 4, 8, 9)
+  assert saved[0] in (6, 7) or saved == [9]  # (without the wait: 4, 8, 9)
   runner.run(CONFIG, run_dir, 13 * steps, resume=True,
              reward_source=FormReward(EFFECT, _demonstrator()), **more)
   with open(os.path.join(run_dir, "progress.csv"), newline="") as f:
@@ -440,6 +440,15 @@ def test_a_checkpoint_due_while_the_host_evaluates_waits_for_its_rows(tmp_path, 
   assert [int(r["iteration"]) for r in rows] == list(range(1, 14))
   assert [r["eval_return"] != "" for r in rows] == [i % 4 == 0 or i in (9, 13)  # (ends)
                                                   for i in range(1, 14)]
+  # A host that is always busy (each evaluation running until waited for): a checkpoint due
+  # for checkpoint_every iterations is forced at the first that starts no evaluation (7, not
+  # 6, which starts one), waiting for the one running.
+  monkeypatch.setattr(runner._Evaluation, "done", lambda self: self.results is not None)
+  saved.clear()
+  runner.run(CONFIG, str(tmp_path / "busy"), 9 * steps,
+             reward_source=FormReward(EFFECT, _demonstrator()),
+             **{**more, "eval_every": 3, "checkpoint_every": 2})
+  assert saved == [2, 7, 8, 9]
 
 
 def test_one_cpu_device_per_core_this_process_may_run_on():
@@ -1184,6 +1193,8 @@ def test_form_command_line_runs_every_stage(tmp_path, capsys):
                                                 "average", "best_log_pd_average"]
   assert re.search(r"eval -?[0-9.]+ \(log pD -?[0-9.]+\)  average policy -?[0-9.]+", out)
   assert records[1]["episodes"] == final_episodes and np.isfinite(records[1]["final_return"])
+  assert (records[2]["eval_demonstrator_log_prob"]  # (sampled actions: other episodes)
+          != records[1]["eval_demonstrator_log_prob"])
   # One evaluation, at the end: both best policies are the final one (the same arrays), whose
   # fresh evaluation they repeat rather than run again; so is the average's best the average.
   # (The final policy with sampled actions is its own evaluation.)
@@ -1220,7 +1231,7 @@ def test_form_command_line_runs_every_stage(tmp_path, capsys):
   assert load_script("evaluate_run").main(["--run_dir", str(first), "--curve", str(afterwards),
                                            "--episodes", "2", "--chunk", "2"]) == 0
   assert [r["policy"] for r in results.read_records(str(afterwards))] == [
-      "final", "best", "best_log_pd", "average", "best_log_pd_average"]
+      "final", "final_sampled", "best", "best_log_pd", "average", "best_log_pd_average"]
   resumed = effect_models.load_effect_model(first / "imitator.npz", task="reacher_easy")
   assert resumed.metadata["training"]["steps"] == 2 * records[0]["updates"]  # rewritten
   # The best policies over both processes' evaluations: by their task return, and by their

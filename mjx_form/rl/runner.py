@@ -425,12 +425,14 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
     peak = results.peak_memory_bytes()
     if iteration % checkpoint_every == 0 and due_since is None:
       due_since = iteration
-    # (on the host, a due checkpoint waits, up to checkpoint_every iterations, for the
-    # evaluation running there: its rows come first, and the accelerator does not wait idle)
+    # (on the host, a due checkpoint waits for the evaluation running there, training on: its
+    # rows come first, and the accelerator does not wait idle)
     busy = host is not None and (evaluation is not None or any(
         e is not None and not e.done() for *_, e in waiting))
-    checkpointed = last or (due_since is not None
-                            and (not busy or iteration - due_since >= checkpoint_every))
+    # (forced, blocking, after checkpoint_every iterations: at one that starts no evaluation,
+    # to wait for one already running there; at worst ~2 checkpoint_every apart)
+    checkpointed = last or (due_since is not None and (
+        not busy or (iteration - due_since >= checkpoint_every and evaluation is None)))
     updates = np.asarray(state.learner.updates)
     member_rows = []
     for i in range(trainer.members):

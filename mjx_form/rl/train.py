@@ -630,7 +630,8 @@ class Trainer:
     """Task returns [K, P, num_envs] (default eval_envs) of full episodes with the mean action of
     each of K policies per member (`policies`, `norms`: K trees [P, ...] each, e.g. the online
     and the average policy), or, where `sampled` [K] is 1, actions drawn from that policy afresh
-    each step (the policy as the learner trains it, without the actors' correlated noise), all
+    each step (the policy as the learner trains it, without the actors' correlated noise; the
+    same standard normal draws for every sampled policy of a call, wherever it sits), all
     K on the same starts (keys [P, 2], `keys(1)`) and stepped as
     one batch: an episode is 1000 steps one after the other, each step's cost set by latency
     more than by the batch on a GPU, so K policies at once cost about what one does. With the
@@ -652,9 +653,9 @@ class Trainer:
       obs = obs.reshape((p, k, n, obs.shape[-1]))
       pi = jax.vmap(self._policies, in_axes=1, out_axes=1)(policy_params, norm, obs)
       action = pi.mode()  # [P, K, n, A]
-      if sampled is not None:
-        xi = jax.vmap(lambda key: jax.random.normal(key, action.shape[1:], action.dtype))(key)
-        action = action + sampled[None, :, None, None] * pi.scale * xi
+      if sampled is not None:  # (one draw per member and env, shared by the K policies)
+        xi = jax.vmap(lambda key: jax.random.normal(key, action.shape[2:], action.dtype))(key)
+        action = action + sampled[None, :, None, None] * pi.scale * xi[:, None]
       return action.reshape((-1, action.shape[-1]))
 
     def step(carry, key):
@@ -676,7 +677,9 @@ class Trainer:
     # each step's key per member [T, P, 2], apart from the starts' (used where `sampled`)
     step_keys = jnp.swapaxes(jax.vmap(lambda key: jax.random.split(
         jax.random.fold_in(key, 1), env_lib.EPISODE_LENGTH))(keys), 0, 1)
-    (_, total, score), _ = jax.lax.scan(step, (states, zeros, zeros), step_keys)
+    (_, total, score), _ = jax.lax.scan(step, (states, zeros, zeros),
+                                        None if sampled is None else step_keys,
+                                        length=env_lib.EPISODE_LENGTH)
     by_policy = lambda x: jnp.swapaxes(x.reshape((p, k, n)), 0, 1)  # [K, P, n]
     if source is None:
       return by_policy(total)
