@@ -779,7 +779,7 @@ AVERAGE_BEST = (("best_log_pd_average", "eval_demonstrator_log_prob_average",
                  "best_log_pd_average_policy.npz"),)
 _AVERAGE_BEST_NAMES = {name for name, _, _ in AVERAGE_BEST}
 # How progress lines name the policies of the final evaluation.
-_POLICY_WORDS = {"final": "final policy", "final_sampled": "final policy, actions sampled",
+_POLICY_WORDS = {"final": "final policy", "final_sampled": "final policy with sampled actions",
                  "best": "best policy",
                  "best_log_pd": "best policy by log pD", "average": "average policy",
                  "best_log_pd_average": "best average policy by log pD"}
