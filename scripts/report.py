@@ -970,7 +970,8 @@ def form_table(records: list[dict], expert_returns: dict[str, float] | None = No
            "",
            "| task | device | physics | envs | updates / iteration (replay ratio) | "
            "reward, T, effect models | seeds | episodes / seed | env steps "
-           "| wall clock (mean) | FORM return | sampled | best policy | by log pD | average policy | "
+           "| wall clock (mean) | FORM return | sampled | best policy | by log pD | "
+           "average policy | "
            "average by log pD | expert | "
            "fraction | "
            "paper's fraction |" + (" configurations |" if best_per_task else ""),
