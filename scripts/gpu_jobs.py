@@ -216,13 +216,32 @@ def machine_gpus() -> list[str]:
   return [str(i) for i in range(sum(line.startswith("GPU ") for line in out.splitlines()))]
 
 
-def core_shares(gpus: list[str], cores: list[int]) -> dict[str, list[int]]:
-  """Each GPU's equal slice of `cores` (in order; all of them for each GPU where there are
-  fewer cores than GPUs)."""
-  if len(cores) < len(gpus):
+def core_shares(gpus: list[str], cores: list[int],
+                siblings=None) -> dict[str, list[int]]:
+  """Each GPU's equal slice of `cores`, whole physical cores in order: the logical CPUs that
+  share one (`siblings(cpu)`, default `thread_siblings`) stay together, so that two GPUs' jobs
+  do not share a core's hyperthreads; all of them for each GPU where there are fewer physical
+  cores than GPUs."""
+  siblings = siblings or thread_siblings
+  groups = sorted({tuple(sorted(set(siblings(c)) & set(cores) | {c})) for c in cores})
+  if len(groups) < len(gpus):
     return {g: list(cores) for g in gpus}
-  n = len(gpus)
-  return {g: cores[i * len(cores) // n:(i + 1) * len(cores) // n] for i, g in enumerate(gpus)}
+  n = len(groups)
+  return {g: sorted(c for group in groups[i * n // len(gpus):(i + 1) * n // len(gpus)]
+                    for c in group) for i, g in enumerate(gpus)}
+
+
+def thread_siblings(cpu: int) -> list[int]:
+  """The logical CPUs on `cpu`'s physical core (Linux's topology; [cpu] where unreadable)."""
+  try:
+    text = Path(f"/sys/devices/system/cpu/cpu{cpu}/topology/thread_siblings_list").read_text()
+  except OSError:
+    return [cpu]
+  out = []
+  for part in text.strip().split(","):
+    low, _, high = part.partition("-")
+    out += range(int(low), int(high or low) + 1)
+  return out
 
 
 def schedule(jobs: list[dict], gpus: list[str], folder: Path, end_time: float,

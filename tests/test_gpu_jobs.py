@@ -53,11 +53,18 @@ def test_jobs_wait_for_free_gpus_and_get_their_own(tmp_path):
 
 
 def test_each_gpu_owns_an_equal_share_of_the_cores_and_its_jobs_run_on_it(tmp_path):
-  assert gpu_jobs.core_shares(["0", "1"], list(range(32))) == {"0": list(range(16)),
-                                                               "1": list(range(16, 32))}
-  assert gpu_jobs.core_shares(list("abc"), [0, 2, 4, 6, 8]) == {"a": [0], "b": [2, 4],
-                                                                "c": [6, 8]}
-  assert gpu_jobs.core_shares(list("abc"), [5, 7]) == {g: [5, 7] for g in "abc"}
+  alone = lambda c: [c]  # (a core per logical CPU)
+  assert gpu_jobs.core_shares(["0", "1"], list(range(32)), alone) == {
+      "0": list(range(16)), "1": list(range(16, 32))}
+  assert gpu_jobs.core_shares(list("abc"), [0, 2, 4, 6, 8], alone) == {"a": [0], "b": [2, 4],
+                                                                       "c": [6, 8]}
+  assert gpu_jobs.core_shares(list("abc"), [5, 7], alone) == {g: [5, 7] for g in "abc"}
+  # Hyperthreads stay with their core: CPUs i and i + 4 share one (as Linux often numbers them).
+  pairs = lambda c: [c % 4, c % 4 + 4]
+  assert gpu_jobs.core_shares(["0", "1"], list(range(8)), pairs) == {"0": [0, 1, 4, 5],
+                                                                     "1": [2, 3, 6, 7]}
+  assert gpu_jobs.core_shares(["0", "1"], [0, 4], pairs) == {"0": [0, 4], "1": [0, 4]}
+  assert gpu_jobs.thread_siblings(0) and 0 in gpu_jobs.thread_siblings(0)
   cores = sorted(os.sched_getaffinity(0))
   shares = gpu_jobs.core_shares(["0", "1"], cores)
   where = "python3 -c 'import os; print(*sorted(os.sched_getaffinity(0)))' >"
