@@ -368,6 +368,10 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
   # accelerator; on the host once its program has run): [(rows, logged, evaluation or None)].
   waiting = []
 
+  def host_running() -> bool:
+    """Whether an evaluation on the host is still running."""
+    return host is not None and any(e is not None and not e.done() for *_, e in waiting)
+
   def write_rows(block: bool) -> None:
     """Writes the waiting rows whose evaluation is done (all of them, waiting, with `block`)."""
     nonlocal eval_seconds  # (a wait counts in the rows of the iterations after it)
@@ -407,7 +411,7 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
     overtime = max_seconds is not None and time.perf_counter() - budget_start >= max_seconds
     # (on the host, a run out of time trains on, starting no evaluation, until the one running
     # there is done: the accelerator does not wait idle for it)
-    host_busy = host is not None and any(e is not None and not e.done() for *_, e in waiting)
+    host_busy = host_running()
     out_of_time = overtime and not host_busy
     overtime_iterations += overtime and host_busy
     last = finished or out_of_time
@@ -427,8 +431,7 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
       due_since = iteration
     # (on the host, a due checkpoint waits for the evaluation running there, training on: its
     # rows come first, and the accelerator does not wait idle)
-    busy = host is not None and (evaluation is not None or any(
-        e is not None and not e.done() for *_, e in waiting))
+    busy = host is not None and (evaluation is not None or host_running())
     # (forced, blocking, after checkpoint_every iterations: at one that starts no evaluation,
     # to wait for one already running there; at worst ~2 checkpoint_every apart)
     checkpointed = last or (due_since is not None and (
@@ -521,11 +524,12 @@ def _final_evaluation(trainer: Trainer, state, best_paths: dict[str, list[str]],
   # once, and all of them together (`_evaluated`); a repeat's records are the first's.
   first_of = {}  # (each member's sha256s, sampled) -> the index in `policies` of the first
   pending = []  # (index in `policies`, (policy, normaliser))
+  same_as = lambda name, shas: (shas, name == "final_sampled")  # (first_of's key)
   for j, (name, paths, shas) in enumerate(policies):
-    if shas is not None and (shas, name == "final_sampled") in first_of:
+    if shas is not None and same_as(name, shas) in first_of:
       continue
     if shas is not None:
-      first_of[shas, name == "final_sampled"] = j
+      first_of[same_as(name, shas)] = j
     held = state.learner.average_policy if name == "average" else state.learner.policy
     pending.append((j, _stacked(trainer, state, paths) if paths is not None
                     else (held, state.normalizer)))
@@ -539,7 +543,7 @@ def _final_evaluation(trainer: Trainer, state, best_paths: dict[str, list[str]],
     if j in evaluated:
       returns, scores = evaluated[j]
     else:
-      first = first_of[shas, name == "final_sampled"]
+      first = first_of[same_as(name, shas)]
       same = policies[first][0]
       returns, scores = evaluated[first]
     for i in range(trainer.members):

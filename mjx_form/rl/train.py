@@ -674,11 +674,10 @@ class Trainer:
       return (stepped, total + stepped.reward, score), None
 
     zeros = jnp.zeros(p * k * n)
-    # each step's key per member [T, P, 2], apart from the starts' (used where `sampled`)
-    step_keys = jnp.swapaxes(jax.vmap(lambda key: jax.random.split(
+    # each step's key per member [T, P, 2], apart from the starts' (where `sampled`)
+    step_keys = None if sampled is None else jnp.swapaxes(jax.vmap(lambda key: jax.random.split(
         jax.random.fold_in(key, 1), env_lib.EPISODE_LENGTH))(keys), 0, 1)
-    (_, total, score), _ = jax.lax.scan(step, (states, zeros, zeros),
-                                        None if sampled is None else step_keys,
+    (_, total, score), _ = jax.lax.scan(step, (states, zeros, zeros), step_keys,
                                         length=env_lib.EPISODE_LENGTH)
     by_policy = lambda x: jnp.swapaxes(x.reshape((p, k, n)), 0, 1)  # [K, P, n]
     if source is None:
