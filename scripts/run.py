@@ -204,6 +204,12 @@ def parse_args(argv=None) -> argparse.Namespace:
                      help="the target critic's Q of the sampled actions in bfloat16 (half of an "
                           "update's time on a GPU is that Q; learning measured unchanged) or "
                           "float32, the paper's (default: see --preset)")
+  train.add_argument("--sampled_q_float32_head", action=argparse.BooleanOptionalAction,
+                     default=False,
+                     help="with --sampled_q_bfloat16: the critic's last layer in float32, so "
+                          "that Q is not rounded to bfloat16 (spacing 0.5 at Q in [64, 128), "
+                          "more than Q's spread over a state's sampled actions at high "
+                          "returns; record field sampled_q_bf16_centred_error)")
   train.add_argument("--wrap_angles", action=argparse.BooleanOptionalAction, default=None,
                      help="the agent wraps the task's unbounded raw angles (hopper's and "
                           "cheetah's pitch, reacher's shoulder) into [-pi, pi) before "
@@ -435,7 +441,8 @@ def train_config(args: argparse.Namespace) -> TrainConfig:
   learner = dataclasses.replace(
       LearnerConfig(), num_action_samples=args.num_action_samples,
       target_update_period=period, clip_critic_actions=chosen["clip_critic_actions"],
-      sampled_q_bfloat16=bfloat16, policy_average_decay=chosen.get("policy_average_decay", 0.0)
+      sampled_q_bfloat16=bfloat16, sampled_q_float32_head=args.sampled_q_float32_head,
+      policy_average_decay=chosen.get("policy_average_decay", 0.0)
       if args.policy_average_decay is None else args.policy_average_decay,
       mpo=dataclasses.replace(LearnerConfig().mpo, action_penalty=chosen["action_penalty"],
                               epsilon_scale=chosen["epsilon_scale"]))

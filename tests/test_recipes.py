@@ -148,6 +148,15 @@ def test_run_applies_the_recipe_to_expert_runs_only_and_flags_win():
       "paper", 0.0, False)
   assert config("--task", "walker_walk", "--method", "expert", "--wrap_angles").wrap_angles
   assert not config("--task", "hopper_stand", "--method", "expert").wrap_angles
+  # The bfloat16 sampled Q's float32 head: off unless asked, and only beside bfloat16.
+  assert config("--task", "hopper_stand", "--method", "expert").learner.sampled_q_float32_head is (
+      False)
+  head = config("--task", "humanoid_stand", "--method", "expert", "--sampled_q_bfloat16",
+                "--sampled_q_float32_head")
+  assert head.learner.sampled_q_float32_head is True and head.learner.sampled_q_bfloat16
+  head.check(1)
+  with pytest.raises(ValueError, match="sampled_q_float32_head applies to the bfloat16"):
+    config("--task", "humanoid_stand", "--method", "expert", "--sampled_q_float32_head").check(1)
 
 
 def test_run_names_the_recipe_and_its_overrides(capsys):

@@ -46,6 +46,7 @@ LEARNER = {
     "epsilon_mean": (("mpo", "epsilon_mean"), float),
     "epsilon_scale": (("mpo", "epsilon_scale"), float),
     "clip_critic_actions": (("clip_critic_actions",), bool),
+    "sampled_q_float32_head": (("sampled_q_float32_head",), bool),
     "action_penalty": (("mpo", "action_penalty"), bool),
     "epsilon_penalty": (("mpo", "epsilon_penalty"), float),
     "policy_average_decay": (("policy_average_decay",), float),

@@ -47,6 +47,12 @@ class LearnerConfig:
   # The target critic's Q of the sampled actions (20 per state: half of an update's time on a
   # GPU) computed in bfloat16 instead of float32 (`sampled_q`); off: the paper's precision.
   sampled_q_bfloat16: bool = False
+  # With `sampled_q_bfloat16`, the critic's last layer (h -> Q) in float32 from the bfloat16
+  # features: Q is no longer rounded to bfloat16, whose spacing (0.25 at Q in [32, 64), 0.5 in
+  # [64, 128)) exceeds the spread of Q over a state's sampled actions once returns are high
+  # (humanoid_stand at Q ~80: rounding error 3x that spread, NOTES session 60). Costs one
+  # float32 matrix-vector product per sampled action. No effect without bfloat16.
+  sampled_q_float32_head: bool = False
   # d of the policy's parameters averaged over updates (module docstring); 0: none kept (the
   # paper evaluates the online policy).
   policy_average_decay: float = 0.0
@@ -114,11 +120,24 @@ def sampled_q(networks: Networks, config: LearnerConfig, critic_params, obs: jax
               actions: jax.Array) -> jax.Array:
   """Q of N actions per state, obs [B, T+1, D] and actions [N, B, T+1, A] -> [N, B, T+1]
   (float32); with `sampled_q_bfloat16` the critic's parameters and inputs are cast to bfloat16
-  (LayerNorm's statistics stay float32) and Q is cast back."""
+  (LayerNorm's statistics stay float32) and Q is cast back, or with `sampled_q_float32_head`
+  (a Python or a member's traced bool) only the features are: the last layer runs in float32
+  on the float32 parameters."""
   if not config.sampled_q_bfloat16:
     return networks.critic.apply(critic_params, obs, actions)
   cast = lambda tree: jax.tree.map(lambda x: x.astype(jnp.bfloat16), tree)
-  return networks.critic.apply(cast(critic_params), cast(obs), cast(actions)).astype(jnp.float32)
+  rounded = lambda: networks.critic.apply(cast(critic_params), cast(obs), cast(actions)).astype(
+      jnp.float32)
+  if config.sampled_q_float32_head is False:
+    return rounded()
+  h = networks.critic.apply(cast(critic_params), cast(obs), cast(actions),
+                            features_only=True)  # [N, B, T+1, F] bfloat16
+  head = critic_params["params"][networks.critic.head_name]
+  exact = (h.astype(jnp.float32) @ head["kernel"] + head["bias"])[..., 0]
+  if config.sampled_q_float32_head is True:
+    return exact
+  # (a member's traced flag: both; the compiler computes their shared features once)
+  return jnp.where(config.sampled_q_float32_head, exact, rounded())
 
 
 def losses(networks: Networks, config: LearnerConfig, online: tuple, state: LearnerState,
@@ -168,12 +187,18 @@ def sampled_q_diagnostics(networks: Networks, config: LearnerConfig, critic_para
   """What the E-step's weights exp(Q / temperature) have to go on: `sampled_q_spread`, the sd
   of Q over a state's sampled actions (mean over states), and with `sampled_q_bfloat16`,
   `sampled_q_bf16_error`, the mean |Q| error of bfloat16's rounding, against float32 on the
-  batch's first unroll (actions [N, B, T+1, A], q_sampled [N, B, T+1] as `sampled_q` gave).
-  Where the error nears the spread or the temperature, the weights follow the rounding."""
+  batch's first unroll (actions [N, B, T+1, A], q_sampled [N, B, T+1] as `sampled_q` gave),
+  and `sampled_q_bf16_centred_error`, the rms of that error less its mean over each state's
+  actions: the part the weights see. Where it nears the spread or the temperature, the
+  weights follow the rounding."""
   out = {"sampled_q_spread": jnp.mean(jnp.std(q_sampled, axis=0))}
   if config.sampled_q_bfloat16:
     exact = networks.critic.apply(critic_params, obs[:1], actions[:, :1])  # [N, 1, T+1]
-    out["sampled_q_bf16_error"] = jnp.mean(jnp.abs(q_sampled[:, :1] - exact))
+    error = q_sampled[:, :1] - exact
+    out["sampled_q_bf16_error"] = jnp.mean(jnp.abs(error))
+    # what reaches the weights: the error less its mean over the state's actions (rms)
+    out["sampled_q_bf16_centred_error"] = jnp.sqrt(jnp.mean(jnp.square(
+        error - jnp.mean(error, axis=0))))
   return out
 
 

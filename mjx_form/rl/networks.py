@@ -124,8 +124,15 @@ class Critic(nn.Module):
   layers: Sequence[int] = (256, 256, 256)
   tiled: bool = False
 
+  @property
+  def head_name(self) -> str:
+    """The last layer's name in the parameter tree (width -> 1, Q)."""
+    return f"Dense_{len(self.layers) + 1}"
+
   @nn.compact
-  def __call__(self, obs: jax.Array, action: jax.Array) -> jax.Array:
+  def __call__(self, obs: jax.Array, action: jax.Array, features_only: bool = False
+               ) -> jax.Array:
+    """Q [...], or with `features_only` the last layer's input h [..., layers[-1]]."""
     encoded = Encoder(self.width)(obs)  # [..., width], batch shape of obs
     # Explicit names: both forms have the parameter tree of nn.Dense layers.
     if self.tiled:
@@ -137,7 +144,9 @@ class Critic(nn.Module):
     h = jnp.tanh(nn.LayerNorm()(h))
     for i, size in enumerate(self.layers):
       h = nn.elu(nn.Dense(size, name=f"Dense_{i + 1}")(h))
-    return nn.Dense(1, name=f"Dense_{len(self.layers) + 1}")(h)[..., 0]
+    if features_only:
+      return h
+    return nn.Dense(1, name=self.head_name)(h)[..., 0]
 
 
 @dataclasses.dataclass(frozen=True)

@@ -64,7 +64,8 @@ ADDED_SETTINGS = {"learner.mpo.action_penalty": False, "learner.mpo.epsilon_pena
                   "learner.clip_critic_actions": False, "learner.sampled_q_bfloat16": False,
                   "policy_head": "paper", "action_noise_correlation": 0.0,
                   "wrap_angles": False, "init_policy": None, "angle_features": False,
-                  "learner.policy_average_decay": 0.0, "source_update_every": 1}
+                  "learner.policy_average_decay": 0.0, "source_update_every": 1,
+                  "learner.sampled_q_float32_head": False}
 
 
 # Columns that not every row has (evaluation rows; devices that report memory).
@@ -863,7 +864,8 @@ _CURVE_FIELDS = (
     "temperature", "alpha_mean", "alpha_scale", "kl_mean_rel", "kl_scale_rel",
     "kl_nonparametric_rel", "scale_mean", "entropy", "q_online", "critic_loss",
     # what the E-step's weights go on: the sampled actions' Q spread, bfloat16's error in it
-    "sampled_q_spread", "sampled_q_bf16_error",
+    # (and the part of it that differs between a state's actions)
+    "sampled_q_spread", "sampled_q_bf16_error", "sampled_q_bf16_centred_error",
     # FORM: the reward, its running sd and clipped share, and both models' log-likelihoods on
     # the learner's batches, and on the iteration's new transitions before the imitator model
     # saw them (form.py: fresh_metrics; fresh below batch: the imitator model lags the policy)

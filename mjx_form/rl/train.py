@@ -133,6 +133,9 @@ class TrainConfig:
     if not 0.0 <= self.normalizer_decay < 1.0:
       raise ValueError(f"normalizer_decay must be in [0, 1), got {self.normalizer_decay}")
     grid.check_value("policy_average_decay", self.learner.policy_average_decay)
+    if self.learner.sampled_q_float32_head and not self.learner.sampled_q_bfloat16:
+      raise ValueError("sampled_q_float32_head applies to the bfloat16 sampled Q only: give "
+                       "sampled_q_bfloat16 too (in float32 the whole Q already is)")
     if not 0.0 <= self.action_noise_correlation < 1.0:
       raise ValueError("action_noise_correlation must be in [0, 1), got "
                        f"{self.action_noise_correlation}")
