@@ -128,6 +128,9 @@ def check(jobs_file: Path, deadline_s: float = 1200.0) -> list[str]:
       with contextlib.redirect_stderr(errors):
         args = run.parse_args(argv)
       config = run.train_config(args)
+      config.check(1)
+    except ValueError as e:  # (a setting TrainConfig.check refuses, as run.py would)
+      raise JobsError(f"job {job['name']!r}: run.py would refuse it: {e}") from None
     except SystemExit:
       said = errors.getvalue().strip().splitlines()[-1].split("error: ", 1)[-1]
       raise JobsError(f"job {job['name']!r}: run.py refuses its arguments: {said}") from None

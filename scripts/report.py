@@ -265,7 +265,11 @@ def _member(record: dict) -> str:
   with the result file, task and seed it names one run."""
   settings = record.get("settings", {})
   reward = settings.get("reward", {})
-  return json.dumps([settings.get("learner"), reward.get("standardise_reward"),
+  learner = settings.get("learner")
+  if learner is not None and not learner.get("sampled_q_float32_head", False):
+    # (added 2026-11-29: a run resumed across it keeps one key)
+    learner = {k: v for k, v in learner.items() if k != "sampled_q_float32_head"}
+  return json.dumps([learner, reward.get("standardise_reward"),
                      reward.get("reward_clip", 0.0), settings.get("action_noise_correlation", 0.0),
                      settings.get("wrap_angles", False), settings.get("init_policy"),
                      *([True] if settings.get("angle_features") else []),

@@ -98,7 +98,13 @@ def test_sampled_q_float32_head_removes_bfloat16s_rounding_of_high_q():
            for head in (False, True)}
   assert error[False] > spread / 2, (error, spread)  # the rounding swamps the differences
   assert error[True] < spread / 10, (error, spread)
+  # the head on the float32 parameters, not bfloat16's (whose error is too small to tell here)
   cast = lambda tree: jax.tree.map(lambda x: x.astype(jnp.bfloat16), tree)
+  features = networks.critic.apply(cast(params), cast(obs), cast(actions),
+                                   features_only=True).astype(np.float64)
+  head = jax.tree.map(np.asarray, params["params"][networks.critic.head_name])
+  np.testing.assert_allclose(q[True], (features @ head["kernel"] + head["bias"])[..., 0],
+                             rtol=1e-6)
   np.testing.assert_array_equal(q[False], networks.critic.apply(
       cast(params), cast(obs), cast(actions)).astype(jnp.float32))
   # (compiled both ways: bfloat16's rounding may differ by one step between a compiled and an

@@ -861,3 +861,12 @@ def test_a_member_at_decay_zero_gets_no_average_policy_records(tmp_path):
   assert not any("not evaluated afresh" in line for line in lines), lines
   assert name + "_policy_return" in rows[1] and name + "_policy_return" not in rows[0]
   assert records[-1]["policy_sha256"] == policy_io.load_policy(chosen[1])[1]["sha256"]
+
+
+def test_a_population_refuses_a_float32_head_without_bfloat16():
+  """A member's `sampled_q_float32_head` changes nothing where the sampled Q is float32
+  already: the population is refused before anything is built, as a single run is."""
+  assert not CONFIG.learner.sampled_q_bfloat16
+  with pytest.raises(ValueError, match="sampled_q_float32_head applies to the bfloat16"):
+    Trainer(CONFIG, seeds=(0, 0), overrides=({"sampled_q_float32_head": False},
+                                             {"sampled_q_float32_head": True}))

@@ -133,7 +133,8 @@ def sampled_q(networks: Networks, config: LearnerConfig, critic_params, obs: jax
   h = networks.critic.apply(cast(critic_params), cast(obs), cast(actions),
                             features_only=True)  # [N, B, T+1, F] bfloat16
   head = critic_params["params"][networks.critic.head_name]
-  exact = (h.astype(jnp.float32) @ head["kernel"] + head["bias"])[..., 0]
+  exact = (jnp.matmul(h.astype(jnp.float32), head["kernel"], precision=jax.lax.Precision.HIGHEST)
+           + head["bias"])[..., 0]
   if config.sampled_q_float32_head is True:
     return exact
   # (a member's traced flag: both; the compiler computes their shared features once)
@@ -189,8 +190,9 @@ def sampled_q_diagnostics(networks: Networks, config: LearnerConfig, critic_para
   `sampled_q_bf16_error`, the mean |Q| error of bfloat16's rounding, against float32 on the
   batch's first unroll (actions [N, B, T+1, A], q_sampled [N, B, T+1] as `sampled_q` gave),
   and `sampled_q_bf16_centred_error`, the rms of that error less its mean over each state's
-  actions: the part the weights see. Where it nears the spread or the temperature, the
-  weights follow the rounding."""
+  actions: the part the weights see (with `sampled_q_float32_head`, what the bfloat16
+  features leave). Where it nears the spread or the temperature, the weights follow the
+  rounding."""
   out = {"sampled_q_spread": jnp.mean(jnp.std(q_sampled, axis=0))}
   if config.sampled_q_bfloat16:
     exact = networks.critic.apply(critic_params, obs[:1], actions[:, :1])  # [N, 1, T+1]

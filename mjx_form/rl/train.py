@@ -247,6 +247,9 @@ class Trainer:
     for overrides in self.overrides:
       for name, value in overrides.items():
         grid.check_value(name, value)
+      if overrides.get("sampled_q_float32_head") and not config.learner.sampled_q_bfloat16:
+        raise ValueError("sampled_q_float32_head applies to the bfloat16 sampled Q only: give "
+                         "sampled_q_bfloat16 too (in float32 the whole Q already is)")
       # (the source refuses values it cannot take, e.g. FORM's mean of an ensemble's log pD
       # without an ensemble)
       self._source_with(grid.split(overrides)[2])
