@@ -273,6 +273,7 @@ def _member(record: dict) -> str:
                      reward.get("reward_clip", 0.0), settings.get("action_noise_correlation", 0.0),
                      settings.get("wrap_angles", False), settings.get("init_policy"),
                      *([True] if settings.get("angle_features") else []),
+                     *([low] if (low := settings.get("noise_scale_min", 1.0)) != 1.0 else []),
                      # (records leave out the default, the mixture)
                      *([mean] if (mean := reward.get("ensemble_log_pd", "mixture")) != "mixture"
                        else [])],
@@ -305,6 +306,8 @@ def _learner_notes(record: dict, with_period: bool = True,
   correlation = settings.get("action_noise_correlation", 0.0)
   if correlation:
     notes.append(f"actor noise correlated {correlation:g}")
+  if (low := settings.get("noise_scale_min", 1.0)) < 1.0:
+    notes.append(f"envs' noise scaled {low:g} to 1")
   if settings.get("wrap_angles"):
     notes.append("angles wrapped")
   if settings.get("angle_features"):

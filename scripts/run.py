@@ -162,6 +162,12 @@ def parse_args(argv=None) -> argparse.Namespace:
                      help="the policy's Gaussian: paper (mean unbounded, scale softplus + "
                           "1e-4; the default, but see --preset for expert) or acme (Acme's "
                           "control-suite MPO head: tanh mean, scale >= 0.3)")
+  train.add_argument("--noise_scale_min", type=float, default=1.0, metavar="K",
+                     help="each member's environments act with the policy's noise scaled by "
+                          "multipliers spread evenly from K (its first env) to 1 (its last): "
+                          "K 0 gives one env the mean action, so that where the mean action "
+                          "leads reaches the replay (default 1: every env acts with the "
+                          "policy itself, the paper's)")
   train.add_argument("--action_noise_correlation", type=float,
                      default=None, metavar="C",
                      help="the actors' noise correlated in time: e_t = C e_(t-1) + sqrt(1 - C^2) "
@@ -421,7 +427,7 @@ def parse_args(argv=None) -> argparse.Namespace:
                  "goes with neither --save_demos, --demos, --expert nor --train_demonstrator")
   if args.final_eval_envs < 0:
     parser.error(f"--final_eval_envs must be >= 0, got {args.final_eval_envs}")
-  for name in ("policy_average_decay", "epsilon_scale"):  # (--grid's checks of them)
+  for name in ("policy_average_decay", "epsilon_scale", "noise_scale_min"):  # (--grid's checks)
     if getattr(args, name) is not None:
       try:
         grid.check_value(name, getattr(args, name))
@@ -456,6 +462,7 @@ def train_config(args: argparse.Namespace) -> TrainConfig:
                      source_update_every=args.imitator_every,
                      network_width=args.network_width, policy_head=chosen["policy_head"],
                      action_noise_correlation=chosen["action_noise_correlation"],
+                     noise_scale_min=args.noise_scale_min,
                      eval_envs=args.eval_envs, seed=seed,
                      stagger_episodes=not args.lockstep_episodes,
                      wrap_angles=chosen.get("wrap_angles", False) if args.wrap_angles is None

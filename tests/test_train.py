@@ -870,3 +870,35 @@ def test_a_population_refuses_a_float32_head_without_bfloat16():
   with pytest.raises(ValueError, match="sampled_q_float32_head applies to the bfloat16"):
     Trainer(CONFIG, seeds=(0, 0), overrides=({"sampled_q_float32_head": False},
                                              {"sampled_q_float32_head": True}))
+
+
+def test_noise_scale_min_spreads_the_envs_noise_from_the_mean_action_to_the_policy():
+  """With `noise_scale_min` k each env's actions are its mean plus the policy's noise scaled by
+  its multiplier, evenly from k (first env) to 1 (last), the same draws as without: at k = 0
+  the first env acts with the mean (to 1e-6 of the scale) and its behaviour density is that
+  of the narrow Gaussian (Retrace's importance weight ~0), the last env acts as before."""
+  config = dataclasses.replace(CONFIG, num_envs=8, replay_capacity=16)
+  out = {}
+  for k in (1.0, 0.0):
+    trainer = Trainer(dataclasses.replace(config, noise_scale_min=k),
+                      mesh_lib.make_mesh(jax.devices()[:1]))
+    state = trainer.init(jax.random.PRNGKey(0)[None])
+    collect = jax.jit(trainer._collect, compiler_options=cpu.run_once_compiler_options())
+    _, _, _, unrolls, _ = collect(state, jax.random.PRNGKey(1)[None])
+    obs = np.asarray(unrolls["observation"])[0, :, :-1]  # [N, T, D]
+    pi = trainer._policies(state.learner.policy, state.normalizer, obs.reshape(-1, obs.shape[-1]))
+    shape = obs.shape[:2] + (2,)
+    out[k] = (np.asarray(unrolls["action"])[0], np.asarray(pi.mean).reshape(shape),
+              np.asarray(pi.scale).reshape(shape), np.asarray(unrolls["behaviour_log_prob"])[0])
+  (a1, m1, s1, l1), (a0, m0, s0, l0) = out[1.0], out[0.0]
+  # multiplier 1: as without the setting (to rounding: the two programs fuse differently)
+  np.testing.assert_allclose(a0[-1], a1[-1], rtol=1e-5, atol=1e-6)
+  np.testing.assert_allclose(l0[-1], l1[-1], rtol=1e-5, atol=1e-5)
+  np.testing.assert_allclose((a0 - m0) / s0, (a1 - m1) / s1 * np.linspace(0, 1, 8)[:, None, None]
+                             .clip(1e-6), rtol=1e-3, atol=1e-5)  # the same draws, scaled
+  assert np.abs(a0[0] - m0[0]).max() < 1e-5 * s0[0].max()
+  # the narrow Gaussian's density at its draw: -log(1e-6 scale) per dimension, less ~1.4
+  expected = (-np.log(1e-6 * s0[0]) - 0.5 * np.log(2 * np.pi)).sum(-1)
+  assert (np.abs(l0[0] - expected) < 3).all() and (l0[0] > 20).all(), l0[0]
+  with pytest.raises(ValueError, match=r"noise_scale_min must be in \[0, 1\], got 1.5"):
+    dataclasses.replace(config, noise_scale_min=1.5).check(1)

@@ -11,7 +11,8 @@ of its value in CHOICES), and inside the vmapped update (or draw) each member's 
 its value where a single run's holds a constant (`learner_config`), so a member computes what a
 single run with its settings computes. (The actors' noise correlation is one: a member at 0
 draws exactly what a single run's independent draw gives, while the population keeps a noise
-state for every member. The action penalty is another: its dual is in every member's state
+state for every member; `noise_scale_min` likewise: each env's multiplier is computed where any
+member scales, all 1 in a member at 1. The action penalty is another: its dual is in every member's state
 if any member penalises, and stays at its initial value in a member that does not. And
 `wrap_angles`: every member's normaliser has a period if any member wraps, zeros in a member
 that does not, which wraps nothing; the policy averaged over updates likewise: every member
@@ -56,7 +57,8 @@ KL_BOUNDS = ("epsilon", "epsilon_mean", "epsilon_scale", "epsilon_penalty")
 # name -> type: TrainConfig fields: the actors' draw, and whether the agent wraps the task's raw
 # angles (realised as each member's observation-normaliser `period` at init, zeros in a member
 # that does not wrap: normalizer.wrap leaves its features as they are).
-ACTOR = {"action_noise_correlation": float, "wrap_angles": bool, "angle_features": bool}
+ACTOR = {"action_noise_correlation": float, "noise_scale_min": float, "wrap_angles": bool,
+         "angle_features": bool}
 # name -> type: settings a reward source lists in its `variable_settings` (FORM's
 # standardise_reward, reward_clip and ensemble_log_pd); the source's `specialise(values)` gives a
 # member's source.
@@ -110,6 +112,8 @@ def check_value(name: str, value) -> None:
     raise ValueError(f"retrace_lambda must be in [0, 1], got {value}")
   if name == "action_noise_correlation" and not 0.0 <= value < 1.0:
     raise ValueError(f"action_noise_correlation must be in [0, 1), got {value}")
+  if name == "noise_scale_min" and not 0.0 <= value <= 1.0:
+    raise ValueError(f"noise_scale_min must be in [0, 1], got {value}")
   if name == "reward_clip" and not (value == 0.0 or 1.0 < value < float("inf")):
     # The running statistics fold in the clipped rewards: at c <= 1 their sd shrinks towards 0
     # batch after batch (FORM's module docstring).

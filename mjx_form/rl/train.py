@@ -51,7 +51,7 @@ import tasks
 from mjx_form import cpu
 from mjx_form import mesh as mesh_lib
 from mjx_form.rl import learner as learner_lib
-from mjx_form.rl import grid, normalizer, replay
+from mjx_form.rl import distributions, grid, normalizer, replay
 from mjx_form.rl import networks as networks_lib
 from mjx_form.rl.reward_sources import make_reward_source
 from mjx_form.sim import env as env_lib
@@ -85,6 +85,13 @@ class TrainConfig:
   # draws it afresh every step (the paper's); 0 < c < 1 correlates it in time, each action's
   # marginal still the policy's Gaussian.
   action_noise_correlation: float = 0.0
+  # k of each env's noise multiplier: a member's environments act with the policy's noise
+  # scaled by multipliers spread evenly from k (its first env) to 1 (its last), the behaviour
+  # density Retrace needs scaled alike; k = 0 gives its first env the mean action (to 1e-6 of
+  # the scale), so that the states the mean action leads to reach the replay (FORM's
+  # walker_stand: the mean action stays crouched from 31% of starts, sampled actions from 3%).
+  # 1: every env acts with the policy itself (the paper's).
+  noise_scale_min: float = 1.0
   normalizer_decay: float = 0.99  # observation EMA decay per iteration
   # The agent wraps the task's unbounded raw angles (`Task.periodic_observations`) into
   # [-pi, pi) before standardising them (the observation normaliser's `period`); off: it sees
@@ -139,6 +146,7 @@ class TrainConfig:
     if not 0.0 <= self.action_noise_correlation < 1.0:
       raise ValueError("action_noise_correlation must be in [0, 1), got "
                        f"{self.action_noise_correlation}")
+    grid.check_value("noise_scale_min", self.noise_scale_min)
 
   def to_dict(self) -> dict:
     return dataclasses.asdict(self)
@@ -259,6 +267,8 @@ class Trainer:
     # Whether some member's actors correlate their noise (TrainState.noise holds a state then).
     self._correlated = any(self.member_config(i).action_noise_correlation
                            for i in range(self.members))
+    # Whether some member's envs scale their noise (`noise_scale_min` below 1).
+    self._scaled = any(self.member_config(i).noise_scale_min < 1.0 for i in range(self.members))
     # The learner state's structure: the action penalty's dual is there if any member penalises
     # (a member whose flag is off leaves it at its initial value), the average policy if any
     # member averages (a member at 0 keeps a copy of its policy).
@@ -503,6 +513,16 @@ class Trainer:
         params, normalizer.normalize(norm, obs))
     return jax.vmap(apply)(policy_params, norm, obs)
 
+  def _noise_multipliers(self, state: TrainState) -> jax.Array:
+    """Each env's multiplier of its member's policy scale when acting, [P, N]: evenly from the
+    member's `noise_scale_min` (its first env) to 1 (its last), at least 1e-6 (so that the
+    behaviour density stays finite: an env at 0 acts with the mean action to 1e-6 of the
+    scale, and Retrace's importance weights there are ~0, its targets one-step)."""
+    p, n = self.members, self.config.num_envs
+    low = state.settings.get("noise_scale_min", jnp.full((p,), self.config.noise_scale_min))
+    spread = jnp.linspace(0.0, 1.0, n) if n > 1 else jnp.ones((1,))
+    return jnp.maximum(low[:, None] + (1.0 - low[:, None]) * spread, 1e-6)
+
   def _collect(self, state: TrainState, keys: jax.Array):
     """`unroll_length` steps of every env with its member's online policy; keys [P, 2].
     Returns (env, returns, noise, unrolls [P, N, ...], stats [P])."""
@@ -511,16 +531,20 @@ class Trainer:
     c = state.settings.get("action_noise_correlation",
                            jnp.full((p,), self.config.action_noise_correlation)
                            if self._correlated else 0.0)
+    multipliers = self._noise_multipliers(state) if self._scaled else None  # [P, N]
 
     def step(carry, key):  # key [P, 2]
       env_state, running, noise = carry  # noise [P * N, A or 0]
       pi = self._policies(state.learner.policy, state.normalizer, env_state.obs)
+      if multipliers is not None:  # each env's behaviour: the policy, its noise scaled
+        pi = distributions.DiagonalGaussian(pi.mean, pi.scale * multipliers[..., None])
       by_member = noise.reshape(pi.mean.shape[:2] + noise.shape[-1:])  # [P, N, A or 0]
       action, noise = jax.vmap(lambda pi, k, e, c: pi.sample_correlated(k, e, c),
                                in_axes=(0, 0, 0, 0 if self._correlated else None))(
           pi, key, by_member, c)  # [P, N, A]
       noise = noise.reshape(noise.shape[0] * noise.shape[1], noise.shape[2])
-      # The behaviour density Retrace needs: the policy's Gaussian, each action's marginal.
+      # The behaviour density Retrace needs: the policy's Gaussian (its scale times the env's
+      # multiplier), each action's marginal.
       log_prob = pi.log_prob(action).reshape(-1)  # [P * N]
       action = action.reshape((-1, action.shape[-1]))  # [P * N, A]
       stepped = self.auto_reset.step(env_state, action)
