@@ -88,8 +88,9 @@ class TrainConfig:
   # k of each env's noise multiplier: a member's environments act with the policy's noise
   # scaled by multipliers spread evenly from k (its first env) to 1 (its last), the behaviour
   # density Retrace needs scaled alike; k = 0 gives its first env the mean action (to 1e-6 of
-  # the scale), so that the states the mean action leads to reach the replay (FORM's
-  # walker_stand: the mean action stays crouched from 31% of starts, sampled actions from 3%).
+  # the scale), so that the states the mean action leads to reach the replay (a FORM
+  # walker_stand policy ends crouched or half-up from 34% of starts by its mean action, from
+  # none by sampled actions: benchmarks/NOTES.md, session 60).
   # 1: every env acts with the policy itself (the paper's).
   noise_scale_min: float = 1.0
   normalizer_decay: float = 0.99  # observation EMA decay per iteration
