@@ -174,3 +174,25 @@ def test_correlated_noise_is_a_unit_variance_ar1_restarted_by_nan():
   np.testing.assert_array_equal(draw, pi.sample(key))
   np.testing.assert_array_equal(noise, jax.random.normal(key, (1, 2)))  # `sample`'s xi
   np.testing.assert_allclose(zero(last, jnp.float32(0.8))[1], expected, rtol=1e-5, atol=1e-6)
+
+
+def test_noise_log_prob_is_exact_where_the_draw_rounds_away_its_noise():
+  """`noise_log_prob(e)` is log_prob of mean + scale e, computed from e: equal to it at a
+  moderate scale, and right (float64's value) at a scale of 1e-8 beside a mean of 2, where the
+  float32 draw loses its noise to rounding and `log_prob` of it is nats off."""
+  e = jax.random.normal(jax.random.PRNGKey(0), (64, 3))
+  exact = lambda scale: (-0.5 * np.square(np.asarray(e, np.float64)) - np.log(scale)
+                         - 0.5 * np.log(2 * np.pi)).sum(-1)
+  for scale, faithful in ((0.5, True), (1e-8, False)):
+    pi = DiagonalGaussian(jnp.full((64, 3), 2.0), jnp.full((64, 3), scale))
+    np.testing.assert_allclose(pi.noise_log_prob(e), exact(scale), rtol=1e-5)
+    off = np.abs(np.asarray(pi.log_prob(pi.mean + pi.scale * e)) - exact(scale)).max()
+    assert (off < 1e-3) if faithful else (off > 1), (scale, off)
+  # and it is the noise of `sample_correlated`'s draw, for either kind of c
+  pi = DiagonalGaussian(jnp.zeros((4, 3)), jnp.full((4, 3), 0.7))
+  last = jnp.full((4, 3), jnp.nan)
+  for c in (0.0, jnp.array(0.5)):
+    draw, state = pi.sample_correlated(jax.random.PRNGKey(1), last, c)
+    noise, same_state = pi.unit_noise(jax.random.PRNGKey(1), last, c)
+    np.testing.assert_array_equal(draw, pi.mean + pi.scale * noise)
+    np.testing.assert_array_equal(state, same_state)

@@ -157,6 +157,10 @@ def test_run_applies_the_recipe_to_expert_runs_only_and_flags_win():
   head.check(1)
   with pytest.raises(ValueError, match="sampled_q_float32_head applies to the bfloat16"):
     config("--task", "humanoid_stand", "--method", "expert", "--sampled_q_float32_head").check(1)
+  assert config("--task", "walker_stand", "--noise_scale_min", "0").noise_scale_min == 0.0
+  assert config("--task", "walker_stand").noise_scale_min == 1.0
+  with pytest.raises(SystemExit):
+    cli.parse_args(["--task", "walker_stand", "--noise_scale_min", "1.5"])
 
 
 def test_run_names_the_recipe_and_its_overrides(capsys):

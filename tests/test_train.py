@@ -902,3 +902,5 @@ def test_noise_scale_min_spreads_the_envs_noise_from_the_mean_action_to_the_poli
   assert (np.abs(l0[0] - expected) < 3).all() and (l0[0] > 20).all(), l0[0]
   with pytest.raises(ValueError, match=r"noise_scale_min must be in \[0, 1\], got 1.5"):
     dataclasses.replace(config, noise_scale_min=1.5).check(1)
+  with pytest.raises(ValueError, match="it needs num_envs >= 2, got 1"):
+    dataclasses.replace(config, num_envs=1, noise_scale_min=0.5).check(1)

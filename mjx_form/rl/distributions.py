@@ -40,12 +40,24 @@ class DiagonalGaussian(NamedTuple):
     """One draw [..., A] whose noise continues `last` [..., A] (`correlated_noise`), and that
     noise; c = 0 as a Python number: `sample`'s draw, `last` returned unchanged (as an array, c =
     0 gives the same draw and returns its noise)."""
-    if isinstance(c, (int, float)) and not c:
-      return self.sample(key), last
+    noise, state = self.unit_noise(key, last, c)
+    return self.mean + self.scale * noise, state
+
+  def unit_noise(self, key: jax.Array, last: jax.Array,
+                 c: float) -> tuple[jax.Array, jax.Array]:
+    """The standard normal noise e [..., A] of `sample_correlated`'s draw (mean + scale e), and
+    the noise state it leaves (`last` unchanged where c is a Python 0)."""
     shape = jnp.broadcast_shapes(jnp.shape(self.mean), jnp.shape(self.scale))
     xi = jax.random.normal(key, shape, jnp.result_type(self.mean, self.scale))  # `sample`'s draw
+    if isinstance(c, (int, float)) and not c:
+      return xi, last
     noise = correlated_noise(last, xi, c)
-    return self.mean + self.scale * noise, noise
+    return noise, noise
+
+  def noise_log_prob(self, noise: jax.Array) -> jax.Array:
+    """`log_prob` of the draw mean + scale noise, from its noise [..., A]: [...]. Exact where
+    the draw itself is not (a scale far below |mean| loses the noise to rounding in x - mean)."""
+    return jnp.sum(-0.5 * jnp.square(noise) - jnp.log(self.scale) - _HALF_LOG_2PI, axis=-1)
 
   def log_prob(self, x: jax.Array) -> jax.Array:
     """Log density of `x` [..., A], summed over the action axis: [...]."""

@@ -90,8 +90,8 @@ class TrainConfig:
   # density Retrace needs scaled alike; k = 0 gives its first env the mean action (to 1e-6 of
   # the scale), so that the states the mean action leads to reach the replay (a FORM
   # walker_stand policy ends crouched or half-up from 34% of starts by its mean action, from
-  # none by sampled actions: benchmarks/NOTES.md, session 60).
-  # 1: every env acts with the policy itself (the paper's).
+  # none by sampled actions: benchmarks/NOTES.md, session 60). The train return then mixes in
+  # the less noisy envs' episodes. 1: every env acts with the policy itself (the paper's).
   noise_scale_min: float = 1.0
   normalizer_decay: float = 0.99  # observation EMA decay per iteration
   # The agent wraps the task's unbounded raw angles (`Task.periodic_observations`) into
@@ -148,6 +148,9 @@ class TrainConfig:
       raise ValueError("action_noise_correlation must be in [0, 1), got "
                        f"{self.action_noise_correlation}")
     grid.check_value("noise_scale_min", self.noise_scale_min)
+    if self.noise_scale_min < 1.0 and self.num_envs < 2:
+      raise ValueError("noise_scale_min spreads the multipliers over a member's environments: "
+                       f"it needs num_envs >= 2, got {self.num_envs}")
 
   def to_dict(self) -> dict:
     return dataclasses.asdict(self)
@@ -537,16 +540,21 @@ class Trainer:
     def step(carry, key):  # key [P, 2]
       env_state, running, noise = carry  # noise [P * N, A or 0]
       pi = self._policies(state.learner.policy, state.normalizer, env_state.obs)
-      if multipliers is not None:  # each env's behaviour: the policy, its noise scaled
-        pi = distributions.DiagonalGaussian(pi.mean, pi.scale * multipliers[..., None])
       by_member = noise.reshape(pi.mean.shape[:2] + noise.shape[-1:])  # [P, N, A or 0]
-      action, noise = jax.vmap(lambda pi, k, e, c: pi.sample_correlated(k, e, c),
-                               in_axes=(0, 0, 0, 0 if self._correlated else None))(
-          pi, key, by_member, c)  # [P, N, A]
+      in_axes = (0, 0, 0, 0 if self._correlated else None)  # (pi, key, noise, c) per member
+      if multipliers is None:
+        action, noise = jax.vmap(lambda pi, k, e, c: pi.sample_correlated(k, e, c),
+                                 in_axes=in_axes)(pi, key, by_member, c)  # [P, N, A]
+        # The behaviour density Retrace needs: the policy's Gaussian, each action's marginal.
+        log_prob = pi.log_prob(action).reshape(-1)  # [P * N]
+      else:  # each env's behaviour: the policy, its noise scaled by the env's multiplier
+        pi = distributions.DiagonalGaussian(pi.mean, pi.scale * multipliers[..., None])
+        e, noise = jax.vmap(lambda pi, k, e, c: pi.unit_noise(k, e, c), in_axes=in_axes)(
+            pi, key, by_member, c)  # [P, N, A] each
+        action = pi.mean + pi.scale * e
+        # (from the draw's noise: at a multiplier of 1e-6, action - mean is mostly rounding)
+        log_prob = pi.noise_log_prob(e).reshape(-1)  # [P * N]
       noise = noise.reshape(noise.shape[0] * noise.shape[1], noise.shape[2])
-      # The behaviour density Retrace needs: the policy's Gaussian (its scale times the env's
-      # multiplier), each action's marginal.
-      log_prob = pi.log_prob(action).reshape(-1)  # [P * N]
       action = action.reshape((-1, action.shape[-1]))  # [P * N, A]
       stepped = self.auto_reset.step(env_state, action)
       running = running + stepped.reward
