@@ -12,8 +12,9 @@ its value where a single run's holds a constant (`learner_config`), so a member 
 single run with its settings computes. (The actors' noise correlation is one: a member at 0
 draws exactly what a single run's independent draw gives, while the population keeps a noise
 state for every member; `noise_scale_min` likewise: each env's multiplier is computed where any
-member scales, all 1 in a member at 1. The action penalty is another: its dual is in every member's state
-if any member penalises, and stays at its initial value in a member that does not. And
+member scales, all 1 in a member at 1. The action penalty is another: its dual is in every
+member's state if any member penalises, and stays at its initial value in a member that does
+not. And
 `wrap_angles`: every member's normaliser has a period if any member wraps, zeros in a member
 that does not, which wraps nothing; the policy averaged over updates likewise: every member
 keeps one if any member's `policy_average_decay` is above 0, a member at 0 keeps a copy of its
