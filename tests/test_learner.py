@@ -98,7 +98,7 @@ def test_sampled_q_float32_head_removes_bfloat16s_rounding_of_high_q():
            for head in (False, True)}
   assert error[False] > spread / 2, (error, spread)  # the rounding swamps the differences
   assert error[True] < spread / 10, (error, spread)
-  # the head on the float32 parameters, not bfloat16's (whose error is too small to tell here)
+  # the head on the float32 parameters (a bfloat16-cast head passes the bound above, not this)
   cast = lambda tree: jax.tree.map(lambda x: x.astype(jnp.bfloat16), tree)
   features = networks.critic.apply(cast(params), cast(obs), cast(actions),
                                    features_only=True).astype(np.float64)
