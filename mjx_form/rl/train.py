@@ -256,12 +256,12 @@ class Trainer:
       if name not in grid.LEARNER and name not in grid.ACTOR and name not in variable:
         raise ValueError(f"{name!r} cannot differ between members of a {self.source.name} "
                          f"run (it can: {', '.join((*grid.LEARNER, *grid.ACTOR, *variable))})")
-    for overrides in self.overrides:
+    for i, overrides in enumerate(self.overrides):
       for name, value in overrides.items():
         grid.check_value(name, value)
-      if overrides.get("sampled_q_float32_head") and not config.learner.sampled_q_bfloat16:
-        raise ValueError("sampled_q_float32_head applies to the bfloat16 sampled Q only: give "
-                         "sampled_q_bfloat16 too (in float32 the whole Q already is)")
+      # (each member's whole settings, as its single run's: e.g. a float32 head without
+      # bfloat16, or noise multipliers over a single env)
+      self.member_config(i).check(self.mesh.devices.size)
       # (the source refuses values it cannot take, e.g. FORM's mean of an ensemble's log pD
       # without an ensemble)
       self._source_with(grid.split(overrides)[2])
@@ -524,7 +524,7 @@ class Trainer:
     scale, and Retrace's importance weights there are ~0, its targets one-step)."""
     p, n = self.members, self.config.num_envs
     low = state.settings.get("noise_scale_min", jnp.full((p,), self.config.noise_scale_min))
-    spread = jnp.linspace(0.0, 1.0, n) if n > 1 else jnp.ones((1,))
+    spread = jnp.linspace(0.0, 1.0, n)  # (n >= 2 where any member scales: TrainConfig.check)
     return jnp.maximum(low[:, None] + (1.0 - low[:, None]) * spread, 1e-6)
 
   def _collect(self, state: TrainState, keys: jax.Array):
