@@ -928,3 +928,53 @@ def test_form_reward_of_behaviour_reads_a_runs_imitator_model(tmp_path):
   shipped_config = effect_models.load_effect_model(shipped).metadata["config"]
   with pytest.raises(ValueError, match="not an imitator model"):
     bench.kept_imitator(shipped, env, em.EffectModelConfig(**shipped_config))
+
+
+def test_sampled_q_precision_counts_a_grids_members_apart_and_averages_their_last_evaluations(
+    tmp_path, capsys):
+  """benchmarks/sampled_q_precision.py: two members of one grid with the same seed (bf16 with
+  and without the float32 head) are two runs, each the mean of its last 30% of evaluations
+  (numpy's, on made-up rows), a float32 run has no error, and an unreadable file is refused by
+  name with exit 2."""
+  bench = load_script("sampled_q_precision", folder="benchmarks")
+  rng = np.random.default_rng(0)
+  rows, expected = [], {}
+  for head in (False, True):
+    learner = {"sampled_q_bfloat16": True, "sampled_q_float32_head": head}
+    error, spread = rng.uniform(0.1, 1.0, 10), rng.uniform(0.1, 1.0, 10)
+    for i in range(10):
+      rows.append({"kind": "learning_curve", "task": "walker_run", "method": "expert", "seed": 0,
+                   "env_steps": 1000 * (i + 1), "q_online": 50.0 + i, "temperature": 0.1,
+                   "sampled_q_spread": spread[i], "sampled_q_bf16_error": error[i],
+                   "sampled_q_bf16_centred_error": error[i] / 2,
+                   "settings": {"learner": learner, "eval_episodes": 64 + i}})
+    expected[head] = (error[7:].mean(), spread[7:].mean())
+  rows.append({"kind": "final_return", "task": "walker_run", "seed": 0, "final_return": 1.0})
+  grid_file = tmp_path / "grid.jsonl"
+  grid_file.write_text("".join(json.dumps(r) + "\n" for r in reversed(rows)))  # any order
+  plain = tmp_path / "plain.jsonl"
+  plain.write_text(json.dumps({"kind": "learning_curve", "task": "walker_run", "seed": 0,
+                               "env_steps": 5, "q_online": 1.0, "sampled_q_spread": 0.5,
+                               "temperature": 0.2,
+                               "settings": {"learner": {"sampled_q_bfloat16": False}}}) + "\n")
+  records = {str(f): bench.results.read_records(str(f)) for f in (grid_file, plain)}
+  runs = bench.run_rows(records, late=0.3)
+  assert [(r["precision"], r["file"]) for r in runs] == [
+      ("bf16", "grid.jsonl"), ("bf16, float32 head", "grid.jsonl"), ("float32", "plain.jsonl")]
+  for run, head in zip(runs, (False, True)):
+    assert run["error"] == pytest.approx(expected[head][0])
+    assert run["spread"] == pytest.approx(expected[head][1])
+    assert run["q"] == pytest.approx(58.0) and run["env_steps"] == 10000
+  assert np.isnan(runs[2]["error"]) and runs[2]["spread"] == 0.5
+  groups = bench.summary(runs)
+  assert [g["runs"] for g in groups] == [1, 1, 1]
+  ratio = expected[True][0] / expected[True][1]
+  assert groups[1]["error_ratio"] == pytest.approx((ratio, ratio, ratio))
+  assert groups[2]["error_ratio"] is None and groups[2]["spread"] == 0.5
+  assert bench.main([str(grid_file), str(plain), "--runs"]) == 0
+  out = capsys.readouterr().out
+  assert "| walker_run | expert | float32 | 1 | - | - |" in out and "plain.jsonl" in out
+  broken = tmp_path / "broken.jsonl"
+  broken.write_text("{not json\n")
+  assert bench.main([str(grid_file), str(broken)]) == 2
+  assert "broken.jsonl" in capsys.readouterr().err

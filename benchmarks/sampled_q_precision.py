@@ -1,0 +1,159 @@
+#!/usr/bin/env python3
+"""How precise the E-step's input was in each run: bfloat16's error in the sampled actions' Q
+against their spread over a state's actions, read from the learning-curve records.
+
+MPO weighs a state's sampled actions by exp(Q / temperature), so what matters is Q's
+differences between a state's actions. Per run (a record file's seed and settings: a grid's
+members apart), the mean over its last `--late` share of evaluations of: Q (`q_online`), the
+spread (`sampled_q_spread`, the sd of Q over a state's actions), bfloat16's mean |error|
+(`sampled_q_bf16_error`, uncentred: it includes any offset common to a state's actions, which
+the weights ignore), its centred rms (`sampled_q_bf16_centred_error`, recorded since
+2026-11-29: the part the weights see) and the temperature. Then per task, method and precision
+(float32, bf16, bf16 with the float32 head) the runs, the median and range of error / spread
+(centred error / spread where recorded) and the medians of the rest. Prints markdown; writes
+nothing.
+
+  python benchmarks/sampled_q_precision.py                    # every learning-curve record
+  python benchmarks/sampled_q_precision.py FILE... --runs     # and one row per run
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import glob
+import json
+import os
+import sys
+
+import numpy as np
+
+sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+
+from mjx_form.files import results  # noqa: E402
+
+FIELDS = {"q": "q_online", "spread": "sampled_q_spread", "error": "sampled_q_bf16_error",
+          "centred": "sampled_q_bf16_centred_error", "temperature": "temperature"}
+# settings that say how a run was recorded, not what it ran
+_RECORDING = ("eval_episodes", "total_env_steps", "eval_on_host")
+
+
+def precision(settings: dict) -> str:
+  """'float32', 'bf16' or 'bf16, float32 head': how the run computed the sampled Q."""
+  learner = settings.get("learner", {})
+  if not learner.get("sampled_q_bfloat16"):
+    return "float32"
+  return "bf16, float32 head" if learner.get("sampled_q_float32_head") else "bf16"
+
+
+def run_rows(records_by_file: dict[str, list[dict]], late: float) -> list[dict]:
+  """One row per run: task, method, seed, precision, file, steps and the late means of FIELDS
+  (NaN where the run did not record one)."""
+  runs = collections.defaultdict(list)
+  for path, records in records_by_file.items():
+    for r in records:
+      if r.get("kind") != "learning_curve" or "sampled_q_spread" not in r:
+        continue
+      settings = {k: v for k, v in r.get("settings", {}).items() if k not in _RECORDING}
+      runs[(path, r.get("seed"), json.dumps(settings, sort_keys=True))].append(r)
+  rows = []
+  for (path, seed, settings), points in runs.items():
+    points.sort(key=lambda r: r["env_steps"])
+    tail = points[int(len(points) * (1 - late)):] or points[-1:]
+    means = {name: float(np.mean([r.get(field, np.nan) for r in tail]))
+             for name, field in FIELDS.items()}
+    rows.append({"task": points[0]["task"], "method": points[0].get("method", "expert"),
+                 "seed": seed, "precision": precision(json.loads(settings)),
+                 "file": os.path.basename(path), "env_steps": points[-1]["env_steps"],
+                 **means})
+  return sorted(rows, key=lambda r: (r["task"], r["method"], r["precision"], r["file"],
+                                     str(r["seed"])))
+
+
+def summary(rows: list[dict]) -> list[dict]:
+  """Per task, method and precision: runs, error / spread and centred error / spread (median,
+  min, max over the runs that recorded them) and the medians of the late means."""
+  groups = collections.defaultdict(list)
+  for row in rows:
+    groups[(row["task"], row["method"], row["precision"])].append(row)
+  out = []
+  for (task, method, prec), group in sorted(groups.items()):
+    entry = {"task": task, "method": method, "precision": prec, "runs": len(group)}
+    for name in ("error", "centred"):
+      ratio = np.array([r[name] / r["spread"] for r in group])
+      ratio = ratio[np.isfinite(ratio)]
+      entry[f"{name}_ratio"] = ((float(np.median(ratio)), float(ratio.min()), float(ratio.max()))
+                                if ratio.size else None)
+    for name in FIELDS:
+      values = np.array([r[name] for r in group])
+      values = values[np.isfinite(values)]
+      entry[name] = float(np.median(values)) if values.size else None
+    out.append(entry)
+  return out
+
+
+def _ratio(value) -> str:
+  return "-" if value is None else f"{value[0]:.2f} ({value[1]:.2f}-{value[2]:.2f})"
+
+
+def _number(value, digits: int) -> str:
+  return "-" if value is None or not np.isfinite(value) else f"{value:.{digits}f}"
+
+
+def summary_table(entries: list[dict]) -> str:
+  lines = ["| task | method | precision | runs | error / spread | centred / spread | error | "
+           "centred | spread | Q | temperature |", "|" + "---|" * 11]
+  for e in entries:
+    lines.append(f"| {e['task']} | {e['method']} | {e['precision']} | {e['runs']} | "
+                 f"{_ratio(e['error_ratio'])} | {_ratio(e['centred_ratio'])} | "
+                 f"{_number(e['error'], 3)} | {_number(e['centred'], 3)} | "
+                 f"{_number(e['spread'], 3)} | {_number(e['q'], 1)} | "
+                 f"{_number(e['temperature'], 3)} |")
+  return "\n".join(lines)
+
+
+def runs_table(rows: list[dict]) -> str:
+  lines = ["| task | method | precision | file | seed | env steps | error | centred | spread | "
+           "Q | temperature |", "|" + "---|" * 11]
+  for r in rows:
+    lines.append(f"| {r['task']} | {r['method']} | {r['precision']} | {r['file']} | "
+                 f"{r['seed']} | {r['env_steps'] / 1e6:.1f}M | {_number(r['error'], 3)} | "
+                 f"{_number(r['centred'], 3)} | {_number(r['spread'], 3)} | "
+                 f"{_number(r['q'], 1)} | {_number(r['temperature'], 3)} |")
+  return "\n".join(lines)
+
+
+def main(argv=None) -> int:
+  parser = argparse.ArgumentParser(description=__doc__,
+                                   formatter_class=argparse.RawDescriptionHelpFormatter)
+  parser.add_argument("files", nargs="*", help="record files (default: every learning-curve "
+                      "record under benchmarks/results/)")
+  parser.add_argument("--late", type=float, default=0.3,
+                      help="the share of each run's last evaluations averaged (default 0.3)")
+  parser.add_argument("--runs", action="store_true", help="also print one row per run")
+  args = parser.parse_args(argv)
+  if not 0.0 < args.late <= 1.0:
+    parser.error(f"--late must be in (0, 1], not {args.late}")
+  root = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results")
+  files = args.files or sorted(glob.glob(os.path.join(root, "*learning_curve*")))
+  records = {}
+  for path in files:
+    try:
+      records[path] = results.read_records(path)
+    except (OSError, EOFError, ValueError) as e:  # (a truncated .gz: EOFError)
+      print(f"{path}: cannot read its records: {e}", file=sys.stderr)
+      return 2
+  rows = run_rows(records, args.late)
+  if not rows:
+    print("no learning-curve record with the sampled Q's diagnostics in "
+          f"{len(files)} file(s)", file=sys.stderr)
+    return 2
+  print(summary_table(summary(rows)))
+  if args.runs:
+    print()
+    print(runs_table(rows))
+  return 0
+
+
+if __name__ == "__main__":
+  sys.exit(main())
