@@ -3,15 +3,17 @@
 against their spread over a state's actions, read from the learning-curve records.
 
 MPO weighs a state's sampled actions by exp(Q / temperature), so what matters is Q's
-differences between a state's actions. Per run (a record file's seed and settings: a grid's
-members apart), the mean over its last `--late` share of evaluations of: Q (`q_online`), the
+differences between a state's actions. A run is a seed and its settings (a grid's members
+apart); its points may lie in several files, a resumed part continuing where the file before
+it stopped (a file whose points overlap another's in env steps is another run, a rerun). Per
+run with at least `--min_points` evaluations, the mean over its last `--late` share of them of: Q (`q_online`), the
 spread (`sampled_q_spread`, the sd of Q over a state's actions), bfloat16's mean |error|
 (`sampled_q_bf16_error`, uncentred: it includes any offset common to a state's actions, which
 the weights ignore), its centred rms (`sampled_q_bf16_centred_error`, recorded since
 2026-11-29: the part the weights see) and the temperature. Then per task, method and precision
 (float32, bf16, bf16 with the float32 head) the runs, the median and range of error / spread
-(centred error / spread where recorded) and the medians of the rest. Prints markdown; writes
-nothing.
+(centred error / spread where recorded) and the medians of the rest (a run with a NaN in its
+last evaluations or a spread of 0 has no ratio). Prints markdown; writes nothing.
 
   python benchmarks/sampled_q_precision.py                    # every learning-curve record
   python benchmarks/sampled_q_precision.py FILE... --runs     # and one row per run
@@ -23,6 +25,7 @@ import argparse
 import collections
 import glob
 import json
+import math
 import os
 import sys
 
@@ -46,26 +49,48 @@ def precision(settings: dict) -> str:
   return "bf16, float32 head" if learner.get("sampled_q_float32_head") else "bf16"
 
 
-def run_rows(records_by_file: dict[str, list[dict]], late: float) -> list[dict]:
-  """One row per run: task, method, seed, precision, file, steps and the late means of FIELDS
-  (NaN where the run did not record one)."""
-  runs = collections.defaultdict(list)
+def _chains(segments: list[tuple[str, list[dict]]]) -> list[list[tuple[str, list[dict]]]]:
+  """One run's (file, points sorted by env steps) joined into runs: a file whose first point
+  comes after the last of the run before it continues it (a resumed part), one that overlaps
+  it starts another run (a rerun)."""
+  chains = []
+  for segment in sorted(segments, key=lambda item: item[1][0]["env_steps"]):
+    for chain in chains:
+      if segment[1][0]["env_steps"] > chain[-1][1][-1]["env_steps"]:
+        chain.append(segment)
+        break
+    else:
+      chains.append([segment])
+  return chains
+
+
+def run_rows(records_by_file: dict[str, list[dict]], late: float,
+             min_points: int = 1) -> list[dict]:
+  """One row per run with at least `min_points` evaluations: task, method, seed, precision,
+  its last file, env steps, evaluations and the late means of FIELDS (NaN where the run did not
+  record one)."""
+  runs = collections.defaultdict(lambda: collections.defaultdict(list))
   for path, records in records_by_file.items():
     for r in records:
       if r.get("kind") != "learning_curve" or "sampled_q_spread" not in r:
         continue
       settings = {k: v for k, v in r.get("settings", {}).items() if k not in _RECORDING}
-      runs[(path, r.get("seed"), json.dumps(settings, sort_keys=True))].append(r)
+      runs[(r["task"], r.get("seed"), json.dumps(settings, sort_keys=True))][path].append(r)
   rows = []
-  for (path, seed, settings), points in runs.items():
-    points.sort(key=lambda r: r["env_steps"])
-    tail = points[int(len(points) * (1 - late)):] or points[-1:]
-    means = {name: float(np.mean([r.get(field, np.nan) for r in tail]))
-             for name, field in FIELDS.items()}
-    rows.append({"task": points[0]["task"], "method": points[0].get("method", "expert"),
-                 "seed": seed, "precision": precision(json.loads(settings)),
-                 "file": os.path.basename(path), "env_steps": points[-1]["env_steps"],
-                 **means})
+  for (task, seed, settings), by_file in runs.items():
+    segments = [(path, sorted(points, key=lambda r: r["env_steps"]))
+                for path, points in by_file.items()]
+    for chain in _chains(segments):
+      points = [r for _, segment in chain for r in segment]
+      if len(points) < min_points:
+        continue
+      tail = points[len(points) - max(1, math.ceil(round(late * len(points), 9))):]
+      means = {name: float(np.mean([r.get(field, np.nan) for r in tail]))
+               for name, field in FIELDS.items()}
+      path = chain[-1][0]
+      rows.append({"task": task, "method": points[0].get("method", "expert"), "seed": seed,
+                   "precision": precision(json.loads(settings)), "file": os.path.basename(path),
+                   "env_steps": points[-1]["env_steps"], "evaluations": len(points), **means})
   return sorted(rows, key=lambda r: (r["task"], r["method"], r["precision"], r["file"],
                                      str(r["seed"])))
 
@@ -80,8 +105,9 @@ def summary(rows: list[dict]) -> list[dict]:
   for (task, method, prec), group in sorted(groups.items()):
     entry = {"task": task, "method": method, "precision": prec, "runs": len(group)}
     for name in ("error", "centred"):
-      ratio = np.array([r[name] / r["spread"] for r in group])
-      ratio = ratio[np.isfinite(ratio)]
+      values, spread = (np.array([r[k] for r in group]) for k in (name, "spread"))
+      keep = np.isfinite(values) & np.isfinite(spread) & (spread > 0)
+      ratio = values[keep] / spread[keep]
       entry[f"{name}_ratio"] = ((float(np.median(ratio)), float(ratio.min()), float(ratio.max()))
                                 if ratio.size else None)
     for name in FIELDS:
@@ -113,11 +139,12 @@ def summary_table(entries: list[dict]) -> str:
 
 
 def runs_table(rows: list[dict]) -> str:
-  lines = ["| task | method | precision | file | seed | env steps | error | centred | spread | "
-           "Q | temperature |", "|" + "---|" * 11]
+  lines = ["| task | method | precision | last file | seed | env steps | evaluations | error | "
+           "centred | spread | Q | temperature |", "|" + "---|" * 12]
   for r in rows:
     lines.append(f"| {r['task']} | {r['method']} | {r['precision']} | {r['file']} | "
-                 f"{r['seed']} | {r['env_steps'] / 1e6:.1f}M | {_number(r['error'], 3)} | "
+                 f"{r['seed']} | {r['env_steps'] / 1e6:.1f}M | {r['evaluations']} | "
+                 f"{_number(r['error'], 3)} | "
                  f"{_number(r['centred'], 3)} | {_number(r['spread'], 3)} | "
                  f"{_number(r['q'], 1)} | {_number(r['temperature'], 3)} |")
   return "\n".join(lines)
@@ -130,23 +157,28 @@ def main(argv=None) -> int:
                       "record under benchmarks/results/)")
   parser.add_argument("--late", type=float, default=0.3,
                       help="the share of each run's last evaluations averaged (default 0.3)")
+  parser.add_argument("--min_points", type=int, default=5,
+                      help="leave out runs with fewer evaluations (smoke tests; default 5)")
   parser.add_argument("--runs", action="store_true", help="also print one row per run")
   args = parser.parse_args(argv)
-  if not 0.0 < args.late <= 1.0:
-    parser.error(f"--late must be in (0, 1], not {args.late}")
+  if not 0.0 < args.late <= 1.0 or args.min_points < 1:
+    parser.error(f"--late must be in (0, 1] and --min_points at least 1, not {args.late} and "
+                 f"{args.min_points}")
   root = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results")
   files = args.files or sorted(glob.glob(os.path.join(root, "*learning_curve*")))
   records = {}
   for path in files:
     try:
       records[path] = results.read_records(path)
-    except (OSError, EOFError, ValueError) as e:  # (a truncated .gz: EOFError)
-      print(f"{path}: cannot read its records: {e}", file=sys.stderr)
+      run_rows({path: records[path]}, args.late)  # (a learning-curve row without its fields)
+    except (OSError, EOFError, ValueError, KeyError) as e:  # (a truncated .gz: EOFError)
+      message = str(e) if str(e).startswith(path) else f"{path}: {e!r}"
+      print(f"cannot read the records: {message}", file=sys.stderr)
       return 2
-  rows = run_rows(records, args.late)
+  rows = run_rows(records, args.late, args.min_points)
   if not rows:
-    print("no learning-curve record with the sampled Q's diagnostics in "
-          f"{len(files)} file(s)", file=sys.stderr)
+    print("no learning-curve record with the sampled Q's diagnostics in a run of at least "
+          f"{args.min_points} evaluations in {len(files)} file(s)", file=sys.stderr)
     return 2
   print(summary_table(summary(rows)))
   if args.runs:

@@ -932,49 +932,66 @@ def test_form_reward_of_behaviour_reads_a_runs_imitator_model(tmp_path):
 
 def test_sampled_q_precision_counts_a_grids_members_apart_and_averages_their_last_evaluations(
     tmp_path, capsys):
-  """benchmarks/sampled_q_precision.py: two members of one grid with the same seed (bf16 with
-  and without the float32 head) are two runs, each the mean of its last 30% of evaluations
-  (numpy's, on made-up rows), a float32 run has no error, and an unreadable file is refused by
-  name with exit 2."""
+  """benchmarks/sampled_q_precision.py: members of one grid with the same seed (bf16 with and
+  without the float32 head) are separate runs, each the mean of its last 30% of evaluations
+  (numpy's, on made-up rows); a resumed part in another file continues its run, a rerun that
+  overlaps it is another run; the summary is the median and range over runs; a float32 run
+  has no error, a row without the diagnostics counts for nothing, runs with too few
+  evaluations are left out, and an unreadable file is refused by name with exit 2."""
   bench = load_script("sampled_q_precision", folder="benchmarks")
   rng = np.random.default_rng(0)
-  rows, expected = [], {}
-  for head in (False, True):
+
+  def curve(seed, head, steps, error, spread):
     learner = {"sampled_q_bfloat16": True, "sampled_q_float32_head": head}
-    error, spread = rng.uniform(0.1, 1.0, 10), rng.uniform(0.1, 1.0, 10)
-    for i in range(10):
-      rows.append({"kind": "learning_curve", "task": "walker_run", "method": "expert", "seed": 0,
-                   "env_steps": 1000 * (i + 1), "q_online": 50.0 + i, "temperature": 0.1,
-                   "sampled_q_spread": spread[i], "sampled_q_bf16_error": error[i],
-                   "sampled_q_bf16_centred_error": error[i] / 2,
-                   "settings": {"learner": learner, "eval_episodes": 64 + i}})
-    expected[head] = (error[7:].mean(), spread[7:].mean())
+    return [{"kind": "learning_curve", "task": "walker_run", "method": "expert", "seed": seed,
+             "env_steps": int(t), "q_online": float(t) / 1000, "temperature": 0.1,
+             "sampled_q_spread": float(p), "sampled_q_bf16_error": float(e),
+             "sampled_q_bf16_centred_error": float(e) / 2,
+             "settings": {"learner": learner, "eval_episodes": 64 + i}}
+            for i, (t, e, p) in enumerate(zip(steps, error, spread))]
+
+  error, spread = rng.uniform(0.1, 1.0, (4, 10)), rng.uniform(0.1, 1.0, (4, 10))
+  steps = 1000 * np.arange(1, 11)
+  rows = [r for seed in (0, 1, 2) for r in curve(seed, False, steps, error[seed], spread[seed])]
+  rows += curve(0, True, steps[:6], error[3, :6], spread[3, :6])  # first part, resumed below
+  rows.append({"kind": "learning_curve", "task": "walker_run", "seed": 0, "env_steps": 1})
   rows.append({"kind": "final_return", "task": "walker_run", "seed": 0, "final_return": 1.0})
-  grid_file = tmp_path / "grid.jsonl"
-  grid_file.write_text("".join(json.dumps(r) + "\n" for r in reversed(rows)))  # any order
+  grid_file, resumed, rerun = (tmp_path / f"{n}.jsonl" for n in ("grid", "resumed", "rerun"))
+  write = lambda path, rs: path.write_text("".join(json.dumps(r) + "\n" for r in rs))
+  write(grid_file, reversed(rows))  # in any order
+  write(resumed, curve(0, True, steps[6:], error[3, 6:], spread[3, 6:]))
+  write(rerun, curve(1, False, steps[:4], error[0, :4], spread[0, :4]))  # overlaps seed 1's
   plain = tmp_path / "plain.jsonl"
-  plain.write_text(json.dumps({"kind": "learning_curve", "task": "walker_run", "seed": 0,
-                               "env_steps": 5, "q_online": 1.0, "sampled_q_spread": 0.5,
-                               "temperature": 0.2,
-                               "settings": {"learner": {"sampled_q_bfloat16": False}}}) + "\n")
-  records = {str(f): bench.results.read_records(str(f)) for f in (grid_file, plain)}
-  runs = bench.run_rows(records, late=0.3)
-  assert [(r["precision"], r["file"]) for r in runs] == [
-      ("bf16", "grid.jsonl"), ("bf16, float32 head", "grid.jsonl"), ("float32", "plain.jsonl")]
-  for run, head in zip(runs, (False, True)):
-    assert run["error"] == pytest.approx(expected[head][0])
-    assert run["spread"] == pytest.approx(expected[head][1])
-    assert run["q"] == pytest.approx(58.0) and run["env_steps"] == 10000
-  assert np.isnan(runs[2]["error"]) and runs[2]["spread"] == 0.5
+  write(plain, [{"kind": "learning_curve", "task": "walker_run", "seed": 0, "env_steps": 5 * i,
+                 "q_online": 1.0, "sampled_q_spread": 0.5, "temperature": 0.2,
+                 "settings": {"learner": {"sampled_q_bfloat16": False}}} for i in range(1, 6)])
+  records = {str(f): bench.results.read_records(str(f))
+             for f in (grid_file, resumed, rerun, plain)}
+  runs = bench.run_rows(records, late=0.3, min_points=5)  # (the 4-point rerun left out)
+  assert [(r["precision"], r["seed"], r["file"], r["evaluations"]) for r in runs] == [
+      ("bf16", 0, "grid.jsonl", 10), ("bf16", 1, "grid.jsonl", 10), ("bf16", 2, "grid.jsonl", 10),
+      ("bf16, float32 head", 0, "resumed.jsonl", 10), ("float32", 0, "plain.jsonl", 5)]
+  late = lambda x: x[:, 7:].mean(axis=1)  # [runs]
+  np.testing.assert_allclose([r["error"] for r in runs[:4]], late(error), rtol=1e-12)
+  np.testing.assert_allclose([r["spread"] for r in runs[:4]], late(spread), rtol=1e-12)
+  assert [r["q"] for r in runs[:4]] == [9.0] * 4 and runs[4]["spread"] == 0.5
+  assert np.isnan(runs[4]["error"])
+  assert len(bench.run_rows(records, late=0.3)) == 6  # the rerun, counted apart
   groups = bench.summary(runs)
-  assert [g["runs"] for g in groups] == [1, 1, 1]
-  ratio = expected[True][0] / expected[True][1]
-  assert groups[1]["error_ratio"] == pytest.approx((ratio, ratio, ratio))
+  assert [(g["precision"], g["runs"]) for g in groups] == [
+      ("bf16", 3), ("bf16, float32 head", 1), ("float32", 1)]
+  ratio = late(error)[:3] / late(spread)[:3]
+  assert groups[0]["error_ratio"] == pytest.approx(
+      (np.median(ratio), ratio.min(), ratio.max()))
+  assert groups[0]["centred_ratio"] == pytest.approx(
+      (np.median(ratio) / 2, ratio.min() / 2, ratio.max() / 2))
   assert groups[2]["error_ratio"] is None and groups[2]["spread"] == 0.5
-  assert bench.main([str(grid_file), str(plain), "--runs"]) == 0
+  assert bench.main([str(grid_file), str(resumed), str(plain), "--runs"]) == 0
   out = capsys.readouterr().out
   assert "| walker_run | expert | float32 | 1 | - | - |" in out and "plain.jsonl" in out
   broken = tmp_path / "broken.jsonl"
   broken.write_text("{not json\n")
   assert bench.main([str(grid_file), str(broken)]) == 2
   assert "broken.jsonl" in capsys.readouterr().err
+  assert bench.main([str(tmp_path / "rerun.jsonl"), "--min_points", "5"]) == 2  # none left
+  assert "no learning-curve record" in capsys.readouterr().err
