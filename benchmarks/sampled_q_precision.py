@@ -68,12 +68,14 @@ def run_rows(records_by_file: dict[str, list[dict]], late: float,
              min_points: int = 1) -> list[dict]:
   """One row per run with at least `min_points` evaluations: task, method, seed, precision,
   its last file, env steps, evaluations and the late means of FIELDS (NaN where the run did not
-  record one)."""
+  record one). ValueError naming the file for a row without its task or env steps."""
   runs = collections.defaultdict(lambda: collections.defaultdict(list))
   for path, records in records_by_file.items():
     for r in records:
       if r.get("kind") != "learning_curve" or "sampled_q_spread" not in r:
         continue
+      if missing := [k for k in ("task", "env_steps") if k not in r]:
+        raise ValueError(f"{path}: a learning-curve row without {' or '.join(missing)}")
       settings = {k: v for k, v in r.get("settings", {}).items() if k not in _RECORDING}
       runs[(r["task"], r.get("seed"), json.dumps(settings, sort_keys=True))][path].append(r)
   rows = []
@@ -167,15 +169,16 @@ def main(argv=None) -> int:
   root = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results")
   files = args.files or sorted(glob.glob(os.path.join(root, "*learning_curve*")))
   records = {}
-  for path in files:
-    try:
-      records[path] = results.read_records(path)
-      run_rows({path: records[path]}, args.late)  # (a learning-curve row without its fields)
-    except (OSError, EOFError, ValueError, KeyError) as e:  # (a truncated .gz: EOFError)
-      message = str(e) if str(e).startswith(path) else f"{path}: {e!r}"
-      print(f"cannot read the records: {message}", file=sys.stderr)
-      return 2
-  rows = run_rows(records, args.late, args.min_points)
+  try:
+    for path in files:
+      try:
+        records[path] = results.read_records(path)
+      except (OSError, EOFError) as e:  # (a truncated .gz: EOFError)
+        raise ValueError(f"{path}: {e!r}") from None
+    rows = run_rows(records, args.late, args.min_points)
+  except ValueError as e:  # (messages name the file)
+    print(f"cannot read the records: {e}", file=sys.stderr)
+    return 2
   if not rows:
     print("no learning-curve record with the sampled Q's diagnostics in a run of at least "
           f"{args.min_points} evaluations in {len(files)} file(s)", file=sys.stderr)

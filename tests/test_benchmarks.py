@@ -993,5 +993,11 @@ def test_sampled_q_precision_counts_a_grids_members_apart_and_averages_their_las
   broken.write_text("{not json\n")
   assert bench.main([str(grid_file), str(broken)]) == 2
   assert "broken.jsonl" in capsys.readouterr().err
+  stepless = tmp_path / "stepless.jsonl"
+  write(stepless, [{"kind": "learning_curve", "task": "walker_run", "sampled_q_spread": 0.1}])
+  assert bench.main([str(grid_file), str(stepless)]) == 2
+  assert "stepless.jsonl: a learning-curve row without env_steps" in capsys.readouterr().err
+  assert bench.main([str(tmp_path / "absent.jsonl")]) == 2
+  assert "absent.jsonl" in capsys.readouterr().err
   assert bench.main([str(tmp_path / "rerun.jsonl"), "--min_points", "5"]) == 2  # none left
   assert "no learning-curve record" in capsys.readouterr().err
