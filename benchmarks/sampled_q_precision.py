@@ -11,9 +11,10 @@ spread (`sampled_q_spread`, the sd of Q over a state's actions), bfloat16's mean
 (`sampled_q_bf16_error`, uncentred: it includes any offset common to a state's actions, which
 the weights ignore), its centred rms (`sampled_q_bf16_centred_error`, recorded since
 2026-11-29: the part the weights see) and the temperature. Then per task, method and precision
-(float32, bf16, bf16 with the float32 head) the runs, the median and range of error / spread
-(centred error / spread where recorded) and the medians of the rest (a run with a NaN in its
-last evaluations or a spread of 0 has no ratio). Prints markdown; writes nothing.
+(float32, bf16, bf16 with the float32 head: `results.sampled_q_precision`) the runs, the
+median and range of error / spread (centred error / spread where recorded) and the medians of
+the rest (a run with a NaN in its last evaluations or a spread of 0 has no ratio). Prints
+markdown; writes nothing.
 
   python benchmarks/sampled_q_precision.py                    # every learning-curve record
   python benchmarks/sampled_q_precision.py FILE... --runs     # and one row per run
@@ -39,14 +40,6 @@ FIELDS = {"q": "q_online", "spread": "sampled_q_spread", "error": "sampled_q_bf1
           "centred": "sampled_q_bf16_centred_error", "temperature": "temperature"}
 # settings that say how a run was recorded, not what it ran
 _RECORDING = ("eval_episodes", "total_env_steps", "eval_on_host")
-
-
-def precision(settings: dict) -> str:
-  """'float32', 'bf16' or 'bf16, float32 head': how the run computed the sampled Q."""
-  learner = settings.get("learner", {})
-  if not learner.get("sampled_q_bfloat16"):
-    return "float32"
-  return "bf16, float32 head" if learner.get("sampled_q_float32_head") else "bf16"
 
 
 def _chains(segments: list[tuple[str, list[dict]]]) -> list[list[tuple[str, list[dict]]]]:
@@ -90,8 +83,10 @@ def run_rows(records_by_file: dict[str, list[dict]], late: float,
       means = {name: float(np.mean([r.get(field, np.nan) for r in tail]))
                for name, field in FIELDS.items()}
       path = chain[-1][0]
+      learner = json.loads(settings).get("learner", {})
       rows.append({"task": task, "method": points[0].get("method", "expert"), "seed": seed,
-                   "precision": precision(json.loads(settings)), "file": os.path.basename(path),
+                   "precision": results.sampled_q_precision(learner),
+                   "file": os.path.basename(path),
                    "env_steps": points[-1]["env_steps"], "evaluations": len(points), **means})
   return sorted(rows, key=lambda r: (r["task"], r["method"], r["precision"], r["file"],
                                      str(r["seed"])))

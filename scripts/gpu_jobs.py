@@ -115,6 +115,7 @@ def check(jobs_file: Path, deadline_s: float = 1200.0) -> list[str]:
   jobs = parse_jobs(jobs_file.read_text(), num_gpus=1 << 10)
   sys.path.insert(0, str(Path(__file__).resolve().parent))
   import run  # noqa: E402  (JAX and the tasks: only for checking)
+  from mjx_form.files import results  # noqa: E402
   values = {"LEFT": f"{deadline_s:g}", "RES": "/tmp/res", "RUNS": "/tmp/runs"}
   lines = []
   for job in jobs:
@@ -148,7 +149,7 @@ def check(jobs_file: Path, deadline_s: float = 1200.0) -> list[str]:
         + (f"; imitator on 1 batch in {config.source_update_every}"
            if config.source_update_every > 1 else "") + "), "
         f"width {config.network_width}, T {learner.target_update_period}, sampled Q "
-        f"{_precision(learner)}, critic clips actions "
+        f"{results.sampled_q_precision(vars(learner))}, critic clips actions "
         f"{learner.clip_critic_actions}, action penalty {learner.mpo.action_penalty}, "
         f"epsilon_scale {learner.mpo.epsilon_scale:g}, average policy decay "
         f"{learner.policy_average_decay:g}, head "
@@ -160,13 +161,6 @@ def check(jobs_file: Path, deadline_s: float = 1200.0) -> list[str]:
         f"{args.init_policy or '-'}, env steps {args.env_steps:,}, max seconds "
         f"{args.max_seconds}")
   return lines
-
-
-def _precision(learner) -> str:
-  """The sampled Q's precision, as `check` prints it."""
-  if not learner.sampled_q_bfloat16:
-    return "float32"
-  return "bf16 (float32 head)" if learner.sampled_q_float32_head else "bf16"
 
 
 def _form_models(run, args) -> str:

@@ -292,8 +292,7 @@ def _learner_notes(record: dict, with_period: bool = True,
   if learner.get("clip_critic_actions"):
     notes.append("critic clips actions")
   if learner.get("sampled_q_bfloat16"):
-    notes.append("sampled Q in bf16" + (" (float32 head)" if learner.get("sampled_q_float32_head")
-                                        else ""))
+    notes.append("sampled Q in " + results.sampled_q_precision(learner))
   if with_penalty and learner.get("mpo", {}).get("action_penalty"):
     notes.append("action penalty")
   if (epsilon_scale := learner.get("mpo", {}).get("epsilon_scale", 1e-5)) != 1e-5:

@@ -970,7 +970,7 @@ def test_sampled_q_precision_counts_a_grids_members_apart_and_averages_their_las
   runs = bench.run_rows(records, late=0.3, min_points=5)  # (the 4-point rerun left out)
   assert [(r["precision"], r["seed"], r["file"], r["evaluations"]) for r in runs] == [
       ("bf16", 0, "grid.jsonl", 10), ("bf16", 1, "grid.jsonl", 10), ("bf16", 2, "grid.jsonl", 10),
-      ("bf16, float32 head", 0, "resumed.jsonl", 10), ("float32", 0, "plain.jsonl", 5)]
+      ("bf16 (float32 head)", 0, "resumed.jsonl", 10), ("float32", 0, "plain.jsonl", 5)]
   late = lambda x: x[:, 7:].mean(axis=1)  # [runs]
   np.testing.assert_allclose([r["error"] for r in runs[:4]], late(error), rtol=1e-12)
   np.testing.assert_allclose([r["spread"] for r in runs[:4]], late(spread), rtol=1e-12)
@@ -979,7 +979,7 @@ def test_sampled_q_precision_counts_a_grids_members_apart_and_averages_their_las
   assert len(bench.run_rows(records, late=0.3)) == 6  # the rerun, counted apart
   groups = bench.summary(runs)
   assert [(g["precision"], g["runs"]) for g in groups] == [
-      ("bf16", 3), ("bf16, float32 head", 1), ("float32", 1)]
+      ("bf16", 3), ("bf16 (float32 head)", 1), ("float32", 1)]
   ratio = late(error)[:3] / late(spread)[:3]
   assert groups[0]["error_ratio"] == pytest.approx(
       (np.median(ratio), ratio.min(), ratio.max()))

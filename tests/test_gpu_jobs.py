@@ -217,7 +217,8 @@ def test_check_parses_run_jobs_as_run_does_and_names_a_bad_one(tmp_path, capsys)
       "fx: python scripts/run.py --task reacher_hard --method form --train_demonstrator "
       "--effect_l2 1 --demonstrator_seed 3\n"
       "fc: python scripts/run.py --task cheetah_run --method form\n"
-      "fl: python scripts/run.py --task reacher_hard --method form --effect_l2 1\n"
+      "fl: python scripts/run.py --task reacher_hard --method form --effect_l2 1 "
+      "--no-sampled_q_bfloat16\n"
       "fw: python scripts/run.py --task walker_run --method form\n"
       "fd: python scripts/run.py --task reacher_hard --method form --no-turn_invariant "
       "--demonstrator benchmarks/demonstrators/reacher_hard_plain.npz\n"
@@ -241,7 +242,7 @@ def test_check_parses_run_jobs_as_run_does_and_names_a_bad_one(tmp_path, capsys)
       "--grid ensemble_log_pd=mixture,mean\n"
       "ls: ls -la $RES\n"
       "rr: cp -r runs/rx $RUNS/rx && python scripts/run.py --task reacher_hard --method expert "
-      "--run_dir $RUNS/rx --resume\n"
+      "--sampled_q_float32_head --run_dir $RUNS/rx --resume\n"
       "rl: python scripts/run.py --task reacher_hard --method expert && ls $RES\n")
   assert gpu_jobs.main(["check", str(jobs), "--deadline", "900"]) == 0
   out = [line for line in capsys.readouterr().out.splitlines()  # (not MuJoCo's import notes)
@@ -280,6 +281,9 @@ def test_check_parses_run_jobs_as_run_does_and_names_a_bad_one(tmp_path, capsys)
           "says;" in out[11]), out
   assert out[12] == "ls: not a run.py command, not checked: ls -la $RES"
   assert out[13].startswith("rr: reacher_hard expert, seeds 0;")  # (run.py, after the copy)
+  # the sampled Q's precision: the recipe's bf16, float32 by flag, bf16 with the float32 head
+  assert "sampled Q bf16, " in out[0] and "sampled Q float32, " in out[3], out
+  assert "sampled Q bf16 (float32 head), " in out[13], out
   assert out[14].startswith("rl: not a run.py command, not checked:")  # (run.py not last)
   for bad, said in (("--task walker_walk --method form --turn_invariant", "unbounded"),
                     ("--task reacher_easy --method form --demonstrator "

@@ -163,6 +163,14 @@ def pack_curve(path: str) -> int:
   return len(moving)
 
 
+def sampled_q_precision(learner: dict) -> str:
+  """'float32', 'bf16' or 'bf16 (float32 head)': how a run computed the target critic's Q of
+  the sampled actions, from its learner settings (a record's `settings['learner']`)."""
+  if not learner.get("sampled_q_bfloat16"):
+    return "float32"
+  return "bf16 (float32 head)" if learner.get("sampled_q_float32_head") else "bf16"
+
+
 def versions() -> dict:
   import jax
   import mujoco
