@@ -163,11 +163,15 @@ def main(argv=None) -> int:
                  f"{args.min_points}")
   root = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results")
   files = args.files or sorted(glob.glob(os.path.join(root, "*learning_curve*")))
+  # A FORM run's curve is packed beside its result file (results.pack_curve): either name
+  # reads both, once.
+  files = list(dict.fromkeys(results.run_path(f) if f.endswith(results.CURVE_SUFFIX) else f
+                             for f in files))
   records = {}
   try:
     for path in files:
       try:
-        records[path] = results.read_records(path)
+        records[path] = results.run_records(path)
       except (OSError, EOFError) as e:  # (a truncated .gz: EOFError)
         raise ValueError(f"{path}: {e!r}") from None
     rows = run_rows(records, args.late, args.min_points)

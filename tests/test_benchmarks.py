@@ -1001,3 +1001,14 @@ def test_sampled_q_precision_counts_a_grids_members_apart_and_averages_their_las
   assert "absent.jsonl" in capsys.readouterr().err
   assert bench.main([str(tmp_path / "rerun.jsonl"), "--min_points", "5"]) == 2  # none left
   assert "no learning-curve record" in capsys.readouterr().err
+  # a FORM run's packed curve is read with its result file, by either name, once
+  form = tmp_path / "form.jsonl"
+  write(form, [{**r, "method": "form"} for r in curve(0, False, steps, error[0], spread[0])]
+        + [{"kind": "final_return", "task": "walker_run", "method": "form", "seed": 0}])
+  bench.results.pack_curve(str(form))
+  assert "learning_curve" not in form.read_text()
+  packed = bench.results.curve_path(str(form))
+  for given in ([str(form)], [packed], [str(form), packed]):
+    assert bench.main([*given, "--runs"]) == 0, given
+    out = capsys.readouterr().out
+    assert "| walker_run | form | bf16 | 1 |" in out and out.count("form.jsonl") == 1, out
