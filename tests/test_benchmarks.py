@@ -188,6 +188,41 @@ def test_device_profile_names_the_source_line_that_costs_the_most():
       "copy.6": ("copy", "(no source) copy.6")}
 
 
+def test_reward_terms_multiply_to_dm_controls_reward(tmp_path, capsys):
+  """benchmarks/reward_terms.py: at every step of a short rollout the factors it reads off the
+  physics multiply to dm_control's own reward (hopper_stand's shipped expert; humanoid_stand's
+  kept policy, whose dont_move factor is humanoid's); the summary is numpy's of the series; a
+  task without a control cost is refused."""
+  bench = load_script("reward_terms", folder="benchmarks")
+  import tasks
+  for task, path in (("hopper_stand", tasks.bundled_expert("hopper_stand")),
+                     ("humanoid_stand", "benchmarks/policies/humanoid_stand_hsh_seed1_12m.npz")):
+    expert, env = bench.common.load_expert(task, path)
+    series = bench.rollout(task, expert, env.observation_layout, env.action_size, episodes=2,
+                           seed=3, steps=25)
+    factors = [name for name in series if name not in ("reward", "at_bound", "abs_control")]
+    assert factors == (["standing", "small_control"] if task == "hopper_stand" else
+                       ["standing", "upright", "small_control", "dont_move"])
+    product = np.prod([series[name] for name in factors], axis=0)  # [steps, episodes]
+    np.testing.assert_allclose(product, series["reward"], rtol=1e-9, atol=1e-12)
+    assert series["reward"].shape == (25, 2) and series["reward"].max() > 0
+    assert np.all((series["small_control"] >= 0.8) & (series["small_control"] <= 1.0))
+    result = bench.summary(series)
+    assert result["return"] == pytest.approx(series["reward"].sum(axis=0).mean())
+    assert result["return_without_control_cost"] == pytest.approx(
+        (series["reward"] / series["small_control"]).sum(axis=0).mean())
+    assert 0.0 <= result["at_bound_share"] <= 1.0
+  out = tmp_path / "terms.jsonl"
+  assert bench.main(["--tasks", "hopper_stand", "--episodes", "1", "--steps", "5",
+                     "--out", str(out)]) == 0
+  record, = [json.loads(line) for line in open(out)]
+  assert record["kind"] == "reward_terms" and set(record["terms"]) == {"standing",
+                                                                        "small_control"}
+  with pytest.raises(SystemExit):
+    bench.main(["--tasks", "walker_walk", "--out", str(out)])
+  assert "walker_walk: no control cost" in capsys.readouterr().err
+
+
 def test_dm_control_transfer_runs_the_expert_in_dm_control(tmp_path):
   """benchmarks/dm_control_transfer.py, 2 short episodes of reacher_easy: a record with the
   dm_control return (reacher's reward is in [0, 1] per step); observations flattened in

@@ -1,0 +1,162 @@
+"""What a policy's return is made of, on the tasks whose reward charges for control: the
+factors of dm_control's reward (humanoid: standing x upright x small_control x move or
+dont_move; hopper_stand: standing x small_control), step by step in dm_control itself.
+
+small_control = (4 + mean over actuators of tolerance(u, margin 1, quadratic)) / 5 costs up to
+a fifth of every step's reward: an actuator held at its bound scores 0 there, one at rest 1. A
+policy whose mean action sits outside the control range (clipped: the bound) pays it whatever
+it stands like. Per policy (its mean action, clipped to the action spec, in `--episodes`
+episodes from dm_control's resets, seeds `--seed`, `--seed` + 1, ...): the return, each factor's
+mean over steps, the share of actuator commands at their bound and the mean |u|, and the return
+with small_control taken as 1 (what the same motion would score without the control cost).
+Appends a `kind: reward_terms` record per policy.
+
+  python benchmarks/reward_terms.py --tasks humanoid_stand \\
+      --policy benchmarks/policies/humanoid_stand_hsh_seed1_12m.npz --episodes 16
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import common  # noqa: E402  (puts the repository on sys.path)
+from mjx_form.cpu import configure_cpu_xla  # noqa: E402
+
+configure_cpu_xla()
+
+import numpy as np  # noqa: E402
+from dm_control.suite import hopper as dm_hopper  # noqa: E402
+from dm_control.suite import humanoid as dm_humanoid  # noqa: E402
+from dm_control.utils import rewards  # noqa: E402
+
+import dm_control_transfer as transfer  # noqa: E402
+import tasks  # noqa: E402
+from mjx_form.sim import env as env_lib  # noqa: E402
+from mjx_form.sim import parity  # noqa: E402
+
+TASKS = ("hopper_stand", "humanoid_stand", "humanoid_walk", "humanoid_run")
+
+
+def small_control(physics) -> float:
+  """dm_control's control factor of hopper_stand's and humanoid's reward, in [0.8, 1]."""
+  u = rewards.tolerance(physics.control(), margin=1, value_at_margin=0, sigmoid="quadratic")
+  return (4 + float(u.mean())) / 5
+
+
+def reward_terms(task: str, dm_env) -> dict[str, float]:
+  """The factors of `task`'s reward at the environment's current state (their product is
+  dm_control's reward for the step that led there), as dm_control's suite defines them."""
+  physics = dm_env.physics
+  if task == "hopper_stand":
+    return {"standing": float(rewards.tolerance(physics.height(),
+                                                (dm_hopper._STAND_HEIGHT, 2))),
+            "small_control": small_control(physics)}
+  height = dm_humanoid._STAND_HEIGHT
+  terms = {"standing": float(rewards.tolerance(physics.head_height(), (height, float("inf")),
+                                               margin=height / 4)),
+           "upright": float(rewards.tolerance(physics.torso_upright(), (0.9, float("inf")),
+                                              sigmoid="linear", margin=1.9, value_at_margin=0)),
+           "small_control": small_control(physics)}
+  velocity = physics.center_of_mass_velocity()[[0, 1]]
+  speed = dm_env.task._move_speed
+  if speed == 0:
+    terms["dont_move"] = float(rewards.tolerance(velocity, margin=2).mean())
+  else:
+    move = float(rewards.tolerance(np.linalg.norm(velocity), (speed, float("inf")),
+                                   margin=speed, value_at_margin=0, sigmoid="linear"))
+    terms["move"] = (5 * move + 1) / 6
+  return terms
+
+
+def rollout(task: str, expert, layout: dict, action_size: int, episodes: int, seed: int,
+            steps: int) -> dict[str, np.ndarray]:
+  """The policy's mean action in `episodes` dm_control episodes, stepped together: per step
+  [steps, episodes] the reward, each factor, the share of actuators at their bound and the mean
+  |u| of the commands applied."""
+  envs = [parity.load_dm_control_env(task, seed + i) for i in range(episodes)]
+  theirs = transfer.dm_control_layout(envs[0])
+  if list(theirs.items()) != list(dict(layout).items()):
+    raise ValueError(f"{task}: dm_control observes {theirs}, our task declares {dict(layout)}")
+  spec = envs[0].action_spec()
+  if spec.shape != (action_size,):
+    raise ValueError(f"{task}: dm_control's actions have shape {spec.shape}, ours "
+                     f"({action_size},)")
+  low, high = (np.asarray(b, np.float32) for b in (spec.minimum, spec.maximum))
+  act = transfer.mean_action_fn(expert, low, high)
+  time_steps = [env.reset() for env in envs]
+  out: dict[str, list] = {}
+  for _ in range(steps):
+    actions = np.asarray(act(transfer.flat_observations(time_steps)), np.float64)
+    time_steps = [env.step(a) for env, a in zip(envs, actions)]
+    rows = [{"reward": ts.reward or 0.0, **reward_terms(task, env),
+             "at_bound": float(np.mean((a <= low) | (a >= high))),
+             "abs_control": float(np.mean(np.abs(a)))}
+            for env, ts, a in zip(envs, time_steps, actions)]
+    for name in rows[0]:
+      out.setdefault(name, []).append([row[name] for row in rows])
+  return {name: np.asarray(values) for name, values in out.items()}
+
+
+def summary(series: dict[str, np.ndarray]) -> dict:
+  """Return (mean over episodes), each factor's and the commands' means over all steps, and
+  the return with small_control taken as 1."""
+  return {"return": float(series["reward"].sum(axis=0).mean()),
+          "return_without_control_cost": float(
+              (series["reward"] / series["small_control"]).sum(axis=0).mean()),
+          "terms": {name: float(values.mean()) for name, values in series.items()
+                    if name not in ("reward", "at_bound", "abs_control")},
+          "at_bound_share": float(series["at_bound"].mean()),
+          "abs_control_mean": float(series["abs_control"].mean())}
+
+
+def main(argv=None) -> int:
+  parser = argparse.ArgumentParser(description=__doc__,
+                                   formatter_class=argparse.RawDescriptionHelpFormatter)
+  parser.add_argument("--tasks", nargs="+", required=True, metavar="TASK",
+                      help=f"of {', '.join(TASKS)}")
+  parser.add_argument("--policy", action="append", default=[],
+                      help="a policy file (repeatable; default: the task's shipped expert)")
+  parser.add_argument("--episodes", type=int, default=16)
+  parser.add_argument("--seed", type=int, default=0)
+  parser.add_argument("--steps", type=int, default=env_lib.EPISODE_LENGTH,
+                      help="steps per episode (fewer only to try the script)")
+  parser.add_argument("--out", default=common.default_results_path("reward_terms_cpu"))
+  args = parser.parse_args(argv)
+  unknown = [t for t in args.tasks if t not in TASKS]
+  if unknown:
+    parser.error(f"{', '.join(unknown)}: no control cost in the reward; this looks at "
+                 f"{', '.join(TASKS)}")
+  if args.policy and len(args.tasks) != 1:
+    parser.error("--policy needs exactly one --tasks")
+  if args.episodes <= 0 or not 0 < args.steps <= env_lib.EPISODE_LENGTH:
+    parser.error(f"--episodes must be positive and --steps in 1..{env_lib.EPISODE_LENGTH}")
+  writer = common.ResultWriter(args.out)
+  for task in args.tasks:
+    for path in args.policy or [None]:
+      try:
+        path = path or tasks.bundled_expert(task)
+        expert, env = common.load_expert(task, path)
+        series = rollout(task, expert, env.observation_layout, env.action_size, args.episodes,
+                         args.seed, args.steps)
+      except (ValueError, KeyError, OSError) as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+      result = summary(series)
+      print(f"{task} {os.path.basename(path)}: return {result['return']:.1f} "
+            f"({result['return_without_control_cost']:.1f} without the control cost); "
+            + ", ".join(f"{k} {v:.3f}" for k, v in result["terms"].items())
+            + f"; actuators at their bound {result['at_bound_share']:.0%}, mean |u| "
+            f"{result['abs_control_mean']:.2f}")
+      writer.write(kind="reward_terms", task=task, policy=os.path.basename(path),
+                   policy_sha256=expert.metadata["sha256"],
+                   policy_env_steps=expert.metadata.get("env_steps"),
+                   episodes=args.episodes, steps=args.steps, seed=args.seed, **result)
+  print(f"records appended to {args.out}")
+  return 0
+
+
+if __name__ == "__main__":
+  sys.exit(main())
