@@ -212,7 +212,8 @@ def main(argv=None) -> int:
             f"{g['speed']:.2f} rad/s, joint angles' sd {g['angle_sd']:.3f} rad; within 5 cm at "
             f"some step: {g['reached_5cm']:.0%}; log pD of its second half "
             f"{g['log_pd_second_half']:.2f} (its whole episodes {g['log_pd']:.2f}), the expert's "
-            f"on the same starts {g['expert_log_pd_second_half']:.2f}")
+            f"on the same starts {g['expert_log_pd_second_half']:.2f}; the policy's scale there "
+            f"{g['policy_scale']:.3f}, its mean outside [-1, 1] in {g['mean_out_of_bounds']:.0%}")
     near, elsewhere = (probe[f"failed_share_expert_final_shoulder_{k}"]
                        for k in ("near_pi", "elsewhere"))
     print("    under 100 by where the expert's shoulder ends on the same starts (8 bins over "
@@ -242,20 +243,22 @@ def main(argv=None) -> int:
 
 def scored_rollout(env, policy, score, key, episodes: int):
   """`policy`'s mean-action episodes from the resets of `key`: observations [K, T+1, D],
-  returns [K] and the demonstrator's log pD of every transition [K, T]."""
-  obs, returns, _, _ = rollout(env, policy, 0.0, key, episodes)
+  returns [K], the demonstrator's log pD of every transition [K, T], and the policy's mean and
+  scale at each x_t [K, T, A]."""
+  obs, returns, means, scales = rollout(env, policy, 0.0, key, episodes)
   flat = lambda x: jnp.asarray(x.reshape(-1, x.shape[-1]))
   log_d = np.asarray(score(flat(obs[:, :-1]), flat(obs[:, 1:]))).reshape(episodes, -1)
-  return obs, returns, log_d
+  return obs, returns, log_d, np.swapaxes(means, 0, 1), np.swapaxes(scales, 0, 1)
 
 
 def failed_episodes(run, expert_run, parts: dict) -> dict:
   """A policy's and the expert's `scored_rollout`s from the same starts, summarised by
   `episode_groups` and `failures_by_angle`."""
-  (obs, returns, log_d), (expert_obs, expert_returns, expert_log_d) = run, expert_run
+  (obs, returns, log_d, means, scales), (expert_obs, expert_returns, expert_log_d, _, _) = (
+      run, expert_run)
   shoulder = expert_obs[:, -1, parts["position"].start]  # raw: may have turned past pi
   reached = expert_returns > 800.0  # starts where the expert's end is where the arm must be
-  return {**episode_groups(obs, returns, log_d, expert_log_d, parts),
+  return {**episode_groups(obs, returns, log_d, expert_log_d, parts, means, scales),
           **failures_by_angle((returns < 100.0)[reached], shoulder[reached]),
           "starts_the_expert_missed": int((~reached).sum())}
 
@@ -348,13 +351,17 @@ def log_pd_by_shoulder(shoulder, log_d, speed, bins: int = 8, edge: float = 2.5,
           "edge_rad": edge, "close_rad": close, "moving_speed": SPEED_BINS[2]}
 
 
-def episode_groups(obs, returns, log_d, expert_log_d, parts: dict) -> dict:
+def episode_groups(obs, returns, log_d, expert_log_d, parts: dict, means=None,
+                   scales=None) -> dict:
   """For the failed (return under 100) and successful (over 800) episodes of obs [K, T+1, D]
   and returns [K]: the medians over episodes of the second half's median fingertip distance (m)
   and joint speed (rad/s) and of the joint angles' standard deviation there (rad: ~0 still,
   > 0 shaking or moving), the share that came within 5 cm at some step, and the mean log pD
   (log_d [K, T]) over their second halves and whole episodes, beside the expert's
-  (expert_log_d [K, T], from the same starts) over its second halves. None for an empty group."""
+  (expert_log_d [K, T], from the same starts) over its second halves; with the policy's `means`
+  and `scales` at each x_t [K, T, A], also the median over episodes of the second half's median
+  scale (mean over action dimensions: a policy unsure there is wide) and the share of its means
+  outside [-1, 1] there. None for an empty group."""
   half = log_d.shape[1] // 2
   distance = np.linalg.norm(obs[:, 1:, parts["to_target"]], axis=-1)  # [K, T]
   speed = np.linalg.norm(obs[:, 1:, parts["velocity"]], axis=-1)
@@ -370,7 +377,11 @@ def episode_groups(obs, returns, log_d, expert_log_d, parts: dict) -> dict:
             "reached_5cm": float((distance[m] < 0.05).any(axis=1).mean()),
             "log_pd": float(log_d[m].mean()),
             "log_pd_second_half": float(log_d[m, half:].mean()),
-            "expert_log_pd_second_half": float(expert_log_d[m, half:].mean())}
+            "expert_log_pd_second_half": float(expert_log_d[m, half:].mean()),
+            **({} if scales is None else {
+                "policy_scale": float(np.median(np.median(scales[m, half:].mean(axis=-1),
+                                                          axis=1))),
+                "mean_out_of_bounds": float((np.abs(means[m, half:]) > 1.0).mean())})}
 
   return {"failed": int((returns < 100.0).sum()), "task_return": float(returns.mean()),
           "failed_episodes": group(returns < 100.0), "over_800_episodes": group(returns > 800.0)}

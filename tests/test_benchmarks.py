@@ -700,6 +700,17 @@ def test_reacher_settling_summarises_failed_episodes_apart_from_successful_ones(
   assert failed["log_pd_second_half"] == pytest.approx(np.mean(log_d[[0, 2], 6:]))
   assert failed["log_pd"] == pytest.approx(np.mean(log_d[[0, 2]]))
   assert failed["expert_log_pd_second_half"] == pytest.approx(failed["log_pd_second_half"] + 100)
+  assert "policy_scale" not in failed  # (no policy statistics given)
+  means = np.zeros((k, t, 2))
+  means[0, t // 2:, 0] = 3.0  # episode 0's first mean outside the bounds in its second half
+  scales = np.full((k, t, 2), 0.1)
+  scales[0, t // 2:] = [1.0, 2.0]  # wide where it fails: 1.5 over the two dimensions
+  scales[2, t // 2:] = 0.5
+  policy = bench.episode_groups(obs, returns, log_d, expert, parts, means, scales)
+  assert policy["failed_episodes"]["policy_scale"] == pytest.approx(1.0)  # median of 1.5, 0.5
+  assert policy["over_800_episodes"]["policy_scale"] == pytest.approx(0.1)
+  assert policy["failed_episodes"]["mean_out_of_bounds"] == pytest.approx(0.25)  # 6 of 24
+  assert policy["over_800_episodes"]["mean_out_of_bounds"] == 0.0
   none = bench.episode_groups(obs, np.full(3, 500.0), log_d, expert, parts)
   assert none["failed_episodes"] is None and none["over_800_episodes"] is None
 
