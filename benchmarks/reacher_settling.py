@@ -13,10 +13,11 @@ to the target and joint speed, as they visit them, and (over `--target_episodes`
 where their failed episodes (return under 100) have the target: the failure rate by quartile
 of the target's distance from the arm's base and by its angle; and, on `--episodes` episodes
 from the expert's own starts, how the policy's failed episodes end (still or shaking in place,
-whether they ever came within 5 cm), what the demonstrator pays for their second half against
-the policy's successful episodes and the expert's on the same starts, and how often they fail by
-where the expert's shoulder ends on the same starts (near +-pi or elsewhere; starts where the
-expert itself scores 800 or less are left out of that), how the expert gets there (passing
+whether they ever came within 5 cm, the policy's scale and out-of-bounds means there), what
+the demonstrator pays for their second half against the policy's successful episodes and the
+expert's on the same starts, and how often they fail by where the expert's shoulder ends on
+the same starts (near +-pi or elsewhere; starts where the expert itself scores 800 or less are
+left out of that), how the expert gets there (passing
 +-pi or not) and where the failed episodes' shoulder ends; and, for the expert and each policy on
 those starts, the demonstrator's log pD by where the shoulder is at x_t (wrapped: near +-pi or
 elsewhere) and of the transitions that cross +-pi (`--demonstrator`: another demonstrator file

@@ -71,6 +71,13 @@ def reward_terms(task: str, dm_env) -> dict[str, float]:
   return terms
 
 
+def commands(actions: np.ndarray, low: np.ndarray, high: np.ndarray) -> dict[str, float]:
+  """Of one step's commands [A] (clipped to [low, high] [A]): the share at a bound and the
+  mean |u|."""
+  return {"at_bound": float(np.mean((actions <= low) | (actions >= high))),
+          "abs_control": float(np.mean(np.abs(actions)))}
+
+
 def rollout(task: str, expert, layout: dict, action_size: int, episodes: int, seed: int,
             steps: int) -> dict[str, np.ndarray]:
   """The policy's mean action in `episodes` dm_control episodes, stepped together: per step
@@ -91,9 +98,7 @@ def rollout(task: str, expert, layout: dict, action_size: int, episodes: int, se
   for _ in range(steps):
     actions = np.asarray(act(transfer.flat_observations(time_steps)), np.float64)
     time_steps = [env.step(a) for env, a in zip(envs, actions)]
-    rows = [{"reward": ts.reward or 0.0, **reward_terms(task, env),
-             "at_bound": float(np.mean((a <= low) | (a >= high))),
-             "abs_control": float(np.mean(np.abs(a)))}
+    rows = [{"reward": ts.reward or 0.0, **reward_terms(task, env), **commands(a, low, high)}
             for env, ts, a in zip(envs, time_steps, actions)]
     for name in rows[0]:
       out.setdefault(name, []).append([row[name] for row in rows])
@@ -118,7 +123,8 @@ def main(argv=None) -> int:
   parser.add_argument("--tasks", nargs="+", required=True, metavar="TASK",
                       help=f"of {', '.join(TASKS)}")
   parser.add_argument("--policy", action="append", default=[],
-                      help="a policy file (repeatable; default: the task's shipped expert)")
+                      help="a policy file (repeatable; default: the task's shipped expert, "
+                           "hopper_stand's only: no humanoid expert is shipped)")
   parser.add_argument("--episodes", type=int, default=16)
   parser.add_argument("--seed", type=int, default=0)
   parser.add_argument("--steps", type=int, default=env_lib.EPISODE_LENGTH,
@@ -133,27 +139,30 @@ def main(argv=None) -> int:
     parser.error("--policy needs exactly one --tasks")
   if args.episodes <= 0 or not 0 < args.steps <= env_lib.EPISODE_LENGTH:
     parser.error(f"--episodes must be positive and --steps in 1..{env_lib.EPISODE_LENGTH}")
+  try:  # every policy found and loaded before the first rollout writes a record
+    jobs = [(task, path, *common.load_expert(task, path)) for task in args.tasks
+            for path in args.policy or [tasks.bundled_expert(task)]]
+  except (ValueError, KeyError, OSError) as e:
+    print(f"error: {e}", file=sys.stderr)
+    return 2
   writer = common.ResultWriter(args.out)
-  for task in args.tasks:
-    for path in args.policy or [None]:
-      try:
-        path = path or tasks.bundled_expert(task)
-        expert, env = common.load_expert(task, path)
-        series = rollout(task, expert, env.observation_layout, env.action_size, args.episodes,
-                         args.seed, args.steps)
-      except (ValueError, KeyError, OSError) as e:
-        print(f"error: {e}", file=sys.stderr)
-        return 2
-      result = summary(series)
-      print(f"{task} {os.path.basename(path)}: return {result['return']:.1f} "
-            f"({result['return_without_control_cost']:.1f} without the control cost); "
-            + ", ".join(f"{k} {v:.3f}" for k, v in result["terms"].items())
-            + f"; actuators at their bound {result['at_bound_share']:.0%}, mean |u| "
-            f"{result['abs_control_mean']:.2f}")
-      writer.write(kind="reward_terms", task=task, policy=os.path.basename(path),
-                   policy_sha256=expert.metadata["sha256"],
-                   policy_env_steps=expert.metadata.get("env_steps"),
-                   episodes=args.episodes, steps=args.steps, seed=args.seed, **result)
+  for task, path, expert, env in jobs:
+    try:
+      series = rollout(task, expert, env.observation_layout, env.action_size, args.episodes,
+                       args.seed, args.steps)
+    except ValueError as e:  # (dm_control's layout or actions differ from ours)
+      print(f"error: {e}", file=sys.stderr)
+      return 2
+    result = summary(series)
+    print(f"{task} {os.path.basename(path)}: return {result['return']:.1f} "
+          f"({result['return_without_control_cost']:.1f} without the control cost); "
+          + ", ".join(f"{k} {v:.3f}" for k, v in result["terms"].items())
+          + f"; actuators at their bound {result['at_bound_share']:.0%}, mean |u| "
+          f"{result['abs_control_mean']:.2f}")
+    writer.write(kind="reward_terms", task=task, policy=os.path.basename(path),
+                 policy_sha256=expert.metadata["sha256"],
+                 policy_env_steps=expert.metadata.get("env_steps"),
+                 episodes=args.episodes, steps=args.steps, seed=args.seed, **result)
   print(f"records appended to {args.out}")
   return 0
 

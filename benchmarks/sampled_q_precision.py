@@ -165,8 +165,8 @@ def main(argv=None) -> int:
   files = args.files or sorted(glob.glob(os.path.join(root, "*learning_curve*")))
   # A FORM run's curve is packed beside its result file (results.pack_curve): either name
   # reads both, once.
-  files = list(dict.fromkeys(results.run_path(f) if f.endswith(results.CURVE_SUFFIX) else f
-                             for f in files))
+  files = list(dict.fromkeys(os.path.normpath(results.run_path(f) if f.endswith(
+      results.CURVE_SUFFIX) else f) for f in files))
   records = {}
   try:
     for path in files:

@@ -191,12 +191,15 @@ def test_device_profile_names_the_source_line_that_costs_the_most():
 def test_reward_terms_multiply_to_dm_controls_reward(tmp_path, capsys):
   """benchmarks/reward_terms.py: at every step of a short rollout the factors it reads off the
   physics multiply to dm_control's own reward (hopper_stand's shipped expert; humanoid_stand's
-  kept policy, whose dont_move factor is humanoid's); the summary is numpy's of the series; a
-  task without a control cost is refused."""
+  kept policy, whose dont_move factor is humanoid's; humanoid_walk's move factor under random
+  actions); the summary is numpy's of the series; commands at a bound are counted as such; a
+  task without a control cost, or without a policy, is refused before any record."""
   bench = load_script("reward_terms", folder="benchmarks")
   import tasks
+  root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+  kept = os.path.join(root, "benchmarks", "policies", "humanoid_stand_hsh_seed1_12m.npz")
   for task, path in (("hopper_stand", tasks.bundled_expert("hopper_stand")),
-                     ("humanoid_stand", "benchmarks/policies/humanoid_stand_hsh_seed1_12m.npz")):
+                     ("humanoid_stand", kept)):
     expert, env = bench.common.load_expert(task, path)
     series = bench.rollout(task, expert, env.observation_layout, env.action_size, episodes=2,
                            seed=3, steps=25)
@@ -212,6 +215,18 @@ def test_reward_terms_multiply_to_dm_controls_reward(tmp_path, capsys):
     assert result["return_without_control_cost"] == pytest.approx(
         (series["reward"] / series["small_control"]).sum(axis=0).mean())
     assert 0.0 <= result["at_bound_share"] <= 1.0
+  from mjx_form.sim import parity
+  walk = parity.load_dm_control_env("humanoid_walk", 0)
+  walk.reset()
+  rng = np.random.default_rng(0)
+  for _ in range(20):
+    ts = walk.step(rng.uniform(-1, 1, walk.action_spec().shape))
+    terms = bench.reward_terms("humanoid_walk", walk)
+    assert set(terms) == {"standing", "upright", "small_control", "move"}
+    assert np.prod(list(terms.values())) == pytest.approx(ts.reward, rel=1e-9, abs=1e-12)
+  low, high = -np.ones(4), np.array([1.0, 1.0, 0.8, 1.1])
+  assert bench.commands(np.array([-1.0, 0.5, 0.8, 1.0]), low, high) == {
+      "at_bound": 0.5, "abs_control": pytest.approx(0.825)}  # -1 and 0.8 (not 1.0 of 1.1)
   out = tmp_path / "terms.jsonl"
   assert bench.main(["--tasks", "hopper_stand", "--episodes", "1", "--steps", "5",
                      "--out", str(out)]) == 0
@@ -221,6 +236,9 @@ def test_reward_terms_multiply_to_dm_controls_reward(tmp_path, capsys):
   with pytest.raises(SystemExit):
     bench.main(["--tasks", "walker_walk", "--out", str(out)])
   assert "walker_walk: no control cost" in capsys.readouterr().err
+  assert bench.main(["--tasks", "hopper_stand", "humanoid_walk", "--out", str(out)]) == 2
+  assert "no shipped expert for 'humanoid_walk'" in capsys.readouterr().err
+  assert len(open(out).readlines()) == 1  # (hopper_stand's record not written either)
 
 
 def test_dm_control_transfer_runs_the_expert_in_dm_control(tmp_path):
@@ -1054,7 +1072,8 @@ def test_sampled_q_precision_counts_a_grids_members_apart_and_averages_their_las
   bench.results.pack_curve(str(form))
   assert "learning_curve" not in form.read_text()
   packed = bench.results.curve_path(str(form))
-  for given in ([str(form)], [packed], [str(form), packed]):
+  for given in ([str(form)], [packed], [str(form), packed],
+                [str(form), str(tmp_path / "." / "form.jsonl")]):
     assert bench.main([*given, "--runs"]) == 0, given
     out = capsys.readouterr().out
     assert "| walker_run | form | bf16 | 1 |" in out and out.count("form.jsonl") == 1, out
