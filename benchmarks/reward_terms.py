@@ -8,7 +8,8 @@ policy whose mean action sits outside the control range (clipped: the bound) pay
 it stands like. Per policy (its mean action, clipped to the action spec, in `--episodes`
 episodes from dm_control's resets, seeds `--seed`, `--seed` + 1, ...): the return, each factor's
 mean over steps, the share of actuator commands at their bound and the mean |u|, and the return
-with small_control taken as 1 (what the same motion would score without the control cost).
+with small_control taken as 1 (what the same motion would score without the control cost);
+the same means from `--late_from` on, once a humanoid has got up.
 Appends a `kind: reward_terms` record per policy.
 
   python benchmarks/reward_terms.py --tasks humanoid_stand \\
@@ -105,16 +106,25 @@ def rollout(task: str, expert, layout: dict, action_size: int, episodes: int, se
   return {name: np.asarray(values) for name, values in out.items()}
 
 
-def summary(series: dict[str, np.ndarray]) -> dict:
-  """Return (mean over episodes), each factor's and the commands' means over all steps, and
-  the return with small_control taken as 1."""
-  return {"return": float(series["reward"].sum(axis=0).mean()),
-          "return_without_control_cost": float(
-              (series["reward"] / series["small_control"]).sum(axis=0).mean()),
-          "terms": {name: float(values.mean()) for name, values in series.items()
+def _means(series: dict[str, np.ndarray]) -> dict:
+  return {"terms": {name: float(values.mean()) for name, values in series.items()
                     if name not in ("reward", "at_bound", "abs_control")},
           "at_bound_share": float(series["at_bound"].mean()),
           "abs_control_mean": float(series["abs_control"].mean())}
+
+
+def summary(series: dict[str, np.ndarray], late_from: int) -> dict:
+  """Return (mean over episodes), each factor's and the commands' means over all steps, the
+  return with small_control taken as 1, and the same means from step `late_from` on (`late`:
+  once the humanoid has got up, what standing or walking itself costs; None past the end)."""
+  late = {name: values[late_from:] for name, values in series.items()}
+  return {"return": float(series["reward"].sum(axis=0).mean()),
+          "return_without_control_cost": float(
+              (series["reward"] / series["small_control"]).sum(axis=0).mean()),
+          **_means(series),
+          "late": None if late_from >= len(series["reward"]) else {
+              "from_step": late_from, "reward_mean": float(late["reward"].mean()),
+              **_means(late)}}
 
 
 def main(argv=None) -> int:
@@ -129,6 +139,8 @@ def main(argv=None) -> int:
   parser.add_argument("--seed", type=int, default=0)
   parser.add_argument("--steps", type=int, default=env_lib.EPISODE_LENGTH,
                       help="steps per episode (fewer only to try the script)")
+  parser.add_argument("--late_from", type=int, default=300,
+                      help="the step from which the late means are taken (default 300)")
   parser.add_argument("--out", default=common.default_results_path("reward_terms_cpu"))
   args = parser.parse_args(argv)
   unknown = [t for t in args.tasks if t not in TASKS]
@@ -137,8 +149,9 @@ def main(argv=None) -> int:
                  f"{', '.join(TASKS)}")
   if args.policy and len(args.tasks) != 1:
     parser.error("--policy needs exactly one --tasks")
-  if args.episodes <= 0 or not 0 < args.steps <= env_lib.EPISODE_LENGTH:
-    parser.error(f"--episodes must be positive and --steps in 1..{env_lib.EPISODE_LENGTH}")
+  if args.episodes <= 0 or not 0 < args.steps <= env_lib.EPISODE_LENGTH or args.late_from < 0:
+    parser.error(f"--episodes must be positive, --steps in 1..{env_lib.EPISODE_LENGTH} and "
+                 "--late_from not negative")
   try:  # every policy found and loaded before the first rollout writes a record
     jobs = [(task, path, *common.load_expert(task, path)) for task in args.tasks
             for path in args.policy or [tasks.bundled_expert(task)]]
@@ -153,12 +166,17 @@ def main(argv=None) -> int:
     except ValueError as e:  # (dm_control's layout or actions differ from ours)
       print(f"error: {e}", file=sys.stderr)
       return 2
-    result = summary(series)
+    result = summary(series, args.late_from)
     print(f"{task} {os.path.basename(path)}: return {result['return']:.1f} "
           f"({result['return_without_control_cost']:.1f} without the control cost); "
           + ", ".join(f"{k} {v:.3f}" for k, v in result["terms"].items())
           + f"; actuators at their bound {result['at_bound_share']:.0%}, mean |u| "
           f"{result['abs_control_mean']:.2f}")
+    if (late := result["late"]) is not None:
+      print(f"  from step {late['from_step']}: reward per step {late['reward_mean']:.3f}; "
+            + ", ".join(f"{k} {v:.3f}" for k, v in late["terms"].items())
+            + f"; at their bound {late['at_bound_share']:.0%}, mean |u| "
+            f"{late['abs_control_mean']:.2f}")
     writer.write(kind="reward_terms", task=task, policy=os.path.basename(path),
                  policy_sha256=expert.metadata["sha256"],
                  policy_env_steps=expert.metadata.get("env_steps"),

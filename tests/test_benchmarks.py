@@ -210,8 +210,12 @@ def test_reward_terms_multiply_to_dm_controls_reward(tmp_path, capsys):
     np.testing.assert_allclose(product, series["reward"], rtol=1e-9, atol=1e-12)
     assert series["reward"].shape == (25, 2) and series["reward"].max() > 0
     assert np.all((series["small_control"] >= 0.8) & (series["small_control"] <= 1.0))
-    result = bench.summary(series)
+    result = bench.summary(series, late_from=20)
     assert result["return"] == pytest.approx(series["reward"].sum(axis=0).mean())
+    assert result["late"]["reward_mean"] == pytest.approx(series["reward"][20:].mean())
+    assert result["late"]["terms"]["small_control"] == pytest.approx(
+        series["small_control"][20:].mean())
+    assert bench.summary(series, late_from=25)["late"] is None
     assert result["return_without_control_cost"] == pytest.approx(
         (series["reward"] / series["small_control"]).sum(axis=0).mean())
     assert 0.0 <= result["at_bound_share"] <= 1.0
