@@ -123,15 +123,19 @@ def _number(value, digits: int) -> str:
   return "-" if value is None or not np.isfinite(value) else f"{value:.{digits}f}"
 
 
+def _diagnostics(values: dict) -> str:
+  """The table cells of the means both tables end with: error, centred, spread, Q, temperature."""
+  return " | ".join(_number(values[name], digits) for name, digits in (
+      ("error", 3), ("centred", 3), ("spread", 3), ("q", 1), ("temperature", 3))) + " |"
+
+
 def summary_table(entries: list[dict]) -> str:
   lines = ["| task | method | precision | runs | error / spread | centred / spread | error | "
            "centred | spread | Q | temperature |", "|" + "---|" * 11]
   for e in entries:
     lines.append(f"| {e['task']} | {e['method']} | {e['precision']} | {e['runs']} | "
                  f"{_ratio(e['error_ratio'])} | {_ratio(e['centred_ratio'])} | "
-                 f"{_number(e['error'], 3)} | {_number(e['centred'], 3)} | "
-                 f"{_number(e['spread'], 3)} | {_number(e['q'], 1)} | "
-                 f"{_number(e['temperature'], 3)} |")
+                 + _diagnostics(e))
   return "\n".join(lines)
 
 
@@ -141,9 +145,7 @@ def runs_table(rows: list[dict]) -> str:
   for r in rows:
     lines.append(f"| {r['task']} | {r['method']} | {r['precision']} | {r['file']} | "
                  f"{r['seed']} | {r['env_steps'] / 1e6:.1f}M | {r['evaluations']} | "
-                 f"{_number(r['error'], 3)} | "
-                 f"{_number(r['centred'], 3)} | {_number(r['spread'], 3)} | "
-                 f"{_number(r['q'], 1)} | {_number(r['temperature'], 3)} |")
+                 + _diagnostics(r))
   return "\n".join(lines)
 
 
