@@ -10,7 +10,11 @@ episodes from dm_control's resets, seeds `--seed`, `--seed` + 1, ...): the retur
 mean over steps, the share of actuator commands at their bound and the mean |u|, and the return
 with small_control taken as 1 (what the same motion would score without the control cost);
 the same means from `--late_from` on, once a humanoid has got up.
-Appends a `kind: reward_terms` record per policy.
+Appends a `kind: reward_terms` record per policy and `--action_scale`.
+
+`--action_scale 1 0.9 0.8` also applies the clipped mean action scaled by each factor: does the
+policy still stand with less torque, and what would it score? (The commands' share at the bound
+and mean |u| stay the policy's own, before scaling.)
 
   python benchmarks/reward_terms.py --tasks humanoid_stand \\
       --policy benchmarks/policies/humanoid_stand_hsh_seed1_12m.npz --episodes 16
@@ -80,10 +84,10 @@ def commands(actions: np.ndarray, low: np.ndarray, high: np.ndarray) -> dict[str
 
 
 def rollout(task: str, expert, layout: dict, action_size: int, episodes: int, seed: int,
-            steps: int) -> dict[str, np.ndarray]:
-  """The policy's mean action in `episodes` dm_control episodes, stepped together: per step
-  [steps, episodes] the reward, each factor, the share of actuators at their bound and the mean
-  |u| of the commands applied."""
+            steps: int, action_scale: float = 1.0) -> dict[str, np.ndarray]:
+  """The policy's mean action (clipped, then times `action_scale`) in `episodes` dm_control
+  episodes, stepped together: per step [steps, episodes] the reward, each factor, and the share
+  of the policy's clipped commands at their bound and their mean |u| (before the scale)."""
   envs = [parity.load_dm_control_env(task, seed + i) for i in range(episodes)]
   theirs = transfer.dm_control_layout(envs[0])
   if list(theirs.items()) != list(dict(layout).items()):
@@ -98,7 +102,7 @@ def rollout(task: str, expert, layout: dict, action_size: int, episodes: int, se
   out: dict[str, list] = {}
   for _ in range(steps):
     actions = np.asarray(act(transfer.flat_observations(time_steps)), np.float64)
-    time_steps = [env.step(a) for env, a in zip(envs, actions)]
+    time_steps = [env.step(action_scale * a) for env, a in zip(envs, actions)]
     rows = [{"reward": ts.reward or 0.0, **reward_terms(task, env), **commands(a, low, high)}
             for env, ts, a in zip(envs, time_steps, actions)]
     for name in rows[0]:
@@ -139,6 +143,9 @@ def main(argv=None) -> int:
   parser.add_argument("--seed", type=int, default=0)
   parser.add_argument("--steps", type=int, default=env_lib.EPISODE_LENGTH,
                       help="steps per episode (fewer only to try the script)")
+  parser.add_argument("--action_scale", type=float, nargs="+", default=[1.0], metavar="K",
+                      help="apply the clipped mean action times K, in [0, 1] (default 1; "
+                           "several: one record each)")
   parser.add_argument("--late_from", type=int, default=300,
                       help="the step from which the late means are taken (default 300)")
   parser.add_argument("--out", default=common.default_results_path("reward_terms_cpu"))
@@ -152,6 +159,8 @@ def main(argv=None) -> int:
   if args.episodes <= 0 or not 0 < args.steps <= env_lib.EPISODE_LENGTH or args.late_from < 0:
     parser.error(f"--episodes must be positive, --steps in 1..{env_lib.EPISODE_LENGTH} and "
                  "--late_from not negative")
+  if not all(0.0 <= k <= 1.0 for k in args.action_scale):
+    parser.error(f"--action_scale {args.action_scale}: each factor must lie in [0, 1]")
   try:  # every policy found and loaded before the first rollout writes a record
     jobs = [(task, path, *common.load_expert(task, path)) for task in args.tasks
             for path in args.policy or [tasks.bundled_expert(task)]]
@@ -159,15 +168,17 @@ def main(argv=None) -> int:
     print(f"error: {e}", file=sys.stderr)
     return 2
   writer = common.ResultWriter(args.out)
-  for task, path, expert, env in jobs:
+  for (task, path, expert, env), scale in ((job, k) for job in jobs
+                                           for k in args.action_scale):
     try:
       series = rollout(task, expert, env.observation_layout, env.action_size, args.episodes,
-                       args.seed, args.steps)
+                       args.seed, args.steps, scale)
     except ValueError as e:  # (dm_control's layout or actions differ from ours)
       print(f"error: {e}", file=sys.stderr)
       return 2
     result = summary(series, args.late_from)
-    print(f"{task} {os.path.basename(path)}: return {result['return']:.1f} "
+    print(f"{task} {os.path.basename(path)}"
+          + (f" x {scale:g}" if scale != 1.0 else "") + f": return {result['return']:.1f} "
           f"({result['return_without_control_cost']:.1f} without the control cost); "
           + ", ".join(f"{k} {v:.3f}" for k, v in result["terms"].items())
           + f"; actuators at their bound {result['at_bound_share']:.0%}, mean |u| "
@@ -180,7 +191,8 @@ def main(argv=None) -> int:
     writer.write(kind="reward_terms", task=task, policy=os.path.basename(path),
                  policy_sha256=expert.metadata["sha256"],
                  policy_env_steps=expert.metadata.get("env_steps"),
-                 episodes=args.episodes, steps=args.steps, seed=args.seed, **result)
+                 episodes=args.episodes, steps=args.steps, seed=args.seed,
+                 action_scale=scale, **result)
   print(f"records appended to {args.out}")
   return 0
 

@@ -192,7 +192,8 @@ def test_reward_terms_multiply_to_dm_controls_reward(tmp_path, capsys):
   """benchmarks/reward_terms.py: at every step of a short rollout the factors it reads off the
   physics multiply to dm_control's own reward (hopper_stand's shipped expert; humanoid_stand's
   kept policy, whose dont_move factor is humanoid's; humanoid_walk's move factor under random
-  actions); the summary is numpy's of the series; commands at a bound are counted as such; a
+  actions); the summary is numpy's of the series; commands at a bound are counted as such; with
+  `--action_scale 0` no control is paid and the commands counted stay the policy's; a
   task without a control cost, or without a policy, is refused before any record."""
   bench = load_script("reward_terms", folder="benchmarks")
   import tasks
@@ -219,6 +220,12 @@ def test_reward_terms_multiply_to_dm_controls_reward(tmp_path, capsys):
     assert result["return_without_control_cost"] == pytest.approx(
         (series["reward"] / series["small_control"]).sum(axis=0).mean())
     assert 0.0 <= result["at_bound_share"] <= 1.0
+    if task == "humanoid_stand":  # no torque: no control cost; the commands stay the policy's
+      still = bench.rollout(task, expert, env.observation_layout, env.action_size, episodes=2,
+                            seed=3, steps=25, action_scale=0.0)
+      np.testing.assert_array_equal(still["small_control"], 1.0)
+      assert still["at_bound"][0].tolist() == series["at_bound"][0].tolist()
+      assert series["at_bound"].max() > 0 and series["small_control"].min() < 1.0
   from mjx_form.sim import parity
   walk = parity.load_dm_control_env("humanoid_walk", 0)
   walk.reset()
@@ -237,6 +244,17 @@ def test_reward_terms_multiply_to_dm_controls_reward(tmp_path, capsys):
   record, = [json.loads(line) for line in open(out)]
   assert record["kind"] == "reward_terms" and set(record["terms"]) == {"standing",
                                                                         "small_control"}
+  assert record["action_scale"] == 1.0
+  scaled = tmp_path / "scaled.jsonl"
+  assert bench.main(["--tasks", "hopper_stand", "--episodes", "1", "--steps", "5",
+                     "--action_scale", "1", "0", "--out", str(scaled)]) == 0
+  full, none = [json.loads(line) for line in open(scaled)]
+  assert (full["action_scale"], none["action_scale"]) == (1.0, 0.0)
+  assert full["return"] == pytest.approx(record["return"])
+  assert none["terms"]["small_control"] == 1.0 > full["terms"]["small_control"]
+  with pytest.raises(SystemExit):
+    bench.main(["--tasks", "hopper_stand", "--action_scale", "1.5", "--out", str(out)])
+  assert "--action_scale [1.5]: each factor must lie in [0, 1]" in capsys.readouterr().err
   with pytest.raises(SystemExit):
     bench.main(["--tasks", "walker_walk", "--out", str(out)])
   assert "walker_walk: no control cost" in capsys.readouterr().err
