@@ -9,7 +9,10 @@ it stands like. Per policy (its mean action, clipped to the action spec, in `--e
 episodes from dm_control's resets, seeds `--seed`, `--seed` + 1, ...): the return, each factor's
 mean over steps, the share of actuator commands at their bound and the mean |u|, and the return
 with small_control taken as 1 (what the same motion would score without the control cost);
-the same means from `--late_from` on, once a humanoid has got up.
+the same means from `--late_from` on, once a humanoid has got up; and per actuator (by
+dm_control's name): its commands' share at the bound, their mean and mean |u|, and the share
+of steps its joint lies within `JOINT_LIMIT_RAD` of a limit of its range (torque pressed into a
+limit pays the control cost and moves nothing).
 Appends a `kind: reward_terms` record per policy and `--action_scale`.
 
 `--action_scale 1 0.9 0.8` also applies the clipped mean action scaled by each factor: does the
@@ -76,6 +79,26 @@ def reward_terms(task: str, dm_env) -> dict[str, float]:
   return terms
 
 
+JOINT_LIMIT_RAD = 0.05  # a joint this close to an end of its range counts as at its limit
+
+
+def actuated_joints(physics) -> tuple[list[str], np.ndarray, np.ndarray]:
+  """The actuators' names [A], their joints' qpos addresses [A] and ranges [A, 2] (a joint
+  without limits gets (-inf, inf))."""
+  model = physics.model
+  joint = model.actuator_trnid[:, 0]
+  ranges = np.where(model.jnt_limited[joint][:, None].astype(bool), model.jnt_range[joint],
+                    np.array([-np.inf, np.inf]))
+  names = [model.id2name(i, "actuator") for i in range(model.nu)]
+  return names, model.jnt_qposadr[joint], ranges
+
+
+def at_joint_limit(qpos: np.ndarray, ranges: np.ndarray) -> np.ndarray:
+  """Whether each actuated joint's position [A] lies within JOINT_LIMIT_RAD of its range's
+  ends [A, 2]."""
+  return np.min(np.abs(qpos[:, None] - ranges), axis=1) <= JOINT_LIMIT_RAD
+
+
 def commands(actions: np.ndarray, low: np.ndarray, high: np.ndarray) -> dict[str, float]:
   """Of one step's commands [A] (clipped to [low, high] [A]): the share at a bound and the
   mean |u|."""
@@ -87,7 +110,9 @@ def rollout(task: str, expert, layout: dict, action_size: int, episodes: int, se
             steps: int, action_scale: float = 1.0) -> dict[str, np.ndarray]:
   """The policy's mean action (clipped, then times `action_scale`) in `episodes` dm_control
   episodes, stepped together: per step [steps, episodes] the reward, each factor, and the share
-  of the policy's clipped commands at their bound and their mean |u| (before the scale)."""
+  of the policy's clipped commands at their bound and their mean |u| (before the scale); per
+  step and actuator [steps, episodes, A] those commands, whether each is at its bound, and
+  whether its joint is at a limit."""
   envs = [parity.load_dm_control_env(task, seed + i) for i in range(episodes)]
   theirs = transfer.dm_control_layout(envs[0])
   if list(theirs.items()) != list(dict(layout).items()):
@@ -98,6 +123,7 @@ def rollout(task: str, expert, layout: dict, action_size: int, episodes: int, se
                      f"({action_size},)")
   low, high = (np.asarray(b, np.float32) for b in (spec.minimum, spec.maximum))
   act = transfer.mean_action_fn(expert, low, high)
+  _, qpos_address, ranges = actuated_joints(envs[0].physics)
   time_steps = [env.reset() for env in envs]
   out: dict[str, list] = {}
   for _ in range(steps):
@@ -107,28 +133,47 @@ def rollout(task: str, expert, layout: dict, action_size: int, episodes: int, se
             for env, ts, a in zip(envs, time_steps, actions)]
     for name in rows[0]:
       out.setdefault(name, []).append([row[name] for row in rows])
+    out.setdefault("actions", []).append(actions)
+    out.setdefault("actuator_at_bound", []).append((actions <= low) | (actions >= high))
+    out.setdefault("at_joint_limit", []).append(
+        [at_joint_limit(env.physics.data.qpos[qpos_address], ranges) for env in envs])
   return {name: np.asarray(values) for name, values in out.items()}
 
 
-def _means(series: dict[str, np.ndarray]) -> dict:
-  return {"terms": {name: float(values.mean()) for name, values in series.items()
-                    if name not in ("reward", "at_bound", "abs_control")},
-          "at_bound_share": float(series["at_bound"].mean()),
-          "abs_control_mean": float(series["abs_control"].mean())}
+PER_STEP = ("reward", "at_bound", "abs_control")  # series that are not reward factors
+PER_ACTUATOR = ("actions", "actuator_at_bound", "at_joint_limit")  # [steps, episodes, A]
 
 
-def summary(series: dict[str, np.ndarray], late_from: int) -> dict:
+def _means(series: dict[str, np.ndarray], names: list[str] | None = None) -> dict:
+  out = {"terms": {name: float(values.mean()) for name, values in series.items()
+                   if name not in PER_STEP + PER_ACTUATOR},
+         "at_bound_share": float(series["at_bound"].mean()),
+         "abs_control_mean": float(series["abs_control"].mean())}
+  if names is not None:
+    u, bound, limit = (series[k] for k in PER_ACTUATOR)
+    out["actuators"] = {name: {"at_bound": float(bound[..., i].mean()),
+                               "mean": float(u[..., i].mean()),
+                               "abs_mean": float(np.abs(u[..., i]).mean()),
+                               "joint_at_limit": float(limit[..., i].mean())}
+                        for i, name in enumerate(names)}
+  return out
+
+
+def summary(series: dict[str, np.ndarray], late_from: int,
+            names: list[str] | None = None) -> dict:
   """Return (mean over episodes), each factor's and the commands' means over all steps, the
   return with small_control taken as 1, and the same means from step `late_from` on (`late`:
-  once the humanoid has got up, what standing or walking itself costs; None past the end)."""
+  once the humanoid has got up, what standing or walking itself costs; None past the end);
+  with the actuators' `names`, per actuator its commands' share at the bound, their mean and
+  mean |u|, and its joint's share of steps at a limit."""
   late = {name: values[late_from:] for name, values in series.items()}
   return {"return": float(series["reward"].sum(axis=0).mean()),
           "return_without_control_cost": float(
               (series["reward"] / series["small_control"]).sum(axis=0).mean()),
-          **_means(series),
+          **_means(series, names),
           "late": None if late_from >= len(series["reward"]) else {
               "from_step": late_from, "reward_mean": float(late["reward"].mean()),
-              **_means(late)}}
+              **_means(late, names)}}
 
 
 def main(argv=None) -> int:
@@ -176,7 +221,8 @@ def main(argv=None) -> int:
     except ValueError as e:  # (dm_control's layout or actions differ from ours)
       print(f"error: {e}", file=sys.stderr)
       return 2
-    result = summary(series, args.late_from)
+    names = actuated_joints(parity.load_dm_control_env(task, 0).physics)[0]
+    result = summary(series, args.late_from, names)
     print(f"{task} {os.path.basename(path)}"
           + (f" x {scale:g}" if scale != 1.0 else "") + f": return {result['return']:.1f} "
           f"({result['return_without_control_cost']:.1f} without the control cost); "
@@ -188,6 +234,10 @@ def main(argv=None) -> int:
             + ", ".join(f"{k} {v:.3f}" for k, v in late["terms"].items())
             + f"; at their bound {late['at_bound_share']:.0%}, mean |u| "
             f"{late['abs_control_mean']:.2f}")
+      pinned = [f"{name} {a['mean']:+.2f} (joint at a limit {a['joint_at_limit']:.0%})"
+                for name, a in late["actuators"].items() if a["at_bound"] >= 0.5]
+      if pinned:
+        print(f"  at the bound in half its late steps or more: {', '.join(pinned)}")
     writer.write(kind="reward_terms", task=task, policy=os.path.basename(path),
                  policy_sha256=expert.metadata["sha256"],
                  policy_env_steps=expert.metadata.get("env_steps"),

@@ -193,10 +193,22 @@ def test_reward_terms_multiply_to_dm_controls_reward(tmp_path, capsys):
   physics multiply to dm_control's own reward (hopper_stand's shipped expert; humanoid_stand's
   kept policy, whose dont_move factor is humanoid's; humanoid_walk's move factor under random
   actions); the summary is numpy's of the series; commands at a bound are counted as such; with
-  `--action_scale 0` no control is paid and the commands counted stay the policy's; a
-  task without a control cost, or without a policy, is refused before any record."""
+  `--action_scale 0` no control is paid and the commands counted stay the policy's; the
+  per-actuator means are numpy's and average to the overall share; hopper's actuated joints are
+  found by name and a joint 0.04 rad from a limit counts as at it, 0.06 rad not; a task
+  without a control cost, or without a policy, is refused before any record."""
   bench = load_script("reward_terms", folder="benchmarks")
   import tasks
+  from mjx_form.sim import parity
+  hopper = parity.load_dm_control_env("hopper_stand", 0).physics
+  names, address, ranges = bench.actuated_joints(hopper)
+  assert names == ["waist", "hip", "knee", "ankle"]  # hopper.xml's motors, in order
+  qpos = hopper.data.qpos[address].copy()
+  qpos[2] = ranges[2, 0] + 0.04  # the knee 0.04 rad inside the low end of its range
+  qpos[3] = ranges[3, 1] - 0.06  # the ankle 0.06 rad inside the high end
+  limit = bench.at_joint_limit(qpos, ranges)
+  assert limit[2] and not limit[3]
+  assert not bench.at_joint_limit(np.zeros(1), np.array([[-np.inf, np.inf]]))[0]
   root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
   kept = os.path.join(root, "benchmarks", "policies", "humanoid_stand_hsh_seed1_12m.npz")
   for task, path in (("hopper_stand", tasks.bundled_expert("hopper_stand")),
@@ -204,7 +216,7 @@ def test_reward_terms_multiply_to_dm_controls_reward(tmp_path, capsys):
     expert, env = bench.common.load_expert(task, path)
     series = bench.rollout(task, expert, env.observation_layout, env.action_size, episodes=2,
                            seed=3, steps=25)
-    factors = [name for name in series if name not in ("reward", "at_bound", "abs_control")]
+    factors = [name for name in series if name not in bench.PER_STEP + bench.PER_ACTUATOR]
     assert factors == (["standing", "small_control"] if task == "hopper_stand" else
                        ["standing", "upright", "small_control", "dont_move"])
     product = np.prod([series[name] for name in factors], axis=0)  # [steps, episodes]
@@ -220,13 +232,22 @@ def test_reward_terms_multiply_to_dm_controls_reward(tmp_path, capsys):
     assert result["return_without_control_cost"] == pytest.approx(
         (series["reward"] / series["small_control"]).sum(axis=0).mean())
     assert 0.0 <= result["at_bound_share"] <= 1.0
+    names = bench.actuated_joints(parity.load_dm_control_env(task, 0).physics)[0]
+    assert len(names) == env.action_size and series["actions"].shape == (25, 2, len(names))
+    each = bench.summary(series, late_from=20, names=names)["late"]["actuators"]
+    assert list(each) == names
+    first = each[names[0]]
+    assert first["mean"] == pytest.approx(series["actions"][20:, :, 0].mean())
+    assert first["at_bound"] == pytest.approx(
+        np.mean(np.abs(series["actions"][20:, :, 0]) >= 1.0))  # bounds [-1, 1] here
+    assert np.mean([a["at_bound"] for a in each.values()]) == pytest.approx(
+        result["late"]["at_bound_share"])
     if task == "humanoid_stand":  # no torque: no control cost; the commands stay the policy's
       still = bench.rollout(task, expert, env.observation_layout, env.action_size, episodes=2,
                             seed=3, steps=25, action_scale=0.0)
       np.testing.assert_array_equal(still["small_control"], 1.0)
       assert still["at_bound"][0].tolist() == series["at_bound"][0].tolist()
       assert series["at_bound"].max() > 0 and series["small_control"].min() < 1.0
-  from mjx_form.sim import parity
   walk = parity.load_dm_control_env("humanoid_walk", 0)
   walk.reset()
   rng = np.random.default_rng(0)
