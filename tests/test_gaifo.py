@@ -1,0 +1,217 @@
+"""GAIfO: the discriminator's reward, objective and gradient penalty against numpy and finite
+differences, its inputs drawn from the demonstrations and the batches, and the reward source in
+the compiled loop (reacher_easy, small sizes, over the 2 forced host devices), blind to the task
+reward."""
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import tasks
+from mjx_form import mesh as mesh_lib
+from mjx_form.imitation import discriminator as disc
+from mjx_form.imitation.gaifo import GaifoReward
+from mjx_form.rl import normalizer
+from mjx_form.rl.learner import LearnerConfig
+from mjx_form.rl.train import TrainConfig, Trainer
+from tasks import reacher
+
+pytestmark = pytest.mark.xdist_group("gaifo")
+
+SMALL = disc.DiscriminatorConfig(width=16)
+
+
+def _params(config=SMALL, features=3, seed=0):
+  return disc.Discriminator(config.width).init(jax.random.PRNGKey(seed),
+                                               jnp.zeros((1, features)))
+
+
+def test_reward_is_log_one_plus_the_expert_probability():
+  logit = np.array([-60.0, -3.0, -0.5, 0.0, 0.7, 4.0, 60.0], np.float32)
+  expected = np.log1p(1.0 / (1.0 + np.exp(-logit.astype(np.float64))))
+  got = np.asarray(disc.reward(jnp.asarray(logit)))
+  np.testing.assert_allclose(got, expected, rtol=1e-6, atol=1e-7)
+  assert got[0] >= 0 and got[-1] == pytest.approx(np.log(2))
+
+
+def test_gradient_norms_match_finite_differences():
+  params = _params(features=3)
+  model = disc.Discriminator(SMALL.width)
+  z = jax.random.normal(jax.random.PRNGKey(1), (4, SMALL.width))
+  decode = lambda h: np.asarray(model.apply(params, jnp.asarray(h, jnp.float32),
+                                            method=disc.Discriminator.decode), np.float64)
+  eps = 1e-3
+  for row in range(z.shape[0]):
+    grad = np.zeros(SMALL.width)
+    for i in range(SMALL.width):
+      up, down = np.array(z[row]), np.array(z[row])
+      up[i] += eps
+      down[i] -= eps
+      grad[i] = (decode(up[None]) - decode(down[None]))[0] / (2 * eps)
+    assert float(disc.gradient_norms(model, params, z)[row]) == pytest.approx(
+        np.linalg.norm(grad), rel=2e-2)
+
+
+def test_loss_is_cross_entropy_plus_the_penalty_and_ignores_invalid_rows():
+  """Against numpy from the network's own logits; the penalty adds beta * mean norm / width
+  over the valid rows; invalid imitator rows change nothing."""
+  params = _params(features=3)
+  model = disc.Discriminator(SMALL.width)
+  rng = np.random.default_rng(0)
+  expert = jnp.asarray(rng.normal(size=(6, 3)), jnp.float32)
+  imitator = jnp.asarray(rng.normal(size=(6, 3)), jnp.float32)
+  valid = jnp.array([True, True, False, True, False, True])
+  key = jax.random.PRNGKey(3)
+  le = np.asarray(model.apply(params, expert), np.float64)
+  li = np.asarray(model.apply(params, imitator), np.float64)
+  v = np.asarray(valid)
+  bce = -(np.mean(np.log(1 / (1 + np.exp(-le))))
+          + np.mean(np.log(1 / (1 + np.exp(li[v])))))
+  plain, _ = disc.loss(SMALL, params, expert, imitator, valid, key)
+  assert float(plain) == pytest.approx(bce, rel=1e-5)
+  gp = dataclasses.replace(SMALL, gradient_penalty=10.0)
+  penalised, metrics = disc.loss(gp, params, expert, imitator, valid, key)
+  # the same interpolations (same key): the norms at them, independently of `loss`
+  u = jax.random.uniform(key, (6, 1))
+  h = lambda x: model.apply(params, x, method=disc.Discriminator.encode)
+  norms = np.asarray(disc.gradient_norms(model, params, u * h(expert) + (1 - u) * h(imitator)))
+  assert float(penalised) == pytest.approx(bce + 10.0 * norms[v].mean() / SMALL.width, rel=1e-5)
+  assert float(metrics["gradient_norm"]) == pytest.approx(norms[v].mean(), rel=1e-5)
+  moved = imitator.at[2].set(100.0).at[4].set(-100.0)
+  again, _ = disc.loss(gp, params, expert, moved, valid, key)
+  assert float(again) == pytest.approx(float(penalised), rel=1e-6)
+
+
+def test_training_tells_the_expert_apart_and_pays_its_observations_more():
+  """Expert frames around +1, imitator frames around -1 (3 features): after 200 steps most of
+  each side is classified right, and the reward of expert-like transitions is the higher."""
+  config = disc.DiscriminatorConfig(width=32, learning_rate=1e-3)
+  state = disc.init(config, 3, jax.random.PRNGKey(0))
+  step = jax.jit(lambda s, e, i, k: disc.update(config, s, e, i, jnp.ones(64, bool), k))
+  rng = np.random.default_rng(1)
+  for n in range(200):
+    expert = jnp.asarray(rng.normal(1.0, 0.5, size=(64, 1, 3)), jnp.float32)
+    imitator = jnp.asarray(rng.normal(-1.0, 0.5, size=(64, 1, 3)), jnp.float32)
+    state, metrics = step(state, expert, imitator, jax.random.PRNGKey(n))
+  assert metrics["expert_accuracy"] > 0.9 and metrics["imitator_accuracy"] > 0.9
+  assert int(state.steps) == 200
+  np.testing.assert_allclose(np.asarray(state.normalizer.mean), 0.0, atol=0.2)  # both sides
+  sequences = jnp.asarray(np.stack([np.full((3, 3), 1.0), np.full((3, 3), -1.0)]), jnp.float32)
+  rewards = np.asarray(disc.reward(disc.logits(config, state, sequences)))  # [2, 2]
+  assert rewards.shape == (2, 2) and rewards[0].min() > rewards[1].max()
+
+
+def _source(frames=1, episodes=5, steps=7, d=2, penalty=0.0):
+  """A source whose demonstrations encode (episode, step) in their two features."""
+  k, t = np.meshgrid(np.arange(episodes), np.arange(steps + 1), indexing="ij")
+  observations = np.stack([k, t], axis=-1).astype(np.float32)  # [K, T+1, 2]
+  config = disc.DiscriminatorConfig(width=8, frames=frames, gradient_penalty=penalty)
+  return GaifoReward(config, observations[..., :d], "sha"), observations
+
+
+@pytest.mark.parametrize("frames", [1, 2])
+def test_expert_inputs_are_transitions_of_one_demonstration(frames):
+  source, observations = _source(frames)
+  drawn = np.asarray(source.expert_frames(jnp.asarray(observations), 500,
+                                          jax.random.PRNGKey(0)))  # [500, frames, 2]
+  assert drawn.shape == (500, frames, 2)
+  last = drawn[:, -1]
+  assert last[:, 1].min() == 1 and last[:, 1].max() == 7  # x_{t+1}: never a reset frame
+  assert len({tuple(x) for x in last}) == 5 * 7  # every transition can be drawn
+  if frames == 2:
+    np.testing.assert_array_equal(drawn[:, 0, 0], drawn[:, 1, 0])  # one episode
+    np.testing.assert_array_equal(drawn[:, 0, 1] + 1, drawn[:, 1, 1])  # consecutive
+
+
+@pytest.mark.parametrize("frames", [1, 2])
+def test_batch_inputs_are_scored_as_the_relabelled_transitions(frames):
+  """The rows the discriminator trains on from a batch are, in order, the transitions that
+  `relabel` rewards; invalid transitions get reward 0."""
+  source, _ = _source(frames)
+  state = source.init(jax.random.PRNGKey(0), 2, 1)
+  state = state._replace(discriminator=state.discriminator._replace(
+      normalizer=normalizer.NormalizerState(jnp.array([0.5, 2.0]), jnp.array([2.0, 9.0]),
+                                            jnp.asarray(1, jnp.int32))))
+  rng = np.random.default_rng(0)
+  batch = {"observation": jnp.asarray(rng.normal(size=(3, 5, 2)), jnp.float32),
+           "discount": jnp.asarray(rng.uniform(size=(3, 4)) > 0.3, jnp.float32)}
+  rows = source.imitator_frames(batch["observation"])  # [12, frames, 2]
+  norm = state.discriminator.normalizer
+  flat = normalizer.normalize(norm, rows).reshape(rows.shape[0], -1)
+  logits = disc.Discriminator(8).apply(state.discriminator.params, flat)
+  rewards, metrics = source.relabel(state, batch)
+  valid = np.asarray(batch["discount"]).reshape(-1) > 0
+  np.testing.assert_allclose(np.asarray(rewards).reshape(-1)[valid],
+                             np.asarray(disc.reward(logits))[valid], rtol=1e-6)
+  assert np.all(np.asarray(rewards).reshape(-1)[~valid] == 0)
+  assert float(metrics["gaifo_reward"]) == pytest.approx(
+      float(np.asarray(disc.reward(logits))[valid].mean()), rel=1e-5)
+
+
+def test_source_names_its_method_and_refuses_what_does_not_fit():
+  assert _source()[0].name == "gaifo" and _source(penalty=10.0)[0].name == "gaifo_gp"
+  source = _source()[0]
+  assert source.settings()["discriminator"]["gradient_penalty"] == 0.0
+  with pytest.raises(ValueError, match="2-dimensional observations, the task has 6"):
+    source.init(jax.random.PRNGKey(0), 6, 2)
+  with pytest.raises(ValueError, match=r"sequences \[K, T\+1, D\]"):
+    GaifoReward(SMALL, np.zeros((4, 3)))
+  with pytest.raises(ValueError, match="finite"):
+    GaifoReward(SMALL, np.full((2, 3, 4), np.nan))
+  for bad in ({"frames": 3}, {"gradient_penalty": -1.0}, {"width": 0},
+              {"learning_rate": 0.0}, {"normalizer_decay": 1.0}):
+    with pytest.raises(ValueError, match="discriminator"):
+      GaifoReward(dataclasses.replace(SMALL, **bad), np.zeros((2, 3, 4)))
+
+
+CONFIG = TrainConfig(task="reacher_easy", reward_source="gaifo_gp", num_envs=4,
+                     unroll_length=50, batch_size=4, replay_capacity=12,
+                     updates_per_iteration=2, network_width=32, eval_envs=2,
+                     learner=LearnerConfig(num_action_samples=4, target_update_period=3))
+
+
+class GarbageRewardReacher(reacher.Reacher):
+  """reacher_easy with a reward that has nothing to do with the task."""
+
+  def get_reward(self, data, task):
+    return 1e3 * jnp.sin(1e4 * jnp.sum(data.qpos) + task["target"][0])
+
+
+def _gaifo_source():
+  rng = np.random.default_rng(0)
+  demos = rng.normal(size=(3, 11, 6)).astype(np.float32)  # stands in for recorded ones
+  return GaifoReward(disc.DiscriminatorConfig(width=16, gradient_penalty=10.0), demos, "sha",
+                     standardise_reward=True)
+
+
+def _iterate(trainer, n):
+  state, metrics = trainer.init(jax.random.PRNGKey(0)[None]), []
+  for _ in range(n):
+    state, m = trainer.iteration(state)
+    metrics.append(jax.device_get(m))
+  return state, metrics
+
+
+def test_gaifo_trains_in_the_compiled_loop_without_the_task_reward(monkeypatch):
+  """GAIfO+GP runs in the compiled loop over the mesh: the discriminator steps once per
+  update, and the same run with the environment's reward replaced by garbage trains bit for
+  bit the same (only the logged task returns differ)."""
+  trainer = Trainer(CONFIG, mesh_lib.make_mesh(), _gaifo_source())
+  state, metrics = _iterate(trainer, 2)
+  assert int(np.asarray(state.source.discriminator.steps).max()) == 4  # 2 x 2 updates
+  assert np.isfinite(metrics[-1]["gaifo_reward"][0])
+  assert np.isfinite(metrics[-1]["discriminator_gradient_norm"][0])
+  monkeypatch.setitem(tasks._REGISTRY, "reacher_easy",
+                      lambda physics: GarbageRewardReacher(reacher._BIG_TARGET, "easy", physics))
+  garbage = Trainer(CONFIG, mesh_lib.make_mesh(), _gaifo_source())
+  assert isinstance(garbage.env, GarbageRewardReacher)
+  other, other_metrics = _iterate(garbage, 2)
+  for part in ("learner", "source", "replay", "normalizer", "key"):
+    for (path, a), b in zip(jax.tree_util.tree_leaves_with_path(getattr(state, part)),
+                            jax.tree.leaves(getattr(other, part))):
+      np.testing.assert_array_equal(np.asarray(a), np.asarray(b),
+                                    err_msg=part + jax.tree_util.keystr(path))
+  assert metrics[-1]["train_reward"][0] != other_metrics[-1]["train_reward"][0]
