@@ -10,6 +10,10 @@
       (the policy averaged over updates, --policy_average_decay) with its best by log pD
       (best_log_pd_average_policy.npz) and imitator.npz (the imitator model beside policy.npz)
       to --run_dir.
+  --method gaifo, gaifo_gp: the paper's GAIfO baselines, imitation from observations with a
+      discriminator of the expert's observations (gaifo_gp: with its gradient penalty,
+      --gradient_penalty), on FORM's learner settings, from the same demonstrations
+      (mjx_form/imitation/gaifo.py).
   --method expert: the same learner on the task reward (to train experts).
   --method random: uniform random actions in N auto-resetting environments of one task,
       sharded over all devices; reports control steps per second (compile time apart).
@@ -41,7 +45,9 @@ import tasks  # noqa: E402
 from mjx_form import mesh as mesh_lib  # noqa: E402
 from mjx_form.files import checkpoint, experts  # noqa: E402
 from mjx_form.imitation import demonstrator as demonstrator_lib  # noqa: E402
+from mjx_form.imitation import discriminator as discriminator_lib  # noqa: E402
 from mjx_form.imitation import form as form_lib  # noqa: E402
+from mjx_form.imitation import gaifo as gaifo_lib  # noqa: E402
 from mjx_form.imitation import pipeline, settings  # noqa: E402
 from mjx_form.rl import grid, recipes, runner  # noqa: E402
 from mjx_form.rl.learner import LearnerConfig  # noqa: E402
@@ -51,13 +57,17 @@ from mjx_form.sim.physics import DEFAULT_PHYSICS, PHYSICS_MODES  # noqa: E402
 from mjx_form.sim.wrappers import AutoReset  # noqa: E402
 
 
-METHODS = ("form", "expert", "random")
-# Options that only --method form reads (a user who gives one to another method is told so).
-FORM_ONLY = ("expert", "demos", "demo_episodes", "save_demos", "demonstrator",
-             "member_demonstrators", "train_demonstrator", "demonstrator_seed", "beta_ar",
-             "effect_l2", "turn_invariant", "angle_increments", "angle_inputs",
-             "effect_max_scale", "reward_scale", "reward_clip", "ensemble_log_pd",
-             "imitator_every")
+METHODS = ("form", "gaifo", "gaifo_gp", "expert", "random")
+IMITATION = ("form", "gaifo", "gaifo_gp")  # learn from demonstrations' observations alone
+GAIFO = ("gaifo", "gaifo_gp")
+GAIFO_GP_DEFAULT = 10.0  # beta_gp: the paper's "typically 10"
+# Options that only the imitation methods read (a user who gives one to another method is told
+# so), those that only --method form reads, and those that only GAIfO's read.
+DEMO_OPTIONS = ("expert", "demos", "demo_episodes", "save_demos", "reward_scale")
+FORM_ONLY = ("demonstrator", "member_demonstrators", "train_demonstrator", "demonstrator_seed",
+             "beta_ar", "effect_l2", "turn_invariant", "angle_increments", "angle_inputs",
+             "effect_max_scale", "reward_clip", "ensemble_log_pd", "imitator_every")
+GAIFO_ONLY = ("gradient_penalty", "discriminator_frames")
 
 DEFAULT_COMPILATION_CACHE = os.path.join(
     os.environ.get("XDG_CACHE_HOME", os.path.expanduser("~/.cache")), "mjx_form", "jax")
@@ -121,7 +131,7 @@ def parse_args(argv=None) -> argparse.Namespace:
   parser.add_argument("--seed", type=int, default=0)
   parser.add_argument("--seeds", type=_seeds, default=None,
                       help="comma-separated seeds: a population of runs, one per seed, in one "
-                           "compiled program (--method form and expert; each writes to "
+                           "compiled program (every method but random; each writes to "
                            "<run_dir>/seed<s>/); overrides --seed for the learners (--method "
                            "form records demonstrations and trains a demonstrator with "
                            "--demonstrator_seed, default --seed)")
@@ -133,14 +143,15 @@ def parse_args(argv=None) -> argparse.Namespace:
                            + " (standardise_reward: 0/1, reward_clip, ensemble_log_pd: --method form)")
   parser.add_argument("--list", action="store_true", help="print the task names and exit")
   parser.add_argument("--method", default="form", choices=METHODS,
-                      help="form: imitation from observations (default); expert: MPO on the "
-                           "task reward; random: a random-action throughput demo")
+                      help="form: imitation from observations (default); gaifo, gaifo_gp: the "
+                           "GAIfO baselines; expert: MPO on the task reward; random: a "
+                           "random-action throughput demo")
   parser.add_argument("--compilation_cache", default=DEFAULT_COMPILATION_CACHE,
                       help="directory of JAX's persistent compilation cache: a later run of "
                            "the same settings loads its programs instead of compiling them "
                            "(cheetah_run expert on an H200: start-up 28 s instead of 74 s); "
                            "'' turns it off; JAX_COMPILATION_CACHE_DIR, where set, wins")
-  train = parser.add_argument_group("training (--method form and expert; the learner's "
+  train = parser.add_argument_group("training (every method but random; the learner's "
                                     "defaults: see --preset)")
   defaults = TrainConfig()
   train.add_argument("--run_dir", help="where logs, checkpoints and policy.npz go "
@@ -321,6 +332,15 @@ def parse_args(argv=None) -> argparse.Namespace:
                          "transitions off the expert's alike through one broad component, "
                          "but FORM on reacher_hard was worse with a cap of 1 "
                          "(mjx_form/imitation/effect_model.py)")
+  gaifo = parser.add_argument_group(
+      "GAIfO (--method gaifo and gaifo_gp; demonstrations as for form: --expert, --demos, "
+      "--demo_episodes, default 1000, --save_demos; --reward_scale)")
+  gaifo.add_argument("--gradient_penalty", type=float, default=None, metavar="BETA",
+                     help=f"gaifo_gp's beta_gp (default {GAIFO_GP_DEFAULT:g}, the paper's "
+                          "typical value; tuned per task there)")
+  gaifo.add_argument("--discriminator_frames", type=int, default=1, choices=(1, 2),
+                     help="the discriminator sees x_{t+1} (1, the paper's main table) or "
+                          "(x_t, x_{t+1}) (2)")
   train.add_argument("--preset", default=None, choices=settings.PRESETS,
                      help="default: measured settings; paper: the paper's. For form: the "
                           "reward scale, reward clip, target period and sampled-Q precision "
@@ -336,7 +356,8 @@ def parse_args(argv=None) -> argparse.Namespace:
   form.add_argument("--reward_scale", default=None, choices=("standardised", "raw"),
                     help="standardised: the learner gets the FORM reward standardised by its "
                          "running mean and sd (mjx_form/imitation/form.py); raw: log pD - log pI "
-                         "as the paper (default: --preset's)")
+                         "as the paper (default: --preset's). GAIfO: raw, log(1 + D), by "
+                         "default")
   form.add_argument("--imitator_every", type=int, default=1, metavar="K",
                     help="train the imitator model (and fold a batch into its "
                          "standardisation and the reward's running mean and sd) on the first "
@@ -373,16 +394,33 @@ def parse_args(argv=None) -> argparse.Namespace:
     given = [f"--{name}" for name in ["seeds", "grid"] + learner_flags
              if getattr(args, name) != parser.get_default(name)]
     if given:
-      parser.error(f"{', '.join(given)} apply to --method form and expert")
+      parser.error(f"{', '.join(given)} apply to --method form, gaifo, gaifo_gp and expert")
   args.grid = _grid(parser, args.grid, args.method)
   if args.init_policy and args.method != "expert":
     parser.error("--init_policy applies to --method expert (a FORM run imitates from "
                  "observations alone; random steps no policy)")
+  if args.method not in IMITATION:
+    given = [f"--{name}" for name in DEMO_OPTIONS
+             if getattr(args, name) != parser.get_default(name)]
+    if given:
+      parser.error(f"{', '.join(given)} apply to --method {', '.join(IMITATION)}")
   if args.method != "form":
     given = [f"--{name}" for name in FORM_ONLY
              if getattr(args, name) != parser.get_default(name)]
     if given:
       parser.error(f"{', '.join(given)} apply to --method form only")
+  if args.method not in GAIFO:
+    given = [f"--{name}" for name in GAIFO_ONLY
+             if getattr(args, name) != parser.get_default(name)]
+    if given:
+      parser.error(f"{', '.join(given)} apply to --method {' and '.join(GAIFO)}")
+  if args.method == "gaifo" and args.gradient_penalty is not None:
+    parser.error("--gradient_penalty: --method gaifo has none (--method gaifo_gp has one)")
+  if args.method == "gaifo_gp" and args.gradient_penalty is not None and not (
+      args.gradient_penalty > 0):
+    parser.error(f"--gradient_penalty must be positive, got {args.gradient_penalty}")
+  if args.method in GAIFO and args.demo_episodes == 0:
+    parser.error(f"--demo_episodes 0: --method {args.method} needs demonstrations")
   if args.resume and (args.demonstrator or args.train_demonstrator or args.member_demonstrators
                       or args.demonstrator_seed is not None):
     parser.error("--resume uses the demonstrators kept in the run directory: leave out "
@@ -438,7 +476,7 @@ def parse_args(argv=None) -> argparse.Namespace:
 
 def train_config(args: argparse.Namespace) -> TrainConfig:
   """The run's TrainConfig: the method's preset for the task, then the flags."""
-  if args.method == "form":  # FORM's learner settings; the paper's head and actor noise
+  if args.method in IMITATION:  # FORM's learner settings; the paper's head and actor noise
     chosen = {**recipes.PAPER, **form_run_settings(args)}
   else:
     chosen = recipes.expert_settings(args.task, args.preset or "default")
@@ -454,7 +492,7 @@ def train_config(args: argparse.Namespace) -> TrainConfig:
                               epsilon_scale=chosen["epsilon_scale"]))
   seed = args.seeds[0] if args.seeds else args.seed
   return TrainConfig(task=args.task, physics=args.physics,
-                     reward_source="form" if args.method == "form" else "task",
+                     reward_source=args.method if args.method in IMITATION else "task",
                      num_envs=args.num_envs,
                      unroll_length=args.unroll_length, batch_size=args.batch_size,
                      replay_capacity=args.replay_capacity,
@@ -475,7 +513,7 @@ def recipe_applies(args: argparse.Namespace) -> bool:
   """Whether the run takes its task's own settings: an expert run its recipe
   (mjx_form/rl/recipes.py), a FORM run its entry in mjx_form/imitation/settings.py."""
   own = recipes.PER_TASK if args.method == "expert" else settings.PER_TASK_RUN
-  return args.method in ("expert", "form") and args.task in own and args.preset != "paper"
+  return args.method in ("expert", *IMITATION) and args.task in own and args.preset != "paper"
 
 
 def recipe_line(args: argparse.Namespace) -> str:
@@ -600,6 +638,27 @@ def form_source(args: argparse.Namespace, run_dir: str, results_path: str, print
                           varied=tuple(args.grid), print_fn=print_fn)
 
 
+def gaifo_source(args: argparse.Namespace, print_fn) -> gaifo_lib.GaifoReward:
+  """The demonstrations and the GAIfO (or GAIfO+GP) reward source of --method gaifo(_gp).
+  A resumed run records its demonstrations again (the same seed: the same episodes) or reads
+  --demos; the checkpoint's settings name their checksum, so other ones are refused."""
+  env = tasks.make(args.task, physics=args.physics)
+  artefacts = pipeline.Artefacts(expert=args.expert, demos=args.demos,
+                                 save_demos=args.save_demos)
+  episodes = (pipeline.DEFAULT_TRAINING_EPISODES if args.demo_episodes is None
+              else args.demo_episodes)
+  observations, info = pipeline.demonstrations(env, artefacts, episodes, args.physics,
+                                               args.seed, print_fn)
+  penalty = 0.0 if args.method == "gaifo" else (
+      GAIFO_GP_DEFAULT if args.gradient_penalty is None else args.gradient_penalty)
+  config = discriminator_lib.DiscriminatorConfig(
+      width=args.network_width, frames=args.discriminator_frames, gradient_penalty=penalty)
+  # The reward as the paper's, log(1 + D) in [0, log 2], unless --reward_scale standardised:
+  # early on D is nearly constant, and its running sd ~0 would blow the standardised one up.
+  return gaifo_lib.GaifoReward(config, observations, info["sha256"],
+                               standardise_reward=args.reward_scale == "standardised")
+
+
 def random_rollout(args: argparse.Namespace, mesh) -> dict:
   """Random-action rollout with the batch sharded over `mesh`; returns the measured numbers."""
   env = AutoReset(tasks.make(args.task, physics=args.physics))
@@ -661,7 +720,7 @@ def main(argv=None) -> int:
     print("error: --eval_on_host evaluates on the host's CPU beside an accelerator; this run "
           "trains on the CPU itself (no accelerator found)", file=sys.stderr)
     return 2
-  if args.method in ("expert", "form"):
+  if args.method in ("expert", *IMITATION):
     seeds, overrides = grid.expand(args.seeds or (args.seed,), args.grid)
     name = (f"seed{seeds[0]}" if len(set(seeds)) == 1 else "seeds" + "_".join(
         map(str, args.seeds))) + "".join(f"_{k}" for k in args.grid)
@@ -678,7 +737,8 @@ def main(argv=None) -> int:
         config = dataclasses.replace(config, init_policy=experts.policy_id(initial))
       if recipe_applies(args):
         say(recipe_line(args))
-      source = form_source(args, run_dir, results_path, say) if args.method == "form" else None
+      source = (form_source(args, run_dir, results_path, say) if args.method == "form" else
+                gaifo_source(args, say) if args.method in GAIFO else None)
       rows = runner.run(config, run_dir, args.env_steps, resume=args.resume,
                         log_every=args.log_every, eval_every=args.eval_every,
                         checkpoint_every=args.checkpoint_every, max_seconds=args.max_seconds,

@@ -215,3 +215,60 @@ def test_gaifo_trains_in_the_compiled_loop_without_the_task_reward(monkeypatch):
       np.testing.assert_array_equal(np.asarray(a), np.asarray(b),
                                     err_msg=part + jax.tree_util.keystr(path))
   assert metrics[-1]["train_reward"][0] != other_metrics[-1]["train_reward"][0]
+
+
+SMALL_RUN = ["--task", "reacher_easy", "--num_envs", "4", "--unroll_length", "50",
+             "--batch_size", "4", "--replay_capacity", "16", "--updates_per_iteration", "2",
+             "--num_action_samples", "4", "--network_width", "32", "--eval_envs", "2",
+             "--eval_every", "2", "--final_eval_envs", "0", "--demo_episodes", "2"]
+
+
+def test_run_py_gaifo_runs_resumes_and_refuses_what_does_not_fit(tmp_path, capsys):
+  """`scripts/run.py --method gaifo_gp` end to end on the CPU: demonstrations recorded from the
+  shipped expert, records named by the method with the discriminator's settings and metrics,
+  and --resume continuing the run (the same demonstrations again); demonstrations of another
+  task, or none, and the other methods' flags are refused with exit status 2 or a usage error,
+  nothing written."""
+  import json
+  from conftest import load_script
+  from mjx_form.files import demos
+  cli = load_script("run")
+  run_dir, out = tmp_path / "run", tmp_path / "curve.jsonl"
+  args = [*SMALL_RUN, "--method", "gaifo_gp", "--gradient_penalty", "5", "--run_dir",
+          str(run_dir), "--results", str(out)]
+  assert cli.main([*args, "--env_steps", "400"]) == 0
+  records = [json.loads(line) for line in open(out)]
+  curve = [r for r in records if r["kind"] == "learning_curve"]
+  assert curve and {r["method"] for r in records} == {"gaifo_gp"}
+  reward = curve[-1]["settings"]["reward"]
+  assert reward["discriminator"]["gradient_penalty"] == 5.0
+  assert reward["demonstration_episodes"] == 2 and not reward["standardise_reward"]
+  assert 0.0 <= curve[-1]["gaifo_reward"] <= np.log(2)
+  assert np.isfinite(curve[-1]["discriminator_gradient_norm"])
+  assert "gaifo reward" in capsys.readouterr().out
+  assert cli.main([*args, "--env_steps", "800", "--resume"]) == 0
+  assert max(json.loads(line)["env_steps"] for line in open(out)) == 800
+  # demonstrations of another task: refused, naming the file, before anything is written
+  walker = tasks.make("walker_walk")
+  other = demos.save_demonstrations(
+      tmp_path / "walker.npz", np.zeros((1, 3, walker.observation_size), np.float32),
+      metadata={"task": "walker_walk", "observation_layout": walker.observation_layout,
+                "physics": "fast", "expert": {}})
+  capsys.readouterr()
+  assert cli.main([*SMALL_RUN, "--method", "gaifo", "--demos", str(other), "--run_dir",
+                   str(tmp_path / "refused"), "--env_steps", "400"]) == 2
+  err = capsys.readouterr().err
+  assert "walker.npz" in err and "walker_walk" in err
+  assert not (tmp_path / "refused").exists()
+  for argv, message in (
+      (["--method", "gaifo", "--demo_episodes", "0"], "--method gaifo needs demonstrations"),
+      (["--method", "gaifo", "--gradient_penalty", "1"], "--method gaifo has none"),
+      (["--method", "gaifo_gp", "--gradient_penalty", "0"], "must be positive, got 0.0"),
+      (["--method", "gaifo", "--beta_ar", "1"], "--beta_ar apply to --method form only"),
+      (["--method", "expert", "--discriminator_frames", "2"],
+       "--discriminator_frames apply to --method gaifo and gaifo_gp"),
+      (["--method", "expert", "--demos", "x.npz"],
+       "--demos apply to --method form, gaifo, gaifo_gp")):
+    with pytest.raises(SystemExit):
+      cli.parse_args(argv)
+    assert message in capsys.readouterr().err

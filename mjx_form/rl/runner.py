@@ -768,6 +768,10 @@ def _progress_line(row: dict, total_iterations: int, steps_per_iteration: int) -
              f"{row['imitator_batch_log_prob']:.1f}"
              + (f", fresh {row['imitator_fresh_log_prob']:.1f}"
                 if "imitator_fresh_log_prob" in row else "") + ")")
+  if "gaifo_reward" in row:
+    line += (f"  gaifo reward {row['gaifo_reward']:.3f} (sd {row['gaifo_reward_std']:.3f}; "
+             f"discriminator right on {100 * row['discriminator_expert_accuracy']:.0f}% of the "
+             f"expert's, {100 * row['discriminator_imitator_accuracy']:.0f}% of the imitator's)")
   return line + (f"  q {row['q_mean']:.2f}  critic {row['critic_loss']:.3f}  mean out of bounds "
                  f"{row['mean_out_of_bounds']:.2f}")
 
@@ -872,6 +876,12 @@ _CURVE_FIELDS = (
     "form_reward", "form_reward_std", "form_reward_clipped", "demonstrator_log_prob",
     "imitator_batch_log_prob", "imitator_log_prob", "demonstrator_fresh_log_prob",
     "imitator_fresh_log_prob", "form_reward_fresh",
+    # GAIfO: the reward and its running sd, and the discriminator on the learner's batches (its
+    # mean log D on the expert's inputs and log(1 - D) on the imitator's, the share of each it
+    # tells right, the gradient norm its penalty charges)
+    "gaifo_reward", "gaifo_reward_std", "discriminator_expert_log_prob",
+    "discriminator_imitator_log_prob", "discriminator_expert_accuracy",
+    "discriminator_imitator_accuracy", "discriminator_gradient_norm",
     # FORM: the demonstrator's mean log pD of the evaluation episodes' transitions (the policy's
     # mean action): how well the policy imitates, measured without the task reward
     "eval_demonstrator_log_prob",
