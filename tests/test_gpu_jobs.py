@@ -243,12 +243,15 @@ def test_check_parses_run_jobs_as_run_does_and_names_a_bad_one(tmp_path, capsys)
       "ls: ls -la $RES\n"
       "rr: cp -r runs/rx $RUNS/rx && python scripts/run.py --task reacher_hard --method expert "
       "--sampled_q_float32_head --run_dir $RUNS/rx --resume\n"
-      "rl: python scripts/run.py --task reacher_hard --method expert && ls $RES\n")
+      "rl: python scripts/run.py --task reacher_hard --method expert && ls $RES\n"
+      "gg: python scripts/run.py --task walker_walk --method gaifo_gp --gradient_penalty 5 "
+      "--discriminator_frames 2\n"
+      "ga: python scripts/run.py --task walker_walk --method gaifo --reward_scale standardised\n")
   assert gpu_jobs.main(["check", str(jobs), "--deadline", "900"]) == 0
   out = [line for line in capsys.readouterr().out.splitlines()  # (not MuJoCo's import notes)
          if line.startswith(("rx:", "fx:", "fc:", "fl:", "fw:", "fd:", "fe:", "fm:", "fp:",
-                             "ft:", "fn:", "fg:", "ls:", "rr:", "rl:"))]
-  assert len(out) == 15 and out[0].startswith(
+                             "ft:", "fn:", "fg:", "ls:", "rr:", "rl:", "gg:", "ga:"))]
+  assert len(out) == 17 and out[0].startswith(
       "rx: reacher_hard expert, seeds 0,1; grid target_update_period=25,100")
   for part in ("512 envs x 256 updates (replay ratio 32)", "T 25", "action penalty True",
                "average policy decay 0,",
@@ -285,6 +288,11 @@ def test_check_parses_run_jobs_as_run_does_and_names_a_bad_one(tmp_path, capsys)
   assert "sampled Q bf16, " in out[0] and "sampled Q float32, " in out[3], out
   assert "sampled Q bf16 (float32 head), " in out[13], out
   assert out[14].startswith("rl: not a run.py command, not checked:")  # (run.py not last)
+  # GAIfO jobs: the discriminator's settings (gaifo_gp's penalty 10 unless given; raw reward)
+  assert out[15].startswith("gg: walker_walk gaifo_gp, seeds 0; discriminator: 2 frame(s), "
+                            "gradient penalty 5, reward raw;"), out
+  assert out[16].startswith("ga: walker_walk gaifo, seeds 0; discriminator: 1 frame(s), "
+                            "gradient penalty 0, reward standardised;"), out
   for bad, said in (("--task walker_walk --method form --turn_invariant", "unbounded"),
                     ("--task reacher_easy --method form --demonstrator "
                      "tasks/demonstrators/reacher_hard.npz", "reacher_hard"),
