@@ -44,6 +44,7 @@ import jax.numpy as jnp  # noqa: E402
 import tasks  # noqa: E402
 from mjx_form import mesh as mesh_lib  # noqa: E402
 from mjx_form.files import checkpoint, experts  # noqa: E402
+from mjx_form.files import demos as demos_lib  # noqa: E402
 from mjx_form.imitation import demonstrator as demonstrator_lib  # noqa: E402
 from mjx_form.imitation import discriminator as discriminator_lib  # noqa: E402
 from mjx_form.imitation import form as form_lib  # noqa: E402
@@ -417,8 +418,8 @@ def parse_args(argv=None) -> argparse.Namespace:
   if args.method == "gaifo" and args.gradient_penalty is not None:
     parser.error("--gradient_penalty: --method gaifo has none (--method gaifo_gp has one)")
   if args.method == "gaifo_gp" and args.gradient_penalty is not None and not (
-      args.gradient_penalty > 0):
-    parser.error(f"--gradient_penalty must be positive, got {args.gradient_penalty}")
+      0 < args.gradient_penalty < float("inf")):
+    parser.error(f"--gradient_penalty must be positive and finite, got {args.gradient_penalty}")
   if args.method in GAIFO and args.demo_episodes == 0:
     parser.error(f"--demo_episodes 0: --method {args.method} needs demonstrations")
   if args.resume and (args.demonstrator or args.train_demonstrator or args.member_demonstrators
@@ -638,10 +639,13 @@ def form_source(args: argparse.Namespace, run_dir: str, results_path: str, print
                           varied=tuple(args.grid), print_fn=print_fn)
 
 
-def gaifo_source(args: argparse.Namespace, print_fn) -> gaifo_lib.GaifoReward:
-  """The demonstrations and the GAIfO (or GAIfO+GP) reward source of --method gaifo(_gp).
-  A resumed run records its demonstrations again (the same seed: the same episodes) or reads
-  --demos; the checkpoint's settings name their checksum, so other ones are refused."""
+def gaifo_source(args: argparse.Namespace, run_dir: str, print_fn) -> gaifo_lib.GaifoReward:
+  """The demonstrations and the GAIfO (or GAIfO+GP) reward source of --method gaifo(_gp), once
+  `run_dir` is known to fit (a new run's unused, a resumed one's there). A resumed run records
+  its demonstrations again (the same seed: the same episodes) or reads --demos; the
+  checkpoint's settings name their observations' checksum (the same for a recording and the
+  file --save_demos wrote of it), so other ones are refused."""
+  runner.check_run_dir(run_dir, args.resume)
   env = tasks.make(args.task, physics=args.physics)
   artefacts = pipeline.Artefacts(expert=args.expert, demos=args.demos,
                                  save_demos=args.save_demos)
@@ -655,7 +659,8 @@ def gaifo_source(args: argparse.Namespace, print_fn) -> gaifo_lib.GaifoReward:
       width=args.network_width, frames=args.discriminator_frames, gradient_penalty=penalty)
   # The reward as the paper's, log(1 + D) in [0, log 2], unless --reward_scale standardised:
   # early on D is nearly constant, and its running sd ~0 would blow the standardised one up.
-  return gaifo_lib.GaifoReward(config, observations, info["sha256"],
+  return gaifo_lib.GaifoReward(config, observations,
+                               demos_lib.checksum({"observations": observations}),
                                standardise_reward=args.reward_scale == "standardised")
 
 
@@ -738,7 +743,7 @@ def main(argv=None) -> int:
       if recipe_applies(args):
         say(recipe_line(args))
       source = (form_source(args, run_dir, results_path, say) if args.method == "form" else
-                gaifo_source(args, say) if args.method in GAIFO else None)
+                gaifo_source(args, run_dir, say) if args.method in GAIFO else None)
       rows = runner.run(config, run_dir, args.env_steps, resume=args.resume,
                         log_every=args.log_every, eval_every=args.eval_every,
                         checkpoint_every=args.checkpoint_every, max_seconds=args.max_seconds,

@@ -121,6 +121,10 @@ def test_expert_inputs_are_transitions_of_one_demonstration(frames):
   last = drawn[:, -1]
   assert last[:, 1].min() == 1 and last[:, 1].max() == 7  # x_{t+1}: never a reset frame
   assert len({tuple(x) for x in last}) == 5 * 7  # every transition can be drawn
+  many = np.asarray(source.expert_frames(jnp.asarray(observations), 7000,
+                                         jax.random.PRNGKey(1)))[:, -1, 1]
+  counts = np.bincount(many.astype(int), minlength=8)[1:]  # x_{t+1} = 1..7, uniformly
+  assert counts.max() < 1.3 * counts.mean() and counts.min() > 0.7 * counts.mean(), counts
   if frames == 2:
     np.testing.assert_array_equal(drawn[:, 0, 0], drawn[:, 1, 0])  # one episode
     np.testing.assert_array_equal(drawn[:, 0, 1] + 1, drawn[:, 1, 1])  # consecutive
@@ -141,14 +145,52 @@ def test_batch_inputs_are_scored_as_the_relabelled_transitions(frames):
   rows = source.imitator_frames(batch["observation"])  # [12, frames, 2]
   norm = state.discriminator.normalizer
   flat = normalizer.normalize(norm, rows).reshape(rows.shape[0], -1)
+  # transition t's input, from the observations themselves: x_{t+1} (and x_t before it)
+  x = (np.asarray(batch["observation"]) - np.array([0.5, 2.0])) / np.sqrt(
+      np.array([2.0, 9.0]) + 1e-6)
+  own = x[:, 1:] if frames == 1 else np.concatenate([x[:, :-1], x[:, 1:]], axis=-1)
+  np.testing.assert_allclose(np.asarray(flat), own.reshape(12, -1), rtol=1e-5, atol=1e-6)
   logits = disc.Discriminator(8).apply(state.discriminator.params, flat)
   rewards, metrics = source.relabel(state, batch)
   valid = np.asarray(batch["discount"]).reshape(-1) > 0
-  np.testing.assert_allclose(np.asarray(rewards).reshape(-1)[valid],
-                             np.asarray(disc.reward(logits))[valid], rtol=1e-6)
+  expected = np.asarray(disc.reward(logits))
+  np.testing.assert_allclose(np.asarray(rewards).reshape(-1)[valid], expected[valid], rtol=1e-6)
   assert np.all(np.asarray(rewards).reshape(-1)[~valid] == 0)
-  assert float(metrics["gaifo_reward"]) == pytest.approx(
-      float(np.asarray(disc.reward(logits))[valid].mean()), rel=1e-5)
+  assert float(metrics["gaifo_reward"]) == pytest.approx(float(expected[valid].mean()), rel=1e-5)
+  # standardised: by the running mean and sd of the raw reward
+  stats = normalizer.NormalizerState(jnp.array([0.3]), jnp.array([0.04]),
+                                     jnp.asarray(1, jnp.int32))
+  scaled = source.specialise({"standardise_reward": True})
+  standardised, _ = scaled.relabel(state._replace(reward=stats), batch)
+  np.testing.assert_allclose(np.asarray(standardised).reshape(-1)[valid],
+                             (expected[valid] - 0.3) / np.sqrt(0.04 + 1e-6), rtol=1e-4)
+
+
+def test_transitions_without_a_successor_neither_train_nor_score():
+  """The observations only a discount-0 transition leads to (1 frame) change neither the
+  discriminator's step, its standardisation, the reward's statistics nor any valid reward."""
+  source, _ = _source(frames=1)
+  state = source.init(jax.random.PRNGKey(0), 2, 1)
+  rng = np.random.default_rng(0)
+  observation = rng.normal(size=(3, 5, 2)).astype(np.float32)
+  discount = np.ones((3, 4), np.float32)
+  discount[0, 1] = discount[2, 3] = 0.0
+  batch = lambda obs: {"observation": jnp.asarray(obs), "discount": jnp.asarray(discount)}
+  moved = observation.copy()
+  moved[0, 2] = 1e3  # x_{t+1} of transition (0, 1)
+  moved[2, 4] = -1e3  # x_{t+1} of transition (2, 3)
+  key = jax.random.PRNGKey(4)
+  one, _ = source.update(state, batch(observation), key)
+  two, _ = source.update(state, batch(moved), key)
+  for a, b in zip(jax.tree.leaves(one), jax.tree.leaves(two)):
+    np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+  r1, r2 = source.relabel(one, batch(observation))[0], source.relabel(two, batch(moved))[0]
+  np.testing.assert_array_equal(np.asarray(r1), np.asarray(r2))
+  other = observation.copy()
+  other[1, 2] = 1e3  # a valid transition's x_{t+1}: it does train (the test can fail)
+  three, _ = source.update(state, batch(other), key)
+  assert not np.array_equal(np.asarray(three.discriminator.normalizer.mean),
+                            np.asarray(one.discriminator.normalizer.mean))
 
 
 def test_source_names_its_method_and_refuses_what_does_not_fit():
@@ -161,7 +203,8 @@ def test_source_names_its_method_and_refuses_what_does_not_fit():
     GaifoReward(SMALL, np.zeros((4, 3)))
   with pytest.raises(ValueError, match="finite"):
     GaifoReward(SMALL, np.full((2, 3, 4), np.nan))
-  for bad in ({"frames": 3}, {"gradient_penalty": -1.0}, {"width": 0},
+  for bad in ({"frames": 3}, {"gradient_penalty": -1.0}, {"gradient_penalty": np.inf},
+              {"width": 0},
               {"learning_rate": 0.0}, {"normalizer_decay": 1.0}):
     with pytest.raises(ValueError, match="discriminator"):
       GaifoReward(dataclasses.replace(SMALL, **bad), np.zeros((2, 3, 4)))
@@ -201,6 +244,15 @@ def test_gaifo_trains_in_the_compiled_loop_without_the_task_reward(monkeypatch):
   bit the same (only the logged task returns differ)."""
   trainer = Trainer(CONFIG, mesh_lib.make_mesh(), _gaifo_source())
   state, metrics = _iterate(trainer, 2)
+  # the demonstrations enter the iteration as an argument: not in the (checkpointed) state,
+  # not compiled in (ten times as many leave the program's text as long)
+  assert not any(np.shape(x)[-3:] == (3, 11, 6) for x in jax.tree.leaves(state.source))
+  text = lambda t: len(t.iteration.lower(t.abstract_state).as_text())
+  rng = np.random.default_rng(1)
+  more = GaifoReward(disc.DiscriminatorConfig(width=16, gradient_penalty=10.0),
+                     rng.normal(size=(30, 11, 6)).astype(np.float32), "sha",
+                     standardise_reward=True)
+  assert abs(text(Trainer(CONFIG, mesh_lib.make_mesh(), more)) - text(trainer)) < 2000
   assert int(np.asarray(state.source.discriminator.steps).max()) == 4  # 2 x 2 updates
   assert np.isfinite(metrics[-1]["gaifo_reward"][0])
   assert np.isfinite(metrics[-1]["discriminator_gradient_norm"][0])
@@ -236,7 +288,8 @@ def test_run_py_gaifo_runs_resumes_and_refuses_what_does_not_fit(tmp_path, capsy
   run_dir, out = tmp_path / "run", tmp_path / "curve.jsonl"
   args = [*SMALL_RUN, "--method", "gaifo_gp", "--gradient_penalty", "5", "--run_dir",
           str(run_dir), "--results", str(out)]
-  assert cli.main([*args, "--env_steps", "400"]) == 0
+  saved = tmp_path / "demos.npz"
+  assert cli.main([*args, "--env_steps", "400", "--save_demos", str(saved)]) == 0
   records = [json.loads(line) for line in open(out)]
   curve = [r for r in records if r["kind"] == "learning_curve"]
   assert curve and {r["method"] for r in records} == {"gaifo_gp"}
@@ -246,8 +299,19 @@ def test_run_py_gaifo_runs_resumes_and_refuses_what_does_not_fit(tmp_path, capsy
   assert 0.0 <= curve[-1]["gaifo_reward"] <= np.log(2)
   assert np.isfinite(curve[-1]["discriminator_gradient_norm"])
   assert "gaifo reward" in capsys.readouterr().out
-  assert cli.main([*args, "--env_steps", "800", "--resume"]) == 0
+  assert cli.main([*args, "--env_steps", "800", "--resume"]) == 0  # recorded again
   assert max(json.loads(line)["env_steps"] for line in open(out)) == 800
+  assert cli.main([*args, "--env_steps", "1200", "--resume", "--demos", str(saved)]) == 0
+  assert max(json.loads(line)["env_steps"] for line in open(out)) == 1200
+  # other demonstrations than the run's: refused on resume, by their checksum
+  loaded = demos.load_demonstrations(str(saved))
+  changed = demos.save_demonstrations(
+      tmp_path / "changed.npz", loaded.observations + 1e-3, loaded.actions,
+      metadata={k: loaded.metadata[k] for k in ("task", "observation_layout", "physics",
+                                                "expert")})
+  capsys.readouterr()
+  assert cli.main([*args, "--env_steps", "1600", "--resume", "--demos", str(changed)]) == 2
+  assert "demonstrations_sha256" in capsys.readouterr().err
   # demonstrations of another task: refused, naming the file, before anything is written
   walker = tasks.make("walker_walk")
   other = demos.save_demonstrations(
@@ -263,7 +327,8 @@ def test_run_py_gaifo_runs_resumes_and_refuses_what_does_not_fit(tmp_path, capsy
   for argv, message in (
       (["--method", "gaifo", "--demo_episodes", "0"], "--method gaifo needs demonstrations"),
       (["--method", "gaifo", "--gradient_penalty", "1"], "--method gaifo has none"),
-      (["--method", "gaifo_gp", "--gradient_penalty", "0"], "must be positive, got 0.0"),
+      (["--method", "gaifo_gp", "--gradient_penalty", "0"], "must be positive and finite, got 0.0"),
+      (["--method", "gaifo_gp", "--gradient_penalty", "inf"], "positive and finite, got inf"),
       (["--method", "gaifo", "--beta_ar", "1"], "--beta_ar apply to --method form only"),
       (["--method", "expert", "--discriminator_frames", "2"],
        "--discriminator_frames apply to --method gaifo and gaifo_gp"),

@@ -11,9 +11,11 @@ table), or with `frames` 2 the pair (x_t, x_{t+1}) concatenated.
 Objective, maximised on a batch of expert inputs E and imitator inputs I:
   mean_E log D(e) + mean_I log(1 - D(i)) - beta_gp * mean ||grad_z decoder(z)||_2 / width,
 z = u * encoder(e) + (1 - u) * encoder(i) with u ~ U(0, 1) drawn per pair each update (the
-paper's gradient penalty on the decoder at random interpolations of the two encodings, "beta_gp
-about 10, divided by 256"; written there with a plus sign in the maximised objective, a
-penalty here). beta_gp 0 is GAIfO, > 0 GAIfO+GP. Adam, learning rate 1e-4.
+paper's gradient penalty "on the decoder MLP" at random interpolations of the two encodings,
+"beta_gp about 10, divided by 256", the width; written there with a plus sign in the maximised
+objective, a penalty here). z is held fixed (stop_gradient): the penalty regularises the
+decoder, not the encoder. beta_gp 0 is GAIfO (the norm then only a metric), > 0 GAIfO+GP. Adam,
+learning rate 1e-4.
 
 Reward of a transition: log(1 + D(x_{t+1})) (the paper: "a softplus transform: log(1 +
 p(expert | x_t))", i.e. softplus of log D), in [0, log 2].
@@ -51,8 +53,8 @@ class DiscriminatorConfig:
       raise ValueError(f"discriminator width must be a positive integer, got {self.width!r}")
     if self.frames not in (1, 2):
       raise ValueError(f"discriminator frames must be 1 or 2, got {self.frames!r}")
-    if not self.gradient_penalty >= 0:
-      raise ValueError(f"discriminator gradient_penalty must be >= 0, got "
+    if not 0 <= self.gradient_penalty < float("inf"):
+      raise ValueError(f"discriminator gradient_penalty must be >= 0 and finite, got "
                        f"{self.gradient_penalty}")
     if not self.learning_rate > 0:
       raise ValueError(f"discriminator learning_rate must be positive, got "
@@ -133,10 +135,14 @@ def loss(config: DiscriminatorConfig, params, expert: jax.Array, imitator: jax.A
   log_expert = jnp.mean(jax.nn.log_sigmoid(logit_expert))
   log_imitator = jnp.sum(weights * jax.nn.log_sigmoid(-logit_imitator)) / count
   u = jax.random.uniform(key, (expert.shape[0], 1))
-  z = u * h_expert + (1 - u) * h_imitator
+  z = jax.lax.stop_gradient(u * h_expert + (1 - u) * h_imitator)
   norms = gradient_norms(model, params, z)
+  if not config.gradient_penalty:  # (a metric only: no second-order pass, no 0 x NaN)
+    norms = jax.lax.stop_gradient(norms)
   penalty = jnp.sum(weights * norms) / count / config.width
-  objective = log_expert + log_imitator - config.gradient_penalty * penalty
+  objective = log_expert + log_imitator
+  if config.gradient_penalty:
+    objective = objective - config.gradient_penalty * penalty
   metrics = {"expert_log_prob": log_expert, "imitator_log_prob": log_imitator,
              "gradient_norm": penalty * config.width,
              "expert_accuracy": jnp.mean(logit_expert > 0),

@@ -4,8 +4,9 @@ online by one gradient step on every learner batch against as many expert inputs
 uniformly from the demonstrations' transitions; rewards are relabelled with the discriminator
 after its step.
 
-The demonstrations' observations [K, T+1, D] live in the source's state on the device (a
-constant of the run: 1000 humanoid episodes take 268 MB). The imitator's side is the batch's
+The demonstrations' observations [K, T+1, D] are the source's `data` (reward_sources.py): put on
+the devices once and passed into each compiled iteration (1000 humanoid episodes take 268 MB),
+not compiled in and not in the checkpointed state. The imitator's side is the batch's
 transitions whose successor is stored (discount > 0); the others get reward 0, as FORM's.
 With `standardise_reward` the learner gets the reward standardised by its running mean and sd
 over the batches so far (decay 0.99, as FORM's); the logs report the raw reward either way.
@@ -28,7 +29,6 @@ from mjx_form.rl import normalizer
 
 
 class GaifoState(NamedTuple):
-  expert: jax.Array  # [K, T+1, D] raw demonstration observations, constant through the run
   discriminator: disc.DiscriminatorState
   reward: normalizer.NormalizerState  # EMA mean and variance of the raw reward, [1]
 
@@ -56,6 +56,17 @@ class GaifoReward:
     self.demonstrations_sha256 = demonstrations_sha256
     self.standardise_reward = bool(standardise_reward)
     self.observation_size = int(expert.shape[-1])
+    self.bound = None  # the data as the compiled iteration passes it (`with_data`)
+
+  def data(self) -> dict:
+    """The constant arrays the source reads: the demonstrations' observations."""
+    return {"expert": self.expert}
+
+  def with_data(self, data: dict) -> "GaifoReward":
+    """This source reading `data` (`data()`'s arrays as the compiled iteration has them)."""
+    source = copy.copy(self)
+    source.bound = data["expert"]
+    return source
 
   def specialise(self, values: dict) -> "GaifoReward":
     """This source with `standardise_reward` replaced (a Python value, or a population
@@ -73,8 +84,7 @@ class GaifoReward:
     if observation_size != self.observation_size:
       raise ValueError(f"the demonstrations have {self.observation_size}-dimensional "
                        f"observations, the task has {observation_size}")
-    return GaifoState(jnp.asarray(self.expert),
-                      disc.init(self.config, observation_size, key), normalizer.init(1))
+    return GaifoState(disc.init(self.config, observation_size, key), normalizer.init(1))
 
   def expert_frames(self, expert: jax.Array, n: int, key: jax.Array) -> jax.Array:
     """n inputs drawn uniformly from the demonstrations' transitions: [n, frames, D] raw (the
@@ -99,7 +109,8 @@ class GaifoReward:
     draw_key, step_key = jax.random.split(key)
     imitator = self.imitator_frames(batch["observation"])
     valid = (batch["discount"] > 0).reshape(-1)
-    expert = self.expert_frames(state.expert, imitator.shape[0], draw_key)
+    demonstrations = jnp.asarray(self.expert) if self.bound is None else self.bound
+    expert = self.expert_frames(demonstrations, imitator.shape[0], draw_key)
     discriminator, metrics = disc.update(self.config, state.discriminator, expert, imitator,
                                          valid, step_key)
     state = state._replace(discriminator=discriminator)

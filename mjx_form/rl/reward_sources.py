@@ -29,6 +29,11 @@ A source is an object with:
       learned online (`state`: that member's), e.g. FORM's imitator model, to `path` (the
       member's directory and `export_file`); the runner calls it beside each member's exported
       policy, `info` naming the task, its observations, the env steps and the policy file
+  data() -> pytree of arrays, and with_data(data) -> source (optional, together): constant
+      arrays the source reads while training (GAIfO's demonstrations); the Trainer puts them
+      on the devices once and passes them into each compiled iteration as an argument, where
+      `with_data` gives the source that reads them (not compiled in as constants, not in the
+      state that checkpoints save)
 where `batch` is a dict of unrolls: observation [B, T+1, D] (raw, not standardised), action
 [B, T, A], discount [B, T], and reward [B, T] only when needs_task_reward is set.
 """

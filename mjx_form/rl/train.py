@@ -191,6 +191,19 @@ class TrainState(NamedTuple):
   settings: dict
 
 
+class _WithData:
+  """A jitted function with its `data` argument bound: called, or lowered, without it."""
+
+  def __init__(self, jitted, data):
+    self.jitted, self.data = jitted, data
+
+  def __call__(self, *args, **kwargs):
+    return self.jitted(*args, data=self.data, **kwargs)
+
+  def lower(self, *args, **kwargs):
+    return self.jitted.lower(*args, data=self.data, **kwargs)
+
+
 class Trainer:
   """Builds and compiles the functions of a run, or of a population of runs, for `config` on
   `mesh`.
@@ -248,6 +261,7 @@ class Trainer:
     self.networks = networks_lib.make_networks(self.env.action_size, config.network_width,
                                                config.policy_head)
     self.source = reward_source or make_reward_source(config.reward_source)
+    self._data = None  # the source's data (`source_data`) while `_iteration` is being traced
     if self.source.name != config.reward_source:
       raise ValueError(f"the config names reward source {config.reward_source!r}, the trainer "
                        f"was given {self.source.name!r}")
@@ -291,6 +305,13 @@ class Trainer:
                         compiler_options=cpu.run_once_compiler_options())
     self.iteration = jax.jit(self._iteration, donate_argnums=0,
                              out_shardings=(self.state_sharding, self._replicated))
+    # A source's constant arrays (`data`, reward_sources.py: e.g. GAIfO's demonstrations) enter
+    # the compiled iteration as an argument, replicated: neither compiled in as constants nor
+    # part of the state that checkpoints save.
+    data = self.source.data() if hasattr(self.source, "data") else None
+    if data is not None:
+      self.source_data = jax.device_put(data, self._replicated)
+      self.iteration = _WithData(self.iteration, self.source_data)
     self.evaluate = jax.jit(self._evaluate, static_argnames="num_envs",
                             out_shardings=self._replicated)
 
@@ -343,8 +364,10 @@ class Trainer:
     return source.as_member(i) if hasattr(source, "as_member") else source
 
   def _source_with(self, values: dict):
-    """The reward source with `values` (Python, or a member's traced ones) for its settings."""
-    return self.source.specialise(values) if values else self.source
+    """The reward source with `values` (Python, or a member's traced ones) for its settings,
+    and, while an iteration is traced, its constant arrays bound (`with_data`)."""
+    source = self.source.specialise(values) if values else self.source
+    return source if self._data is None else source.with_data(self._data)
 
   def keys(self, offset: int = 0) -> jax.Array:
     """[P, 2]: PRNGKey(seed + offset) of each member (offset 0 starts a run, 1 evaluates)."""
@@ -621,8 +644,16 @@ class Trainer:
         "a reward source's update metric shares its name with a learner or relabel metric")
     return learner, source, {**metrics, **source_metrics, **reward_metrics}
 
-  def _iteration(self, state: TrainState) -> tuple[TrainState, dict]:
-    """One iteration of every member; metrics are [P] arrays."""
+  def _iteration(self, state: TrainState, data=None) -> tuple[TrainState, dict]:
+    """One iteration of every member; metrics are [P] arrays. `data`: the source's constant
+    arrays (`source_data`), where it has some."""
+    self._data = data
+    try:
+      return self._iteration_body(state)
+    finally:
+      self._data = None
+
+  def _iteration_body(self, state: TrainState) -> tuple[TrainState, dict]:
     cfg = self.config
     key, collect_key, learn_key = jnp.moveaxis(
         jax.vmap(lambda k: jax.random.split(k, 3))(state.key), 1, 0)  # [3, P, 2]
