@@ -144,10 +144,12 @@ def check(jobs_file: Path, deadline_s: float = 1200.0) -> list[str]:
       except (ValueError, OSError) as e:  # (the file errors are ValueErrors)
         raise JobsError(f"job {job['name']!r}: run.py would refuse it: {e}") from None
     elif args.method in run.GAIFO:
-      penalty = (0.0 if args.method == "gaifo" else run.GAIFO_GP_DEFAULT
-                 if args.gradient_penalty is None else args.gradient_penalty)
-      grid += (f"; discriminator: {args.discriminator_frames} frame(s), gradient penalty "
-               f"{penalty:g}, reward {args.reward_scale or 'raw'}")
+      discriminator = run.discriminator_config(args)
+      grid += (f"; discriminator: {discriminator.frames} frame(s), gradient penalty "
+               f"{discriminator.gradient_penalty:g}, "
+               + ("" if discriminator.kl_bound is None
+                  else f"bottleneck KL <= {discriminator.kl_bound:g}, ")
+               + f"reward {args.reward_scale or 'raw'}")
     lines.append(
         f"{job['name']}: {config.task} {args.method}, seeds {seeds}{grid}; {config.num_envs} "
         f"envs x {config.updates_per_iteration} updates (replay ratio {config.replay_ratio:g}"

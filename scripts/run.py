@@ -10,10 +10,10 @@
       (the policy averaged over updates, --policy_average_decay) with its best by log pD
       (best_log_pd_average_policy.npz) and imitator.npz (the imitator model beside policy.npz)
       to --run_dir.
-  --method gaifo, gaifo_gp: the paper's GAIfO baselines, imitation from observations with a
-      discriminator of the expert's observations (gaifo_gp: with its gradient penalty,
-      --gradient_penalty), on FORM's learner settings, from the same demonstrations
-      (mjx_form/imitation/gaifo.py).
+  --method gaifo, gaifo_gp, vaifo, vaifo_gp: the paper's GAIfO baselines, imitation from
+      observations with a discriminator of the expert's observations (_gp: with its gradient
+      penalty, --gradient_penalty; vaifo: with a variational bottleneck, --kl_bound), on FORM's
+      learner settings, from the same demonstrations (mjx_form/imitation/gaifo.py).
   --method expert: the same learner on the task reward (to train experts).
   --method random: uniform random actions in N auto-resetting environments of one task,
       sharded over all devices; reports control steps per second (compile time apart).
@@ -58,17 +58,18 @@ from mjx_form.sim.physics import DEFAULT_PHYSICS, PHYSICS_MODES  # noqa: E402
 from mjx_form.sim.wrappers import AutoReset  # noqa: E402
 
 
-METHODS = ("form", "gaifo", "gaifo_gp", "expert", "random")
-IMITATION = ("form", "gaifo", "gaifo_gp")  # learn from demonstrations' observations alone
-GAIFO = ("gaifo", "gaifo_gp")
+METHODS = ("form", "gaifo", "gaifo_gp", "vaifo", "vaifo_gp", "expert", "random")
+GAIFO = ("gaifo", "gaifo_gp", "vaifo", "vaifo_gp")  # a discriminator's reward
+IMITATION = ("form", *GAIFO)  # learn from demonstrations' observations alone
 GAIFO_GP_DEFAULT = 10.0  # beta_gp: the paper's "typically 10"
+KL_BOUND_DEFAULT = 1.0  # VAIfO's epsilon: the paper's throughout
 # Options that only the imitation methods read (a user who gives one to another method is told
 # so), those that only --method form reads, and those that only GAIfO's read.
 DEMO_OPTIONS = ("expert", "demos", "demo_episodes", "save_demos", "reward_scale")
 FORM_ONLY = ("demonstrator", "member_demonstrators", "train_demonstrator", "demonstrator_seed",
              "beta_ar", "effect_l2", "turn_invariant", "angle_increments", "angle_inputs",
              "effect_max_scale", "reward_clip", "ensemble_log_pd", "imitator_every")
-GAIFO_ONLY = ("gradient_penalty", "discriminator_frames")
+GAIFO_ONLY = ("gradient_penalty", "discriminator_frames", "kl_bound")
 
 DEFAULT_COMPILATION_CACHE = os.path.join(
     os.environ.get("XDG_CACHE_HOME", os.path.expanduser("~/.cache")), "mjx_form", "jax")
@@ -144,9 +145,9 @@ def parse_args(argv=None) -> argparse.Namespace:
                            + " (standardise_reward: 0/1, reward_clip, ensemble_log_pd: --method form)")
   parser.add_argument("--list", action="store_true", help="print the task names and exit")
   parser.add_argument("--method", default="form", choices=METHODS,
-                      help="form: imitation from observations (default); gaifo, gaifo_gp: the "
-                           "GAIfO baselines; expert: MPO on the task reward; random: a "
-                           "random-action throughput demo")
+                      help="form: imitation from observations (default); gaifo, gaifo_gp, "
+                           "vaifo, vaifo_gp: the GAIfO baselines; expert: MPO on the task "
+                           "reward; random: a random-action throughput demo")
   parser.add_argument("--compilation_cache", default=DEFAULT_COMPILATION_CACHE,
                       help="directory of JAX's persistent compilation cache: a later run of "
                            "the same settings loads its programs instead of compiling them "
@@ -334,11 +335,14 @@ def parse_args(argv=None) -> argparse.Namespace:
                          "but FORM on reacher_hard was worse with a cap of 1 "
                          "(mjx_form/imitation/effect_model.py)")
   gaifo = parser.add_argument_group(
-      "GAIfO (--method gaifo and gaifo_gp; demonstrations as for form: --expert, --demos, "
-      "--demo_episodes, default 1000, --save_demos; --reward_scale)")
+      "GAIfO (--method gaifo, gaifo_gp, vaifo, vaifo_gp; demonstrations as for form: --expert, "
+      "--demos, --demo_episodes, default 1000, --save_demos; --reward_scale)")
   gaifo.add_argument("--gradient_penalty", type=float, default=None, metavar="BETA",
-                     help=f"gaifo_gp's beta_gp (default {GAIFO_GP_DEFAULT:g}, the paper's "
-                          "typical value; tuned per task there)")
+                     help=f"gaifo_gp's and vaifo_gp's beta_gp (default {GAIFO_GP_DEFAULT:g}, "
+                          "the paper's typical value; tuned per task there)")
+  gaifo.add_argument("--kl_bound", type=float, default=None, metavar="EPSILON",
+                     help=f"vaifo's and vaifo_gp's bound on the bottleneck's KL (default "
+                          f"{KL_BOUND_DEFAULT:g}, the paper's)")
   gaifo.add_argument("--discriminator_frames", type=int, default=1, choices=(1, 2),
                      help="the discriminator sees x_{t+1} (1, the paper's main table) or "
                           "(x_t, x_{t+1}) (2)")
@@ -414,12 +418,18 @@ def parse_args(argv=None) -> argparse.Namespace:
     given = [f"--{name}" for name in GAIFO_ONLY
              if getattr(args, name) != parser.get_default(name)]
     if given:
-      parser.error(f"{', '.join(given)} apply to --method {' and '.join(GAIFO)}")
-  if args.method == "gaifo" and args.gradient_penalty is not None:
-    parser.error("--gradient_penalty: --method gaifo has none (--method gaifo_gp has one)")
-  if args.method == "gaifo_gp" and args.gradient_penalty is not None and not (
+      parser.error(f"{', '.join(given)} apply to --method {', '.join(GAIFO)}")
+  if args.method in ("gaifo", "vaifo") and args.gradient_penalty is not None:
+    parser.error(f"--gradient_penalty: --method {args.method} has none (--method "
+                 f"{args.method}_gp has one)")
+  if args.method in ("gaifo_gp", "vaifo_gp") and args.gradient_penalty is not None and not (
       0 < args.gradient_penalty < float("inf")):
     parser.error(f"--gradient_penalty must be positive and finite, got {args.gradient_penalty}")
+  if args.method in ("gaifo", "gaifo_gp") and args.kl_bound is not None:
+    parser.error(f"--kl_bound: --method {args.method} has no bottleneck (--method "
+                 f"{args.method.replace('gaifo', 'vaifo')} has one)")
+  if args.kl_bound is not None and not 0 <= args.kl_bound < float("inf"):
+    parser.error(f"--kl_bound must be >= 0 and finite, got {args.kl_bound}")
   if args.method in GAIFO and args.demo_episodes == 0:
     parser.error(f"--demo_episodes 0: --method {args.method} needs demonstrations")
   if args.resume and (args.demonstrator or args.train_demonstrator or args.member_demonstrators
@@ -639,12 +649,24 @@ def form_source(args: argparse.Namespace, run_dir: str, results_path: str, print
                           varied=tuple(args.grid), print_fn=print_fn)
 
 
+def discriminator_config(args: argparse.Namespace) -> discriminator_lib.DiscriminatorConfig:
+  """The discriminator of --method gaifo, gaifo_gp, vaifo or vaifo_gp (its penalty and
+  bottleneck by the method, their strengths by the flags or the paper's defaults)."""
+  penalty = 0.0 if not args.method.endswith("_gp") else (
+      GAIFO_GP_DEFAULT if args.gradient_penalty is None else args.gradient_penalty)
+  bound = None if not args.method.startswith("vaifo") else (
+      KL_BOUND_DEFAULT if args.kl_bound is None else args.kl_bound)
+  return discriminator_lib.DiscriminatorConfig(
+      width=args.network_width, frames=args.discriminator_frames, gradient_penalty=penalty,
+      kl_bound=bound)
+
+
 def gaifo_source(args: argparse.Namespace, run_dir: str, print_fn) -> gaifo_lib.GaifoReward:
-  """The demonstrations and the GAIfO (or GAIfO+GP) reward source of --method gaifo(_gp), once
-  `run_dir` is known to fit (a new run's unused, a resumed one's there). A resumed run records
-  its demonstrations again (the same seed: the same episodes) or reads --demos; the
-  checkpoint's settings name their observations' checksum (the same for a recording and the
-  file --save_demos wrote of it), so other ones are refused."""
+  """The demonstrations and the discriminator's reward source of --method gaifo, gaifo_gp,
+  vaifo or vaifo_gp, once `run_dir` is known to fit (a new run's unused, a resumed one's
+  there). A resumed run records its demonstrations again (the same seed: the same episodes)
+  or reads --demos; the checkpoint's settings name their observations' checksum (the same for
+  a recording and the file --save_demos wrote of it), so other ones are refused."""
   runner.check_run_dir(run_dir, args.resume)
   env = tasks.make(args.task, physics=args.physics)
   artefacts = pipeline.Artefacts(expert=args.expert, demos=args.demos,
@@ -653,10 +675,7 @@ def gaifo_source(args: argparse.Namespace, run_dir: str, print_fn) -> gaifo_lib.
               else args.demo_episodes)
   observations, info = pipeline.demonstrations(env, artefacts, episodes, args.physics,
                                                args.seed, print_fn)
-  penalty = 0.0 if args.method == "gaifo" else (
-      GAIFO_GP_DEFAULT if args.gradient_penalty is None else args.gradient_penalty)
-  config = discriminator_lib.DiscriminatorConfig(
-      width=args.network_width, frames=args.discriminator_frames, gradient_penalty=penalty)
+  config = discriminator_config(args)
   # The reward as the paper's, log(1 + D) in [0, log 2], unless --reward_scale standardised:
   # early on D is nearly constant, and its running sd ~0 would blow the standardised one up.
   return gaifo_lib.GaifoReward(config, observations,

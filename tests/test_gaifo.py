@@ -75,7 +75,7 @@ def test_loss_is_cross_entropy_plus_the_penalty_and_ignores_invalid_rows():
   gp = dataclasses.replace(SMALL, gradient_penalty=10.0)
   penalised, metrics = disc.loss(gp, params, expert, imitator, valid, key)
   # the same interpolations (same key): the norms at them, independently of `loss`
-  u = jax.random.uniform(key, (6, 1))
+  u = jax.random.uniform(jax.random.split(key)[0], (6, 1))
   h = lambda x: model.apply(params, x, method=disc.Discriminator.encode)
   norms = np.asarray(disc.gradient_norms(model, params, u * h(expert) + (1 - u) * h(imitator)))
   assert float(penalised) == pytest.approx(bce + 10.0 * norms[v].mean() / SMALL.width, rel=1e-5)
@@ -102,6 +102,50 @@ def test_training_tells_the_expert_apart_and_pays_its_observations_more():
   sequences = jnp.asarray(np.stack([np.full((3, 3), 1.0), np.full((3, 3), -1.0)]), jnp.float32)
   rewards = np.asarray(disc.reward(disc.logits(config, state, sequences)))  # [2, 2]
   assert rewards.shape == (2, 2) and rewards[0].min() > rewards[1].max()
+
+
+def test_kl_to_a_standard_normal_matches_its_closed_form():
+  rng = np.random.default_rng(0)
+  mean, scale = rng.normal(size=(5, 7)), rng.uniform(0.1, 3.0, size=(5, 7))
+  expected = np.sum(np.log(1 / scale) + (scale ** 2 + mean ** 2) / 2 - 0.5, axis=-1)
+  np.testing.assert_allclose(np.asarray(disc.kl_to_standard_normal(jnp.asarray(mean),
+                                                                   jnp.asarray(scale))),
+                             expected, rtol=1e-5)
+
+
+def test_the_bottleneck_holds_its_bound_with_a_learned_multiplier():
+  """VAIfO: the multiplier grows while the encodings' KL exceeds the bound and shrinks below
+  it; training under a bound of 1 brings the KL down; the reward reads the mean encoding (the
+  same every call), and the classifier still tells the two sides apart."""
+  rng = np.random.default_rng(1)
+  batch = lambda: (jnp.asarray(rng.normal(1.0, 0.5, size=(64, 1, 3)), jnp.float32),
+                   jnp.asarray(rng.normal(-1.0, 0.5, size=(64, 1, 3)), jnp.float32))
+  for bound, sign in ((0.0, 1), (1e6, -1)):
+    config = disc.DiscriminatorConfig(width=16, kl_bound=bound)
+    state = disc.init(config, 3, jax.random.PRNGKey(0))
+    state, metrics = disc.update(config, state, *batch(), jnp.ones(64, bool),
+                                 jax.random.PRNGKey(1))
+    assert np.sign(float(state.log_beta)) == sign and "kl" in metrics
+  config = disc.DiscriminatorConfig(width=16, kl_bound=1.0, learning_rate=1e-3)
+  state = disc.init(config, 3, jax.random.PRNGKey(0))
+  step = jax.jit(lambda s, e, i, k: disc.update(config, s, e, i, jnp.ones(64, bool), k))
+  kls = []
+  for n in range(300):
+    state, metrics = step(state, *batch(), jax.random.PRNGKey(n))
+    kls.append(float(metrics["kl"]))
+  assert kls[0] > 4.0 and np.mean(kls[-20:]) < 0.5 * kls[0], (kls[0], kls[-20:])
+  assert metrics["expert_accuracy"] > 0.8 and metrics["imitator_accuracy"] > 0.8
+  sequences = jnp.asarray(rng.normal(size=(2, 4, 3)), jnp.float32)
+  once, twice = disc.logits(config, state, sequences), disc.logits(config, state, sequences)
+  np.testing.assert_array_equal(np.asarray(once), np.asarray(twice))
+  model = disc.make_model(config)
+  x = disc.inputs(config, state.normalizer, sequences)
+  h = model.apply(state.params, x, method=disc.Discriminator.encode)
+  mean = model.apply(state.params, h, method=disc.Discriminator.posterior)[0]
+  np.testing.assert_allclose(
+      np.asarray(once),
+      np.asarray(model.apply(state.params, mean, method=disc.Discriminator.decode)), rtol=1e-5)
+  assert disc.make_model(disc.DiscriminatorConfig(width=16)).bottleneck is False
 
 
 def _source(frames=1, episodes=5, steps=7, d=2, penalty=0.0):
@@ -195,6 +239,16 @@ def test_transitions_without_a_successor_neither_train_nor_score():
 
 def test_source_names_its_method_and_refuses_what_does_not_fit():
   assert _source()[0].name == "gaifo" and _source(penalty=10.0)[0].name == "gaifo_gp"
+  from conftest import load_script
+  cli = load_script("run")
+  for method, penalty, bound in (("gaifo", 0, None), ("gaifo_gp", 10, None),
+                                 ("vaifo", 0, 1.0), ("vaifo_gp", 10, 1.0)):
+    config = cli.discriminator_config(cli.parse_args(["--method", method]))
+    assert (config.gradient_penalty, config.kl_bound) == (penalty, bound)
+    assert GaifoReward(config, np.zeros((2, 3, 4))).name == method
+  config = cli.discriminator_config(cli.parse_args(["--method", "vaifo_gp", "--kl_bound", "0.1",
+                                                    "--gradient_penalty", "3"]))
+  assert (config.gradient_penalty, config.kl_bound) == (3, 0.1)
   source = _source()[0]
   assert source.settings()["discriminator"]["gradient_penalty"] == 0.0
   with pytest.raises(ValueError, match="2-dimensional observations, the task has 6"):
@@ -204,6 +258,7 @@ def test_source_names_its_method_and_refuses_what_does_not_fit():
   with pytest.raises(ValueError, match="finite"):
     GaifoReward(SMALL, np.full((2, 3, 4), np.nan))
   for bad in ({"frames": 3}, {"gradient_penalty": -1.0}, {"gradient_penalty": np.inf},
+              {"kl_bound": -0.5}, {"kl_bound": np.inf},
               {"width": 0},
               {"learning_rate": 0.0}, {"normalizer_decay": 1.0}):
     with pytest.raises(ValueError, match="discriminator"):
@@ -331,9 +386,25 @@ def test_run_py_gaifo_runs_resumes_and_refuses_what_does_not_fit(tmp_path, capsy
       (["--method", "gaifo_gp", "--gradient_penalty", "inf"], "positive and finite, got inf"),
       (["--method", "gaifo", "--beta_ar", "1"], "--beta_ar apply to --method form only"),
       (["--method", "expert", "--discriminator_frames", "2"],
-       "--discriminator_frames apply to --method gaifo and gaifo_gp"),
+       "--discriminator_frames apply to --method gaifo, gaifo_gp, vaifo, vaifo_gp"),
+      (["--method", "vaifo", "--gradient_penalty", "1"], "--method vaifo has none"),
+      (["--method", "gaifo_gp", "--kl_bound", "1"],
+       "--kl_bound: --method gaifo_gp has no bottleneck (--method vaifo_gp has one)"),
+      (["--method", "vaifo", "--kl_bound", "-1"], "--kl_bound must be >= 0 and finite"),
       (["--method", "expert", "--demos", "x.npz"],
        "--demos apply to --method form, gaifo, gaifo_gp")):
     with pytest.raises(SystemExit):
       cli.parse_args(argv)
     assert message in capsys.readouterr().err
+
+
+def test_vaifo_gp_trains_in_the_compiled_loop():
+  """VAIfO+GP in the compiled loop over the mesh: the bottleneck's KL and multiplier are
+  logged, finite, and the multiplier moves."""
+  rng = np.random.default_rng(0)
+  source = GaifoReward(disc.DiscriminatorConfig(width=16, gradient_penalty=10.0, kl_bound=1.0),
+                       rng.normal(size=(3, 11, 6)).astype(np.float32), "sha")
+  config = dataclasses.replace(CONFIG, reward_source="vaifo_gp")
+  state, metrics = _iterate(Trainer(config, mesh_lib.make_mesh(), source), 2)
+  assert np.isfinite(metrics[-1]["discriminator_kl"][0])
+  assert float(np.asarray(state.source.discriminator.log_beta)[0]) != 0.0

@@ -1,4 +1,5 @@
-"""GAIfO's reward source (and GAIfO+GP's): r_t = log(1 + D(x_{t+1})), D a discriminator of
+"""GAIfO's reward source (and GAIfO+GP's, VAIfO's and VAIfO+GP's: the discriminator's
+gradient penalty and bottleneck): r_t = log(1 + D(x_{t+1})), D a discriminator of
 the expert's observations from the imitator's (mjx_form.imitation.discriminator), trained
 online by one gradient step on every learner batch against as many expert inputs drawn
 uniformly from the demonstrations' transitions; rewards are relabelled with the discriminator
@@ -34,8 +35,8 @@ class GaifoState(NamedTuple):
 
 
 class GaifoReward:
-  """The reward source of GAIfO, or GAIfO+GP where the config's gradient penalty is > 0
-  (interface: mjx_form.rl.reward_sources)."""
+  """The reward source of GAIfO; GAIfO+GP where the config's gradient penalty is > 0, VAIfO
+  (+GP) where it has a bottleneck (interface: mjx_form.rl.reward_sources)."""
 
   needs_task_reward = False
   variable_settings = ("standardise_reward",)
@@ -51,7 +52,8 @@ class GaifoReward:
       raise ValueError(f"expert observations must be finite sequences [K, T+1, D] of at least "
                        f"{config.frames} frames, got shape {expert.shape}")
     self.config = config
-    self.name = "gaifo_gp" if config.gradient_penalty > 0 else "gaifo"
+    self.name = (("vaifo" if config.kl_bound is not None else "gaifo")
+                 + ("_gp" if config.gradient_penalty > 0 else ""))
     self.expert = expert
     self.demonstrations_sha256 = demonstrations_sha256
     self.standardise_reward = bool(standardise_reward)

@@ -882,6 +882,8 @@ _CURVE_FIELDS = (
     "gaifo_reward", "gaifo_reward_std", "discriminator_expert_log_prob",
     "discriminator_imitator_log_prob", "discriminator_expert_accuracy",
     "discriminator_imitator_accuracy", "discriminator_gradient_norm",
+    # VAIfO: the bottleneck's KL (bounded by `kl_bound`) and its multiplier
+    "discriminator_kl", "discriminator_beta",
     # FORM: the demonstrator's mean log pD of the evaluation episodes' transitions (the policy's
     # mean action): how well the policy imitates, measured without the task reward
     "eval_demonstrator_log_prob",
