@@ -399,7 +399,7 @@ def parse_args(argv=None) -> argparse.Namespace:
     given = [f"--{name}" for name in ["seeds", "grid"] + learner_flags
              if getattr(args, name) != parser.get_default(name)]
     if given:
-      parser.error(f"{', '.join(given)} apply to --method form, gaifo, gaifo_gp and expert")
+      parser.error(f"{', '.join(given)} apply to --method {', '.join(IMITATION)} and expert")
   args.grid = _grid(parser, args.grid, args.method)
   if args.init_policy and args.method != "expert":
     parser.error("--init_policy applies to --method expert (a FORM run imitates from "

@@ -6,6 +6,7 @@ reward."""
 import dataclasses
 
 import jax
+import jax.flatten_util
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -148,6 +149,25 @@ def test_the_bottleneck_holds_its_bound_with_a_learned_multiplier():
   assert disc.make_model(disc.DiscriminatorConfig(width=16)).bottleneck is False
 
 
+def test_the_network_weighs_the_kl_by_the_multiplier_and_the_multiplier_climbs_it():
+  """With the same samples, the parameters' gradient is linear in beta (the GAN part plus
+  beta times the KL's), and log beta's gradient is -beta (KL - bound)."""
+  config = disc.DiscriminatorConfig(width=8, kl_bound=0.5)
+  params = disc.init(config, 3, jax.random.PRNGKey(0)).params
+  rng = np.random.default_rng(2)
+  expert, imitator = (jnp.asarray(rng.normal(size=(16, 3)), jnp.float32) for _ in range(2))
+  valid, key = jnp.ones(16, bool), jax.random.PRNGKey(5)
+  grad = lambda beta: jax.flatten_util.ravel_pytree(jax.grad(
+      lambda p: disc.loss(config, p, expert, imitator, valid, key, jnp.log(beta))[0])(params))[0]
+  g0, g1, g3 = (np.asarray(grad(b), np.float64) for b in (1e-12, 1.0, 3.0))
+  np.testing.assert_allclose(g3 - g1, 2.0 * (g1 - g0), rtol=1e-3, atol=1e-6)
+  assert np.abs(g1 - g0).max() > 1e-4  # the KL does pull on the parameters
+  _, metrics = disc.loss(config, params, expert, imitator, valid, key, jnp.log(3.0))
+  beta_grad = jax.grad(lambda b: disc.loss(config, params, expert, imitator, valid, key,
+                                           b)[0])(jnp.log(3.0))
+  assert float(beta_grad) == pytest.approx(-3.0 * (float(metrics["kl"]) - 0.5), rel=1e-4)
+
+
 def _source(frames=1, episodes=5, steps=7, d=2, penalty=0.0):
   """A source whose demonstrations encode (episode, step) in their two features."""
   k, t = np.meshgrid(np.arange(episodes), np.arange(steps + 1), indexing="ij")
@@ -210,10 +230,13 @@ def test_batch_inputs_are_scored_as_the_relabelled_transitions(frames):
                              (expected[valid] - 0.3) / np.sqrt(0.04 + 1e-6), rtol=1e-4)
 
 
-def test_transitions_without_a_successor_neither_train_nor_score():
+@pytest.mark.parametrize("bottleneck", [None, 1.0])
+def test_transitions_without_a_successor_neither_train_nor_score(bottleneck):
   """The observations only a discount-0 transition leads to (1 frame) change neither the
-  discriminator's step, its standardisation, the reward's statistics nor any valid reward."""
+  discriminator's step (with a bottleneck: nor its KL or multiplier), its standardisation, the
+  reward's statistics nor any valid reward."""
   source, _ = _source(frames=1)
+  source = GaifoReward(dataclasses.replace(source.config, kl_bound=bottleneck), source.expert)
   state = source.init(jax.random.PRNGKey(0), 2, 1)
   rng = np.random.default_rng(0)
   observation = rng.normal(size=(3, 5, 2)).astype(np.float32)
@@ -308,6 +331,9 @@ def test_gaifo_trains_in_the_compiled_loop_without_the_task_reward(monkeypatch):
                      rng.normal(size=(30, 11, 6)).astype(np.float32), "sha",
                      standardise_reward=True)
   assert abs(text(Trainer(CONFIG, mesh_lib.make_mesh(), more)) - text(trainer)) < 2000
+  # a trainer that only evaluates (--eval_on_host's) does not place them at all
+  assert not hasattr(Trainer(CONFIG, mesh_lib.make_mesh(), more, source_data=False),
+                     "source_data") and hasattr(trainer, "source_data")
   assert int(np.asarray(state.source.discriminator.steps).max()) == 4  # 2 x 2 updates
   assert np.isfinite(metrics[-1]["gaifo_reward"][0])
   assert np.isfinite(metrics[-1]["discriminator_gradient_norm"][0])

@@ -179,11 +179,10 @@ def loss(config: DiscriminatorConfig, params, expert: jax.Array, imitator: jax.A
     h_expert = m_e + s_e * jax.random.normal(e_key, m_e.shape)
     h_imitator = m_i + s_i * jax.random.normal(i_key, m_i.shape)
     kl = (jnp.sum(kl_to_standard_normal(m_e, s_e))
-          + jnp.sum(weights * kl_to_standard_normal(m_i, s_i))) / (expert.shape[0] + count)
+          + jnp.sum(weights * kl_to_standard_normal(m_i, s_i))) / (
+              expert.shape[0] + jnp.sum(weights))  # over both sides' inputs that count
   logit_expert = model.apply(params, h_expert, method=Discriminator.decode)
   logit_imitator = model.apply(params, h_imitator, method=Discriminator.decode)
-  weights = imitator_valid.astype(jnp.float32)
-  count = jnp.maximum(jnp.sum(weights), 1.0)
   log_expert = jnp.mean(jax.nn.log_sigmoid(logit_expert))
   log_imitator = jnp.sum(weights * jax.nn.log_sigmoid(-logit_imitator)) / count
   u = jax.random.uniform(penalty_key, (expert.shape[0], 1))

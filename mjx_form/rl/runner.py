@@ -702,7 +702,7 @@ class _HostEvaluation:
     self.devices = devices[:count]
     with jax.default_device(self.devices[0]):  # (its environment's model is placed there)
       self.trainer = Trainer(trainer.config, mesh_lib.make_mesh(self.devices), trainer.source,
-                             trainer.seeds, trainer.overrides)
+                             trainer.seeds, trainer.overrides, source_data=False)
     self.placed = self.trainer._replicated  # (what the program takes, as it was compiled)
     self.keys = jax.device_put(keys, self.placed)
     held, norms, inputs = self.trainer.evaluation_example(policies, self.placed)

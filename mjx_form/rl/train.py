@@ -221,14 +221,16 @@ class Trainer:
   def __init__(self, config: TrainConfig, mesh=None, reward_source=None,
                seeds: tuple[int, ...] | None = None,
                overrides: tuple[dict, ...] | None = None, layout: str | None = None,
-               per_device_env_steps: bool = False):
+               per_device_env_steps: bool = False, source_data: bool = True):
     """`reward_source` overrides the source named by `config.reward_source` (see
     mjx_form.rl.reward_sources for the interface); `seeds`: the members' seeds (default:
     `config.seed` alone); `overrides`: each member's own values of settings that may differ
     between members (mjx_form.rl.grid; default: none), one dict per seed; `layout`: one of
     `LAYOUTS` (default: "members" where the members split evenly over several devices, else
     "environments"); `per_device_env_steps`: each device steps its own environments
-    (`AutoReset(per_device=True)`; off: the batch is stepped as one, see AutoReset)."""
+    (`AutoReset(per_device=True)`; off: the batch is stepped as one, see AutoReset);
+    `source_data`: put the source's `data` on the devices for `iteration` (off for a trainer
+    that only evaluates)."""
     self.mesh = mesh if mesh is not None else mesh_lib.make_mesh()
     config.check(self.mesh.devices.size)
     self.seeds = tuple(seeds) if seeds is not None else (config.seed,)
@@ -261,7 +263,6 @@ class Trainer:
     self.networks = networks_lib.make_networks(self.env.action_size, config.network_width,
                                                config.policy_head)
     self.source = reward_source or make_reward_source(config.reward_source)
-    self._data = None  # the source's data (`source_data`) while `_iteration` is being traced
     if self.source.name != config.reward_source:
       raise ValueError(f"the config names reward source {config.reward_source!r}, the trainer "
                        f"was given {self.source.name!r}")
@@ -308,7 +309,7 @@ class Trainer:
     # A source's constant arrays (`data`, reward_sources.py: e.g. GAIfO's demonstrations) enter
     # the compiled iteration as an argument, replicated: neither compiled in as constants nor
     # part of the state that checkpoints save.
-    data = self.source.data() if hasattr(self.source, "data") else None
+    data = self.source.data() if source_data and hasattr(self.source, "data") else None
     if data is not None:
       self.source_data = jax.device_put(data, self._replicated)
       self.iteration = _WithData(self.iteration, self.source_data)
@@ -363,11 +364,11 @@ class Trainer:
     source = self._source_with(grid.split(self.overrides[i])[2])
     return source.as_member(i) if hasattr(source, "as_member") else source
 
-  def _source_with(self, values: dict):
+  def _source_with(self, values: dict, data=None):
     """The reward source with `values` (Python, or a member's traced ones) for its settings,
-    and, while an iteration is traced, its constant arrays bound (`with_data`)."""
+    and reading `data` (its constant arrays as an iteration has them: `with_data`) if given."""
     source = self.source.specialise(values) if values else self.source
-    return source if self._data is None else source.with_data(self._data)
+    return source if data is None else source.with_data(data)
 
   def keys(self, offset: int = 0) -> jax.Array:
     """[P, 2]: PRNGKey(seed + offset) of each member (offset 0 starts a run, 1 evaluates)."""
@@ -617,7 +618,7 @@ class Trainer:
     return env_state, running, noise, unrolls, stats
 
   def _learn(self, learner, source, norm, buffer, settings: dict, keys: jax.Array,
-             train_source: bool = True):
+             train_source: bool = True, data=None):
     """One learner update of every member; keys [P, 2]. Returns (learner, source, metrics).
     Without `train_source` the source only relabels (its state and metrics unchanged)."""
     cfg = self.config
@@ -630,9 +631,10 @@ class Trainer:
     source_metrics = {}
     if train_source:
       source, source_metrics = jax.vmap(
-          lambda s, b, k, v: self._source_with(v).update(s, b, k))(
+          lambda s, b, k, v: self._source_with(v, data).update(s, b, k))(
               source, batch, source_key, source_values)
-    rewards, reward_metrics = jax.vmap(lambda s, b, v: self._source_with(v).relabel(s, b))(
+    rewards, reward_metrics = jax.vmap(
+        lambda s, b, v: self._source_with(v, data).relabel(s, b))(
         source, batch, source_values)
     def update(learner, norm, batch, rewards, key, values):
       config = grid.learner_config(cfg.learner, values)
@@ -647,20 +649,14 @@ class Trainer:
   def _iteration(self, state: TrainState, data=None) -> tuple[TrainState, dict]:
     """One iteration of every member; metrics are [P] arrays. `data`: the source's constant
     arrays (`source_data`), where it has some."""
-    self._data = data
-    try:
-      return self._iteration_body(state)
-    finally:
-      self._data = None
-
-  def _iteration_body(self, state: TrainState) -> tuple[TrainState, dict]:
     cfg = self.config
     key, collect_key, learn_key = jnp.moveaxis(
         jax.vmap(lambda k: jax.random.split(k, 3))(state.key), 1, 0)  # [3, P, 2]
     env_state, running, noise, unrolls, stats = self._collect(state, collect_key)
     if hasattr(self.source, "fresh_metrics"):  # diagnostics only (reward_sources.py)
       source_values = grid.split(state.settings)[2]
-      stats = {**stats, **jax.vmap(lambda s, u, v: self._source_with(v).fresh_metrics(s, u))(
+      stats = {**stats, **jax.vmap(
+          lambda s, u, v: self._source_with(v, data).fresh_metrics(s, u))(
           state.source, unrolls, source_values)}
     norm = jax.vmap(lambda n, obs: normalizer.update(n, obs, cfg.normalizer_decay))(
         state.normalizer, unrolls["observation"][:, :, :-1])
@@ -669,11 +665,12 @@ class Trainer:
     k = cfg.source_update_every
 
     def learn(carry, keys):  # keys [k, P, 2]: an update that trains the source, k - 1 that do not
-      learner, source, metrics = self._learn(*carry, norm, buffer, state.settings, keys[0])
+      learner, source, metrics = self._learn(*carry, norm, buffer, state.settings, keys[0],
+                                             data=data)
       if k > 1:
         def relabel_only(learner, key):
           learner, _, more = self._learn(learner, source, norm, buffer, state.settings, key,
-                                         train_source=False)
+                                         train_source=False, data=data)
           return learner, more
         learner, more = jax.lax.scan(relabel_only, learner, keys[1:])  # [k - 1, P]
         # every update's learner and reward metrics, the source's of its one step
