@@ -846,6 +846,16 @@ def test_unrolls_mark_every_episode_end_for_the_effect_models(form_trainer):
   assert np.asarray(stats["episodes"])[0] >= 3  # env 0, 1 and 2 at least
 
 
+def assert_trained_alike(state, other) -> None:
+  """Two runs' states agree bit for bit in everything training made (their environments may
+  differ in what the task reward logged)."""
+  for part in ("learner", "source", "replay", "normalizer", "key"):
+    for (path, a), b in zip(jax.tree_util.tree_leaves_with_path(getattr(state, part)),
+                            jax.tree.leaves(getattr(other, part))):
+      np.testing.assert_array_equal(np.asarray(a), np.asarray(b),
+                                    err_msg=part + jax.tree_util.keystr(path))
+
+
 def test_training_never_sees_the_task_reward(form_trainer, monkeypatch):
   """The same FORM run with the environment's reward replaced by garbage trains bit for bit
   the same: only the logged task returns differ."""
@@ -855,11 +865,7 @@ def test_training_never_sees_the_task_reward(form_trainer, monkeypatch):
   garbage = Trainer(CONFIG, mesh_lib.make_mesh(), FormReward(EFFECT, _demonstrator()))
   assert isinstance(garbage.env, GarbageRewardReacher)
   other, other_metrics = _iterate(garbage, 3)
-  for part in ("learner", "source", "replay", "normalizer", "key"):
-    for (path, a), b in zip(jax.tree_util.tree_leaves_with_path(getattr(state, part)),
-                            jax.tree.leaves(getattr(other, part))):
-      np.testing.assert_array_equal(np.asarray(a), np.asarray(b),
-                                    err_msg=part + jax.tree_util.keystr(path))
+  assert_trained_alike(state, other)
   np.testing.assert_array_equal(state.env.obs, other.env.obs)
   assert metrics[-1]["train_reward"][0] != other_metrics[-1]["train_reward"][0]  # garbage seen
   assert np.isfinite(metrics[-1]["form_reward"][0]) and metrics[-1]["imitator_log_prob"][0] != 0
