@@ -1,13 +1,16 @@
 """Where a compiled program's device time goes, by the source line each operation came from.
 
-`top_lines(exe, args, n)` runs compiled `exe` once under `jax.profiler.trace` (its trace, the
+`top_lines(exe, args, n)` runs compiled `exe` under `jax.profiler.trace` (its trace, the
 `*.trace.json.gz` written to a temporary folder), sums the duration of every operation the
 device ran for that program (the trace's `hlo_op` of its `hlo_module`; on a GPU the kernels, on
 the CPU the runtime's thunks, less the loops, conditionals and calls, whose events enclose
 their bodies'), maps each operation to the metadata XLA kept for it (the JAX operation, and the
 innermost line of this repository's code in the call stack that made it, from the optimised
 HLO text), and returns the `n` lines with the most time. A fusion is attributed to its root
-operation. Used by `update_speed.py --profile N`.
+operation. With `calls` > 1 it traces that many calls, each its own trace, and keeps each
+operation's least time over them (a busy CPU only adds time: on CI's two cores a reduction of a
+384x384 array once took half the program's time in a single trace). Used by
+`update_speed.py --profile N`.
 
 Compile the program to profile with `PROFILE_OPTIONS` (`compile_for_profile`): on a GPU, XLA
 otherwise records the program's kernels as CUDA graphs ("command buffers"), and the trace then
@@ -130,23 +133,34 @@ def compile_for_profile(fn, args: tuple):
   return fn.lower(*args).compile(compiler_options=PROFILE_OPTIONS)
 
 
-def top_lines(exe, args: tuple, n: int) -> list[dict]:
-  """Runs compiled `exe(*args)` once under the profiler: the `n` source lines with the most
-  device time, [{'where': 'file.py:line op' (or '(no source) <operation>'), 'us':
-  microseconds, 'share': of the program's traced operation time}], most first; empty where the
-  trace held no operation of `exe` (no device tracing)."""
+def _traced_times(exe, args: tuple, module: str) -> collections.Counter | None:
+  """{hlo_op: microseconds} of one call of `exe(*args)` under the profiler (None: no trace)."""
   import jax
-  text = exe.as_text()
-  module = re.match(r"\s*HloModule\s+([\w.\-]+)", text)
-  module = module.group(1) if module else ""
   with tempfile.TemporaryDirectory() as folder:
     with jax.profiler.trace(folder):
       jax.block_until_ready(exe(*args))
     files = glob.glob(os.path.join(folder, "**", "*.trace.json.gz"), recursive=True)
     if not files:
-      return []
+      return None
     with gzip.open(files[0]) as f:
-      times = operation_times(json.load(f), module)
+      return operation_times(json.load(f), module)
+
+
+def top_lines(exe, args: tuple, n: int, calls: int = 1) -> list[dict]:
+  """Runs compiled `exe(*args)` `calls` times under the profiler (args must survive a call:
+  nothing donated where calls > 1): the `n` source lines with the most device time, each
+  operation timed by its least time over the calls, [{'where': 'file.py:line op' (or
+  '(no source) <operation>'), 'us': microseconds, 'share': of the program's traced operation
+  time}], most first; empty where the trace held no operation of `exe` (no device tracing)."""
+  if calls < 1:
+    raise ValueError(f"calls must be at least 1, got {calls}")
+  text = exe.as_text()
+  module = re.match(r"\s*HloModule\s+([\w.\-]+)", text)
+  module = module.group(1) if module else ""
+  traced = [_traced_times(exe, args, module) for _ in range(calls)]
+  if any(t is None for t in traced):
+    return []
+  times = collections.Counter({op: min(t.get(op, 0.0) for t in traced) for op in traced[0]})
   instructions = hlo_instructions(text)
   by_line = collections.Counter()
   for op, us in times.items():

@@ -1,6 +1,7 @@
 """The benchmark scripts' own logic (their timings are taken on the GPU, never in tests)."""
 
 import argparse
+import collections
 import json
 import os
 
@@ -158,11 +159,12 @@ def test_update_speed_times_forms_work_per_learner_update(tmp_path, capsys):
     bench.main(["--profile", "-1"])
 
 
-def test_device_profile_names_the_source_line_that_costs_the_most():
+def test_device_profile_names_the_source_line_that_costs_the_most(monkeypatch):
   """benchmarks/device_profile.py on the CPU: a scan whose flax layer dwarfs the rest is
   attributed to the line here that applies the layer (up the call stack from flax's own line),
-  not to the loop that encloses it; older HLO texts name their lines in the metadata; an
-  operation without metadata is named as such."""
+  not to the loop that encloses it, each operation timed by its least time over three calls;
+  older HLO texts name their lines in the metadata; an operation without metadata is named as
+  such."""
   import flax.linen as nn
   device_profile = load_script("device_profile", folder="benchmarks")
   layer = nn.Dense(384)
@@ -175,11 +177,19 @@ def test_device_profile_names_the_source_line_that_costs_the_most():
 
   x = jnp.ones((384, 384))
   exe = device_profile.compile_for_profile(jax.jit(program), (x,))  # (as update_speed.py)
-  lines = device_profile.top_lines(exe, (x,), 3)
+  lines = device_profile.top_lines(exe, (x,), 3, calls=3)
   line = program.__code__.co_firstlineno + 2
   assert lines[0]["where"].startswith(f"test_benchmarks.py:{line} "), lines
   assert lines[0]["share"] > 0.5 and lines[0]["us"] > 0, lines
   assert not any(p["where"].endswith("/while") for p in lines), lines
+  # each operation's least time over the calls: a stall in one call does not count
+  traces = iter([{"a": 9.0, "b": 2.0}, {"a": 1.0, "b": 3.0}, {"a": 4.0, "b": 2.5}])
+  monkeypatch.setattr(device_profile, "_traced_times", lambda *_: collections.Counter(next(traces)))
+  assert device_profile.top_lines(exe, (x,), 2, calls=3) == [
+      {"where": "(no source) b", "us": 2.0, "share": 2 / 3},
+      {"where": "(no source) a", "us": 1.0, "share": 1 / 3}]
+  with pytest.raises(ValueError, match="calls"):
+    device_profile.top_lines(exe, (x,), 2, calls=0)
   old = ('  %fusion.3 = f32[4]{0} fusion(%p), kind=kLoop, calls=%c, metadata={op_name='
          '"jit(run)/while/body/EffectModel/head/dot_general" source_file="/x/y/linear.py" '
          'source_line=287}\n  %copy.6 = f32[4]{0} copy(%fusion.3)')
