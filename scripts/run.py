@@ -14,6 +14,9 @@
       observations with a discriminator of the expert's observations (_gp: with its gradient
       penalty, --gradient_penalty; vaifo: with a variational bottleneck, --kl_bound), on FORM's
       learner settings, from the same demonstrations (mjx_form/imitation/gaifo.py).
+  --method bc: behavioural cloning, the policy fitted to the expert's actions on the same
+      demonstrations (mjx_form/imitation/bc.py; it reads actions, so it is no imitation from
+      observations: the paper's calibration of the tasks).
   --method expert: the same learner on the task reward (to train experts).
   --method random: uniform random actions in N auto-resetting environments of one task,
       sharded over all devices; reports control steps per second (compile time apart).
@@ -48,6 +51,7 @@ from mjx_form.files import demos as demos_lib  # noqa: E402
 from mjx_form.imitation import demonstrator as demonstrator_lib  # noqa: E402
 from mjx_form.imitation import discriminator as discriminator_lib  # noqa: E402
 from mjx_form.imitation import form as form_lib  # noqa: E402
+from mjx_form.imitation import bc as bc_lib  # noqa: E402
 from mjx_form.imitation import gaifo as gaifo_lib  # noqa: E402
 from mjx_form.imitation import pipeline, settings  # noqa: E402
 from mjx_form.rl import grid, recipes, runner  # noqa: E402
@@ -58,13 +62,16 @@ from mjx_form.sim.physics import DEFAULT_PHYSICS, PHYSICS_MODES  # noqa: E402
 from mjx_form.sim.wrappers import AutoReset  # noqa: E402
 
 
-METHODS = ("form", "gaifo", "gaifo_gp", "vaifo", "vaifo_gp", "expert", "random")
+METHODS = ("form", "gaifo", "gaifo_gp", "vaifo", "vaifo_gp", "bc", "expert", "random")
 GAIFO = ("gaifo", "gaifo_gp", "vaifo", "vaifo_gp")  # a discriminator's reward
 IMITATION = ("form", *GAIFO)  # learn from demonstrations' observations alone
+FROM_DEMOS = (*IMITATION, "bc")  # learn from demonstrations
+LEARNERS = ("expert", *FROM_DEMOS)  # every method that trains a policy
 GAIFO_GP_DEFAULT = 10.0  # beta_gp: the paper's "typically 10"
 KL_BOUND_DEFAULT = 1.0  # VAIfO's epsilon: the paper's throughout
-# Options that only the imitation methods read (a user who gives one to another method is told
-# so), those that only --method form reads, and those that only GAIfO's read.
+# Options that only the methods that learn from demonstrations read (a user who gives one to
+# another method is told so; --reward_scale not BC, which has no reward), those that only
+# --method form reads, and those that only GAIfO's read.
 DEMO_OPTIONS = ("expert", "demos", "demo_episodes", "save_demos", "reward_scale")
 FORM_ONLY = ("demonstrator", "member_demonstrators", "train_demonstrator", "demonstrator_seed",
              "beta_ar", "effect_l2", "turn_invariant", "angle_increments", "angle_inputs",
@@ -146,7 +153,8 @@ def parse_args(argv=None) -> argparse.Namespace:
   parser.add_argument("--list", action="store_true", help="print the task names and exit")
   parser.add_argument("--method", default="form", choices=METHODS,
                       help="form: imitation from observations (default); gaifo, gaifo_gp, "
-                           "vaifo, vaifo_gp: the GAIfO baselines; expert: MPO on the task "
+                           "vaifo, vaifo_gp: the GAIfO baselines; bc: behavioural cloning "
+                           "of the expert's actions; expert: MPO on the task "
                            "reward; random: a random-action throughput demo")
   parser.add_argument("--compilation_cache", default=DEFAULT_COMPILATION_CACHE,
                       help="directory of JAX's persistent compilation cache: a later run of "
@@ -277,7 +285,7 @@ def parse_args(argv=None) -> argparse.Namespace:
   form.add_argument("--expert", help="the expert's policy.npz to record demonstrations from "
                     "(default: the one shipped in tasks/experts/)")
   form.add_argument("--demos", help="demonstrations saved by scripts/make_demos.py, instead "
-                    "of recording them")
+                    "of recording them (--method bc: with their actions, --actions)")
   form.add_argument("--demo_episodes", type=int, default=None,
                     help="episodes to record (default: 1000 where a demonstrator is trained, "
                          f"as the paper; {pipeline.DEFAULT_CHECK_EPISODES} to check a ready "
@@ -399,16 +407,18 @@ def parse_args(argv=None) -> argparse.Namespace:
     given = [f"--{name}" for name in ["seeds", "grid"] + learner_flags
              if getattr(args, name) != parser.get_default(name)]
     if given:
-      parser.error(f"{', '.join(given)} apply to --method {', '.join(IMITATION)} and expert")
+      parser.error(f"{', '.join(given)} apply to --method {', '.join(FROM_DEMOS)} and expert")
   args.grid = _grid(parser, args.grid, args.method)
   if args.init_policy and args.method != "expert":
     parser.error("--init_policy applies to --method expert (a FORM run imitates from "
                  "observations alone; random steps no policy)")
-  if args.method not in IMITATION:
+  if args.method not in FROM_DEMOS:
     given = [f"--{name}" for name in DEMO_OPTIONS
              if getattr(args, name) != parser.get_default(name)]
     if given:
-      parser.error(f"{', '.join(given)} apply to --method {', '.join(IMITATION)}")
+      parser.error(f"{', '.join(given)} apply to --method {', '.join(FROM_DEMOS)}")
+  if args.method == "bc" and args.reward_scale is not None:
+    parser.error("--reward_scale: --method bc has no reward (it clones the expert's actions)")
   if args.method != "form":
     given = [f"--{name}" for name in FORM_ONLY
              if getattr(args, name) != parser.get_default(name)]
@@ -430,7 +440,7 @@ def parse_args(argv=None) -> argparse.Namespace:
                  f"{args.method.replace('gaifo', 'vaifo')} has one)")
   if args.kl_bound is not None and not 0 <= args.kl_bound < float("inf"):
     parser.error(f"--kl_bound must be >= 0 and finite, got {args.kl_bound}")
-  if args.method in GAIFO and args.demo_episodes == 0:
+  if args.method in (*GAIFO, "bc") and args.demo_episodes == 0:
     parser.error(f"--demo_episodes 0: --method {args.method} needs demonstrations")
   if args.resume and (args.demonstrator or args.train_demonstrator or args.member_demonstrators
                       or args.demonstrator_seed is not None):
@@ -487,7 +497,7 @@ def parse_args(argv=None) -> argparse.Namespace:
 
 def train_config(args: argparse.Namespace) -> TrainConfig:
   """The run's TrainConfig: the method's preset for the task, then the flags."""
-  if args.method in IMITATION:  # FORM's learner settings; the paper's head and actor noise
+  if args.method in FROM_DEMOS:  # FORM's learner settings; the paper's head and actor noise
     chosen = {**recipes.PAPER, **form_run_settings(args)}
   else:
     chosen = recipes.expert_settings(args.task, args.preset or "default")
@@ -503,7 +513,7 @@ def train_config(args: argparse.Namespace) -> TrainConfig:
                               epsilon_scale=chosen["epsilon_scale"]))
   seed = args.seeds[0] if args.seeds else args.seed
   return TrainConfig(task=args.task, physics=args.physics,
-                     reward_source=args.method if args.method in IMITATION else "task",
+                     reward_source=args.method if args.method in FROM_DEMOS else "task",
                      num_envs=args.num_envs,
                      unroll_length=args.unroll_length, batch_size=args.batch_size,
                      replay_capacity=args.replay_capacity,
@@ -524,7 +534,7 @@ def recipe_applies(args: argparse.Namespace) -> bool:
   """Whether the run takes its task's own settings: an expert run its recipe
   (mjx_form/rl/recipes.py), a FORM run its entry in mjx_form/imitation/settings.py."""
   own = recipes.PER_TASK if args.method == "expert" else settings.PER_TASK_RUN
-  return args.method in ("expert", *IMITATION) and args.task in own and args.preset != "paper"
+  return args.method in LEARNERS and args.task in own and args.preset != "paper"
 
 
 def recipe_line(args: argparse.Namespace) -> str:
@@ -683,6 +693,20 @@ def gaifo_source(args: argparse.Namespace, run_dir: str, print_fn) -> gaifo_lib.
                                standardise_reward=args.reward_scale == "standardised")
 
 
+def bc_source(args: argparse.Namespace, run_dir: str, print_fn) -> bc_lib.BehaviourCloning:
+  """The demonstrations, with the expert's actions, of --method bc, once `run_dir` is known to
+  fit (as `gaifo_source`; the checksum covers the actions too)."""
+  runner.check_run_dir(run_dir, args.resume)
+  env = tasks.make(args.task, physics=args.physics)
+  artefacts = pipeline.Artefacts(expert=args.expert, demos=args.demos,
+                                 save_demos=args.save_demos)
+  episodes = (pipeline.DEFAULT_TRAINING_EPISODES if args.demo_episodes is None
+              else args.demo_episodes)
+  observations, actions, info = pipeline.demonstrations(
+      env, artefacts, episodes, args.physics, args.seed, print_fn, with_actions=True)
+  return bc_lib.BehaviourCloning(observations, actions, info["sha256"])
+
+
 def random_rollout(args: argparse.Namespace, mesh) -> dict:
   """Random-action rollout with the batch sharded over `mesh`; returns the measured numbers."""
   env = AutoReset(tasks.make(args.task, physics=args.physics))
@@ -744,7 +768,7 @@ def main(argv=None) -> int:
     print("error: --eval_on_host evaluates on the host's CPU beside an accelerator; this run "
           "trains on the CPU itself (no accelerator found)", file=sys.stderr)
     return 2
-  if args.method in ("expert", *IMITATION):
+  if args.method in LEARNERS:
     seeds, overrides = grid.expand(args.seeds or (args.seed,), args.grid)
     name = (f"seed{seeds[0]}" if len(set(seeds)) == 1 else "seeds" + "_".join(
         map(str, args.seeds))) + "".join(f"_{k}" for k in args.grid)
@@ -762,7 +786,8 @@ def main(argv=None) -> int:
       if recipe_applies(args):
         say(recipe_line(args))
       source = (form_source(args, run_dir, results_path, say) if args.method == "form" else
-                gaifo_source(args, run_dir, say) if args.method in GAIFO else None)
+                gaifo_source(args, run_dir, say) if args.method in GAIFO else
+                bc_source(args, run_dir, say) if args.method == "bc" else None)
       rows = runner.run(config, run_dir, args.env_steps, resume=args.resume,
                         log_every=args.log_every, eval_every=args.eval_every,
                         checkpoint_every=args.checkpoint_every, max_seconds=args.max_seconds,

@@ -188,5 +188,6 @@ def load_demonstrations(path, *, task: str | None = None, observation_size: int 
       raise DemonstrationError(f"{path}: observation layout {meta['observation_layout']} does not "
                                f"match this run's {ours}")
   if need_actions and not meta["has_actions"]:
-    raise DemonstrationError(f"{path}: this run needs actions, the demonstrations have none")
+    raise DemonstrationError(f"{path}: this run needs actions, the demonstrations have none "
+                             f"(scripts/make_demos.py --actions records them)")
   return Demonstrations(arrays["observations"], arrays.get("actions"), meta)

@@ -78,16 +78,20 @@ def _expert_path(task: str, path: str | None) -> str:
 
 
 def demonstrations(env, artefacts: Artefacts, episodes: int, physics: str, seed: int,
-                    print_fn) -> tuple[np.ndarray, dict]:
-  """Observations [K, T+1, D] and what they are (the demonstrator file's `demonstrations`)."""
+                    print_fn, with_actions: bool = False) -> tuple[np.ndarray, dict]:
+  """Observations [K, T+1, D] and what they are (the demonstrator file's `demonstrations`);
+  with `with_actions`, (observations, actions [K, T, A], what they are), and a file without actions
+  is refused."""
   if artefacts.demos is not None:
     loaded = demos_lib.load_demonstrations(artefacts.demos, task=env.name,
-                                           observation_layout=env.observation_layout)
+                                           observation_layout=env.observation_layout,
+                                           need_actions=with_actions)
     meta = loaded.metadata
     print_fn(f"demonstrations: {meta['episodes']} episodes from {artefacts.demos}")
-    return loaded.observations, {"file": os.path.basename(artefacts.demos),
-                                 "sha256": meta["sha256"], "episodes": meta["episodes"],
-                                 "physics": meta["physics"], "expert": meta["expert"]}
+    info = {"file": os.path.basename(artefacts.demos), "sha256": meta["sha256"],
+            "episodes": meta["episodes"], "physics": meta["physics"], "expert": meta["expert"]}
+    return (loaded.observations, loaded.actions, info) if with_actions else (
+        loaded.observations, info)
   path = _expert_path(env.name, artefacts.expert)
   expert = experts.load_expert(path, env)
   print_fn(f"demonstrations: recording {episodes} episodes of the expert {path} on the device")
@@ -99,6 +103,9 @@ def demonstrations(env, artefacts: Artefacts, episodes: int, physics: str, seed:
         "task": env.name, "observation_layout": env.observation_layout, "physics": physics,
         "expert": info})
     print_fn(f"demonstrations written to {artefacts.save_demos}")
+  if with_actions:
+    return obs, actions, {"sha256": demos_lib.checksum({"observations": obs, "actions": actions}),
+                          "episodes": len(obs), "physics": physics, "expert": info}
   return obs, {"sha256": demos_lib.checksum({"observations": obs}), "episodes": len(obs),
                "physics": physics, "expert": info}
 

@@ -72,11 +72,14 @@ class LearnerState(NamedTuple):
   average_policy: Any = None  # the policy averaged over updates; None: not kept
 
 
+def policy_optimizer(config: LearnerConfig):
+  """The policy's (and the critic's) optimiser: Adam, gradients clipped by global norm."""
+  return optax.chain(optax.clip_by_global_norm(config.max_grad_norm),
+                     optax.adam(config.learning_rate))
+
+
 def _optimizers(config: LearnerConfig):
-  def adam(lr):
-    return optax.chain(optax.clip_by_global_norm(config.max_grad_norm), optax.adam(lr))
-  return adam(config.learning_rate), adam(config.learning_rate), optax.adam(
-      config.dual_learning_rate)
+  return policy_optimizer(config), policy_optimizer(config), optax.adam(config.dual_learning_rate)
 
 
 def init(networks: Networks, config: LearnerConfig, key: jax.Array, observation_size: int,

@@ -9,6 +9,9 @@ One call of `Trainer.iteration` (a single jitted program) does, for every member
   3. learn: `updates_per_iteration` learner updates, each on `batch_size` unrolls sampled
      from the replay and relabelled by the reward source, which trains on the first of every
      `source_update_every` of those batches (every batch by default).
+With a cloning source (BC: reward_sources.py, `policy_targets`) step 3's updates fit the policy
+to the source's pairs instead (mjx_form.rl.cloning; the source still trains on the replay's
+batches), and step 2 standardises as the observations of those pairs.
 Python only loops over iterations (logging, evaluation, checkpoints).
 
 Sharding (`LAYOUTS`): the environments' batch [P * N] is split over the mesh's batch axis.
@@ -51,7 +54,7 @@ import tasks
 from mjx_form import cpu
 from mjx_form import mesh as mesh_lib
 from mjx_form.rl import learner as learner_lib
-from mjx_form.rl import distributions, grid, normalizer, replay
+from mjx_form.rl import cloning, distributions, grid, normalizer, replay
 from mjx_form.rl import networks as networks_lib
 from mjx_form.rl.reward_sources import make_reward_source
 from mjx_form.sim import env as env_lib
@@ -263,6 +266,8 @@ class Trainer:
     self.networks = networks_lib.make_networks(self.env.action_size, config.network_width,
                                                config.policy_head)
     self.source = reward_source or make_reward_source(config.reward_source)
+    # A cloning source: the policy is fitted to its pairs (`_learn`), not trained by MPO.
+    self.clones = hasattr(self.source, "policy_targets")
     if self.source.name != config.reward_source:
       raise ValueError(f"the config names reward source {config.reward_source!r}, the trainer "
                        f"was given {self.source.name!r}")
@@ -633,6 +638,16 @@ class Trainer:
       source, source_metrics = jax.vmap(
           lambda s, b, k, v: self._source_with(v, data).update(s, b, k))(
               source, batch, source_key, source_values)
+    if self.clones:  # the policy fitted to the source's pairs (cloning.py); no reward, no MPO
+      def clone(learner, norm, source, key, values, svalues):
+        obs, actions, target_metrics = self._source_with(svalues, data).policy_targets(
+            source, key, cfg.batch_size * cfg.unroll_length)
+        config = grid.learner_config(cfg.learner, values)
+        learner, metrics = cloning.update(self.networks, config, learner, norm, obs, actions)
+        return learner, {**metrics, **target_metrics}
+      learner, metrics = jax.vmap(clone)(learner, norm, source, update_key, learner_values,
+                                         source_values)
+      return learner, source, {**metrics, **source_metrics}
     rewards, reward_metrics = jax.vmap(
         lambda s, b, v: self._source_with(v, data).relabel(s, b))(
         source, batch, source_values)
@@ -658,8 +673,15 @@ class Trainer:
       stats = {**stats, **jax.vmap(
           lambda s, u, v: self._source_with(v, data).fresh_metrics(s, u))(
           state.source, unrolls, source_values)}
+    observed = unrolls["observation"][:, :, :-1]  # [P, N, T, D]
+    if self.clones:  # standardised as the observations the policy is fitted on
+      def targets(source, key, values):
+        n = observed.shape[1] * observed.shape[2]
+        return self._source_with(values, data).policy_targets(source, key, n)[0]
+      observed = jax.vmap(targets)(state.source, jax.vmap(lambda k: jax.random.fold_in(k, 1))(
+          learn_key), grid.split(state.settings)[2])  # [P, N * T, D]
     norm = jax.vmap(lambda n, obs: normalizer.update(n, obs, cfg.normalizer_decay))(
-        state.normalizer, unrolls["observation"][:, :, :-1])
+        state.normalizer, observed)
     buffer = jax.vmap(replay.insert)(state.replay, unrolls)
 
     k = cfg.source_update_every

@@ -1,0 +1,53 @@
+"""Behavioural cloning: the policy fitted by maximum likelihood to given actions.
+
+BC (the paper's appendix "BC and BCO"; ../shared/DESIGN.md): the same Gaussian policy network as
+the MPO learner's, trained to maximise the mean of log pi(a | x) over pairs (x, a) of
+observations and actions, by the learner's policy optimiser (Adam at the learner's learning
+rate, 1e-4 by default, gradients clipped at its `max_grad_norm`). The pairs come from a cloning
+source (reward_sources.py, `policy_targets`): BC's (mjx_form.imitation.bc) are the
+demonstrations' observations with the expert's actions. The critic, its target and the duals
+are not trained; the policy's update count and average (where the learner keeps one) advance as
+in an MPO update.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import optax
+
+from mjx_form.rl import learner as learner_lib
+from mjx_form.rl import normalizer
+from mjx_form.rl.networks import Networks
+
+
+def loss(networks: Networks, policy_params, obs: jax.Array, actions: jax.Array
+         ) -> tuple[jax.Array, dict]:
+  """-mean log pi(a | x) over standardised observations [N, D] and actions [N, A], and the
+  metrics: that mean log-likelihood, the mean squared error of the policy's mean action, its
+  mean scale and entropy, and the share of its mean outside [-1, 1] (as MPO's)."""
+  pi = networks.policy.apply(policy_params, obs)  # [N, A]
+  log_prob = pi.log_prob(actions)  # [N]
+  metrics = {"bc_log_prob": jnp.mean(log_prob),
+             "bc_action_error": jnp.mean(jnp.square(pi.mean - actions)),
+             "scale_mean": jnp.mean(pi.scale), "entropy": jnp.mean(pi.entropy()),
+             "mean_out_of_bounds": jnp.mean(jnp.abs(pi.mean) > 1.0)}
+  return -jnp.mean(log_prob), metrics
+
+
+def update(networks: Networks, config: learner_lib.LearnerConfig,
+           state: learner_lib.LearnerState, norm: normalizer.NormalizerState, obs: jax.Array,
+           actions: jax.Array) -> tuple[learner_lib.LearnerState, dict]:
+  """One optimiser step of the policy on raw observations [N, D] (standardised by `norm`, as
+  the actors see them) and the actions [N, A] to clone; returns (state, metrics)."""
+  x = normalizer.normalize(norm, obs)
+  grad, metrics = jax.grad(lambda p: loss(networks, p, x, actions), has_aux=True)(state.policy)
+  change, opt = learner_lib.policy_optimizer(config).update(grad, state.policy_opt, state.policy)
+  state = state._replace(policy=optax.apply_updates(state.policy, change), policy_opt=opt,
+                         updates=state.updates + 1)
+  if state.average_policy is not None:
+    state = state._replace(average_policy=learner_lib.averaged(
+        state.average_policy, state.policy, config.policy_average_decay, state.updates))
+  metrics["policy_grad_norm"] = jnp.sqrt(sum(jnp.sum(jnp.square(g))
+                                             for g in jax.tree.leaves(grad)))
+  return state, metrics

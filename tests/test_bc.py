@@ -1,0 +1,217 @@
+"""BC: the cloning loss against scipy, one update against optax's step, the pairs drawn from the
+demonstrations, and BC in the compiled loop (reacher_easy, small sizes, over the 2 forced host
+devices), blind to the task reward."""
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+import pytest
+from scipy import stats
+
+import tasks
+from mjx_form import mesh as mesh_lib
+from mjx_form.imitation.bc import BehaviourCloning
+from mjx_form.rl import cloning, normalizer
+from mjx_form.rl import learner as learner_lib
+from mjx_form.rl.learner import LearnerConfig
+from mjx_form.rl.networks import make_networks
+from mjx_form.rl.train import TrainConfig, Trainer
+from tasks import reacher
+from test_form import GarbageRewardReacher, _iterate, assert_trained_alike
+
+
+def test_loss_is_the_gaussian_negative_log_likelihood():
+  """-mean log pi(a|x) equals scipy's normal log-density summed over the action's dimensions;
+  the metrics are numpy's of the same policy outputs."""
+  networks = make_networks(3, width=16)
+  params = networks.policy.init(jax.random.PRNGKey(0), jnp.zeros((1, 5)))
+  rng = np.random.default_rng(0)
+  obs = jnp.asarray(rng.normal(size=(7, 5)), jnp.float32)
+  actions = jnp.asarray(rng.normal(size=(7, 3)), jnp.float32)
+  loss, metrics = cloning.loss(networks, params, obs, actions)
+  pi = networks.policy.apply(params, obs)
+  mean, scale = np.asarray(pi.mean, np.float64), np.asarray(pi.scale, np.float64)
+  log_prob = stats.norm.logpdf(np.asarray(actions, np.float64), mean, scale).sum(-1)
+  np.testing.assert_allclose(float(loss), -log_prob.mean(), rtol=1e-5)
+  np.testing.assert_allclose(float(metrics["bc_log_prob"]), log_prob.mean(), rtol=1e-5)
+  np.testing.assert_allclose(float(metrics["bc_action_error"]),
+                             np.mean((mean - np.asarray(actions)) ** 2), rtol=1e-5)
+  np.testing.assert_allclose(float(metrics["scale_mean"]), scale.mean(), rtol=1e-5)
+  np.testing.assert_allclose(float(metrics["entropy"]),
+                             stats.norm.entropy(0.0, scale).sum(-1).mean(), rtol=1e-5)
+
+
+def test_update_steps_the_policy_alone_on_standardised_observations():
+  """One update is optax's step of the policy's optimiser on the loss's gradient at the
+  observations standardised by the given normaliser; critic, targets and duals stay; the
+  count and the average policy advance; repeated updates fit the actions."""
+  config = LearnerConfig(learning_rate=1e-2, policy_average_decay=0.5)
+  networks = make_networks(2, width=16)
+  state = learner_lib.init(networks, config, jax.random.PRNGKey(1), 4, 2)
+  rng = np.random.default_rng(1)
+  norm = normalizer.NormalizerState(jnp.asarray(rng.normal(size=4), jnp.float32),
+                                    jnp.asarray(rng.uniform(0.5, 2.0, size=4), jnp.float32),
+                                    jnp.ones((), jnp.int32))
+  obs = jnp.asarray(rng.normal(size=(32, 4)) * 3 + 1, jnp.float32)
+  actions = jnp.tanh(obs[:, :2] - obs[:, 2:])
+  new, metrics = cloning.update(networks, config, state, norm, obs, actions)
+  x = (np.asarray(obs) - np.asarray(norm.mean)) / np.sqrt(np.asarray(norm.var) + 1e-8)
+  grad = jax.grad(lambda p: cloning.loss(networks, p, jnp.asarray(x, jnp.float32),
+                                         actions)[0])(state.policy)
+  tx = optax.chain(optax.clip_by_global_norm(config.max_grad_norm), optax.adam(1e-2))
+  change, _ = tx.update(grad, tx.init(state.policy), state.policy)
+  expected = optax.apply_updates(state.policy, change)
+  for a, b in zip(jax.tree.leaves(new.policy), jax.tree.leaves(expected)):
+    np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-4, atol=1e-6)
+  for part in ("critic", "target_critic", "target_policy", "duals", "critic_opt", "dual_opt"):
+    for a, b in zip(jax.tree.leaves(getattr(new, part)), jax.tree.leaves(getattr(state, part))):
+      np.testing.assert_array_equal(np.asarray(a), np.asarray(b), err_msg=part)
+  assert int(new.updates) == 1
+  for a, b in zip(jax.tree.leaves(new.average_policy), jax.tree.leaves(new.policy)):
+    np.testing.assert_array_equal(np.asarray(a), np.asarray(b))  # the mean of one update
+  assert float(metrics["policy_grad_norm"]) > 0
+  step = jax.jit(lambda s: cloning.update(networks, config, s, norm, obs, actions))
+  errors = []
+  for _ in range(200):
+    new, metrics = step(new)
+    errors.append(float(metrics["bc_action_error"]))
+  assert errors[-1] < 0.2 * errors[0], errors[::40]
+
+
+def _demos(episodes=3, steps=5):
+  """Observations [K, T+1, 6] whose first two features name their episode and step; actions
+  [K, T, 2] the same two: a drawn pair shows where it came from."""
+  k, t = np.meshgrid(np.arange(episodes), np.arange(steps + 1), indexing="ij")
+  obs = np.zeros((episodes, steps + 1, 6), np.float32)
+  obs[..., 0], obs[..., 1] = k, t
+  obs[..., 2:] = np.random.default_rng(0).normal(size=(episodes, steps + 1, 4))
+  return obs, obs[:, :-1, :2].copy()
+
+
+def test_pairs_are_the_demonstrations_transitions_drawn_uniformly():
+  """Each drawn observation comes with the action taken at it; the final observations of the
+  episodes (no action) are never drawn; every transition is drawn about as often."""
+  obs, actions = _demos()
+  source = BehaviourCloning(obs, actions, "sha")
+  state = source.init(jax.random.PRNGKey(0), 6, 2)
+  x, a, metrics = jax.jit(lambda k: source.policy_targets(state, k, 30000))(
+      jax.random.PRNGKey(3))
+  x, a = np.asarray(x), np.asarray(a)
+  np.testing.assert_array_equal(x[:, :2], a)
+  k, t = a[:, 0].astype(int), a[:, 1].astype(int)
+  np.testing.assert_array_equal(x, obs[k, t])
+  counts = np.bincount(k * 5 + t, minlength=15)
+  assert counts.min() > 0 and t.max() == 4
+  assert stats.chisquare(counts).pvalue > 1e-3, counts
+  # the same draws from the data as the compiled iteration passes it
+  bound = source.with_data(jax.tree.map(jnp.asarray, source.data()))
+  np.testing.assert_array_equal(np.asarray(bound.policy_targets(
+      state, jax.random.PRNGKey(3), 30000)[0]), x)
+  assert metrics == {}
+
+
+def test_source_refuses_demonstrations_that_do_not_fit():
+  obs, actions = _demos()
+  for bad_obs, bad_actions in ((obs, actions[:2]), (obs, actions[:, :4]), (obs[0], actions),
+                               (obs[:, :1], actions[:, :0])):
+    with pytest.raises(ValueError, match="observations \\[K, T\\+1, D\\] and actions"):
+      BehaviourCloning(bad_obs, bad_actions)
+  with pytest.raises(ValueError, match="finite"):
+    BehaviourCloning(obs, np.full_like(actions, np.nan))
+  source = BehaviourCloning(obs, actions)
+  with pytest.raises(ValueError, match="6-dimensional observations and 2-dimensional actions"):
+    source.init(jax.random.PRNGKey(0), 6, 3)
+  assert source.settings() == {"demonstrations_sha256": "", "demonstration_episodes": 3}
+
+
+CONFIG = TrainConfig(task="reacher_easy", reward_source="bc", num_envs=4, unroll_length=50,
+                     batch_size=4, replay_capacity=12, updates_per_iteration=2,
+                     network_width=32, eval_envs=2,
+                     learner=LearnerConfig(learning_rate=3e-3, num_action_samples=4))
+
+
+def _bc_source():
+  """Demonstrations whose actions are a fixed function of their observations (stand in for
+  an expert's)."""
+  rng = np.random.default_rng(5)
+  obs = (rng.normal(size=(4, 51, 6)) * [1, 2, 3, 0.5, 1, 4] + [0, 1, -2, 0, 3, 0]).astype(
+      np.float32)
+  actions = np.tanh(obs[:, :-1, :2] - 0.5 * obs[:, :-1, 2:4]).astype(np.float32)
+  return BehaviourCloning(obs, actions, "sha"), obs
+
+
+def test_bc_trains_the_policy_in_the_compiled_loop_without_the_task_reward(monkeypatch):
+  """BC in the compiled loop over the mesh: the policy fits the actions (its error falls), the
+  critic and the duals are never trained, the normaliser follows the demonstrations'
+  observations (not the imitator's), and the same run with the environment's reward replaced
+  by garbage trains bit for bit the same."""
+  source, obs = _bc_source()
+  trainer = Trainer(CONFIG, mesh_lib.make_mesh(), source)
+  assert trainer.clones
+  fresh = trainer.init(jax.random.PRNGKey(0)[None])
+  state, metrics = _iterate(trainer, 6)
+  errors = [float(m["bc_action_error"][0]) for m in metrics]
+  assert errors[-1] < 0.5 * errors[0], errors
+  assert int(np.asarray(state.learner.updates)[0]) == 12
+  for part in ("critic", "target_critic", "duals"):
+    for a, b in zip(jax.tree.leaves(getattr(state.learner, part)),
+                    jax.tree.leaves(getattr(fresh.learner, part))):
+      np.testing.assert_array_equal(np.asarray(a), np.asarray(b), err_msg=part)
+  flat = obs[:, :-1].reshape(-1, 6)  # the observations pairs are drawn from
+  np.testing.assert_allclose(np.asarray(state.normalizer.mean)[0], flat.mean(0),
+                             atol=0.15 * flat.std(0).max())
+  np.testing.assert_allclose(np.sqrt(np.asarray(state.normalizer.var)[0]), flat.std(0),
+                             rtol=0.15)
+  assert "q_mean" not in metrics[-1] and np.isfinite(metrics[-1]["bc_log_prob"][0])
+  monkeypatch.setitem(tasks._REGISTRY, "reacher_easy",
+                      lambda physics: GarbageRewardReacher(reacher._BIG_TARGET, "easy", physics))
+  garbage = Trainer(CONFIG, mesh_lib.make_mesh(), _bc_source()[0])
+  other, other_metrics = _iterate(garbage, 6)
+  assert_trained_alike(state, other)
+  assert metrics[-1]["train_reward"][0] != other_metrics[-1]["train_reward"][0]
+
+
+def test_bc_config_names_its_source():
+  with pytest.raises(ValueError, match="names reward source 'form'"):
+    Trainer(dataclasses.replace(CONFIG, reward_source="form"), mesh_lib.make_mesh(),
+            _bc_source()[0])
+
+
+def test_run_py_bc_runs_and_refuses_what_does_not_fit(tmp_path, capsys):
+  """`scripts/run.py --method bc` end to end on the CPU: demonstrations with actions recorded
+  from the shipped expert, records named by the method with BC's metrics; demonstrations
+  without actions are refused with exit status 2 naming the file, nothing written; options BC
+  has no use for are usage errors."""
+  import json
+  from conftest import load_script
+  from mjx_form.files import demos
+  from test_gaifo import SMALL_RUN
+  cli = load_script("run")
+  out = tmp_path / "curve.jsonl"
+  assert cli.main([*SMALL_RUN, "--method", "bc", "--run_dir", str(tmp_path / "run"),
+                   "--results", str(out), "--env_steps", "400"]) == 0
+  curve = [json.loads(line) for line in open(out)]
+  curve = [r for r in curve if r["kind"] == "learning_curve"]
+  assert curve and {r["method"] for r in curve} == {"bc"}
+  assert curve[-1]["settings"]["reward"]["demonstration_episodes"] == 2
+  assert np.isfinite(curve[-1]["bc_log_prob"]) and "critic_loss" not in curve[-1]
+  assert "bc log-likelihood" in capsys.readouterr().out
+  env = tasks.make("reacher_easy")
+  observations = demos.save_demonstrations(
+      tmp_path / "observations.npz", np.zeros((1, 3, env.observation_size), np.float32),
+      metadata={"task": "reacher_easy", "observation_layout": env.observation_layout,
+                "physics": "fast", "expert": {}})
+  assert cli.main([*SMALL_RUN, "--method", "bc", "--demos", str(observations), "--run_dir",
+                   str(tmp_path / "refused"), "--env_steps", "400"]) == 2
+  err = capsys.readouterr().err
+  assert "observations.npz" in err and "needs actions" in err
+  assert not (tmp_path / "refused").exists()
+  for argv, message in ((["--reward_scale", "raw"], "--method bc has no reward"),
+                        (["--demo_episodes", "0"], "--method bc needs demonstrations"),
+                        (["--gradient_penalty", "1"], "apply to --method gaifo")):
+    with pytest.raises(SystemExit):
+      cli.parse_args(["--method", "bc", *argv])
+    assert message in capsys.readouterr().err
