@@ -17,6 +17,9 @@
   --method bc: behavioural cloning, the policy fitted to the expert's actions on the same
       demonstrations (mjx_form/imitation/bc.py; it reads actions, so it is no imitation from
       observations: the paper's calibration of the tasks).
+  --method bco: behavioural cloning from observation: the policy fitted to the demonstrations
+      with the actions an inverse model, trained online on the imitator's own transitions,
+      infers for them (mjx_form/imitation/bco.py).
   --method expert: the same learner on the task reward (to train experts).
   --method random: uniform random actions in N auto-resetting environments of one task,
       sharded over all devices; reports control steps per second (compile time apart).
@@ -52,6 +55,8 @@ from mjx_form.imitation import demonstrator as demonstrator_lib  # noqa: E402
 from mjx_form.imitation import discriminator as discriminator_lib  # noqa: E402
 from mjx_form.imitation import form as form_lib  # noqa: E402
 from mjx_form.imitation import bc as bc_lib  # noqa: E402
+from mjx_form.imitation import bco as bco_lib  # noqa: E402
+from mjx_form.imitation import inverse_model as inverse_model_lib  # noqa: E402
 from mjx_form.imitation import gaifo as gaifo_lib  # noqa: E402
 from mjx_form.imitation import pipeline, settings  # noqa: E402
 from mjx_form.rl import grid, recipes, runner  # noqa: E402
@@ -62,15 +67,15 @@ from mjx_form.sim.physics import DEFAULT_PHYSICS, PHYSICS_MODES  # noqa: E402
 from mjx_form.sim.wrappers import AutoReset  # noqa: E402
 
 
-METHODS = ("form", "gaifo", "gaifo_gp", "vaifo", "vaifo_gp", "bc", "expert", "random")
+METHODS = ("form", "gaifo", "gaifo_gp", "vaifo", "vaifo_gp", "bco", "bc", "expert", "random")
 GAIFO = ("gaifo", "gaifo_gp", "vaifo", "vaifo_gp")  # a discriminator's reward
-IMITATION = ("form", *GAIFO)  # learn from demonstrations' observations alone
+IMITATION = ("form", *GAIFO, "bco")  # learn from demonstrations' observations alone
 FROM_DEMOS = (*IMITATION, "bc")  # learn from demonstrations
 LEARNERS = ("expert", *FROM_DEMOS)  # every method that trains a policy
 GAIFO_GP_DEFAULT = 10.0  # beta_gp: the paper's "typically 10"
 KL_BOUND_DEFAULT = 1.0  # VAIfO's epsilon: the paper's throughout
 # Options that only the methods that learn from demonstrations read (a user who gives one to
-# another method is told so; --reward_scale not BC, which has no reward), those that only
+# another method is told so; --reward_scale not BC's or BCO's: no reward), those that only
 # --method form reads, and those that only GAIfO's read.
 DEMO_OPTIONS = ("expert", "demos", "demo_episodes", "save_demos", "reward_scale")
 FORM_ONLY = ("demonstrator", "member_demonstrators", "train_demonstrator", "demonstrator_seed",
@@ -153,8 +158,8 @@ def parse_args(argv=None) -> argparse.Namespace:
   parser.add_argument("--list", action="store_true", help="print the task names and exit")
   parser.add_argument("--method", default="form", choices=METHODS,
                       help="form: imitation from observations (default); gaifo, gaifo_gp, "
-                           "vaifo, vaifo_gp: the GAIfO baselines; bc: behavioural cloning "
-                           "of the expert's actions; expert: MPO on the task "
+                           "vaifo, vaifo_gp: the GAIfO baselines; bco: behavioural cloning from "
+                           "observation; bc: of the expert's actions; expert: MPO on the task "
                            "reward; random: a random-action throughput demo")
   parser.add_argument("--compilation_cache", default=DEFAULT_COMPILATION_CACHE,
                       help="directory of JAX's persistent compilation cache: a later run of "
@@ -417,8 +422,8 @@ def parse_args(argv=None) -> argparse.Namespace:
              if getattr(args, name) != parser.get_default(name)]
     if given:
       parser.error(f"{', '.join(given)} apply to --method {', '.join(FROM_DEMOS)}")
-  if args.method == "bc" and args.reward_scale is not None:
-    parser.error("--reward_scale: --method bc has no reward (it clones the expert's actions)")
+  if args.method in ("bc", "bco") and args.reward_scale is not None:
+    parser.error(f"--reward_scale: --method {args.method} has no reward (it clones actions)")
   if args.method != "form":
     given = [f"--{name}" for name in FORM_ONLY
              if getattr(args, name) != parser.get_default(name)]
@@ -440,7 +445,7 @@ def parse_args(argv=None) -> argparse.Namespace:
                  f"{args.method.replace('gaifo', 'vaifo')} has one)")
   if args.kl_bound is not None and not 0 <= args.kl_bound < float("inf"):
     parser.error(f"--kl_bound must be >= 0 and finite, got {args.kl_bound}")
-  if args.method in (*GAIFO, "bc") and args.demo_episodes == 0:
+  if args.method in (*GAIFO, "bco", "bc") and args.demo_episodes == 0:
     parser.error(f"--demo_episodes 0: --method {args.method} needs demonstrations")
   if args.resume and (args.demonstrator or args.train_demonstrator or args.member_demonstrators
                       or args.demonstrator_seed is not None):
@@ -693,18 +698,25 @@ def gaifo_source(args: argparse.Namespace, run_dir: str, print_fn) -> gaifo_lib.
                                standardise_reward=args.reward_scale == "standardised")
 
 
-def bc_source(args: argparse.Namespace, run_dir: str, print_fn) -> bc_lib.BehaviourCloning:
-  """The demonstrations, with the expert's actions, of --method bc, once `run_dir` is known to
-  fit (as `gaifo_source`; the checksum covers the actions too)."""
+def bc_source(args: argparse.Namespace, run_dir: str, print_fn):
+  """The demonstrations and the cloning source of --method bc (with the expert's actions; the
+  checksum covers them too) or bco (observations only), once `run_dir` is known to fit (as
+  `gaifo_source`)."""
   runner.check_run_dir(run_dir, args.resume)
   env = tasks.make(args.task, physics=args.physics)
   artefacts = pipeline.Artefacts(expert=args.expert, demos=args.demos,
                                  save_demos=args.save_demos)
   episodes = (pipeline.DEFAULT_TRAINING_EPISODES if args.demo_episodes is None
               else args.demo_episodes)
-  observations, actions, info = pipeline.demonstrations(
-      env, artefacts, episodes, args.physics, args.seed, print_fn, with_actions=True)
-  return bc_lib.BehaviourCloning(observations, actions, info["sha256"])
+  if args.method == "bc":
+    observations, actions, info = pipeline.demonstrations(
+        env, artefacts, episodes, args.physics, args.seed, print_fn, with_actions=True)
+    return bc_lib.BehaviourCloning(observations, actions, info["sha256"])
+  observations, _ = pipeline.demonstrations(env, artefacts, episodes, args.physics, args.seed,
+                                            print_fn)
+  return bco_lib.BcoSource(inverse_model_lib.InverseModelConfig(width=args.network_width),
+                           observations, env.action_bounds,
+                           demos_lib.checksum({"observations": observations}))
 
 
 def random_rollout(args: argparse.Namespace, mesh) -> dict:
@@ -787,7 +799,7 @@ def main(argv=None) -> int:
         say(recipe_line(args))
       source = (form_source(args, run_dir, results_path, say) if args.method == "form" else
                 gaifo_source(args, run_dir, say) if args.method in GAIFO else
-                bc_source(args, run_dir, say) if args.method == "bc" else None)
+                bc_source(args, run_dir, say) if args.method in ("bc", "bco") else None)
       rows = runner.run(config, run_dir, args.env_steps, resume=args.resume,
                         log_every=args.log_every, eval_every=args.eval_every,
                         checkpoint_every=args.checkpoint_every, max_seconds=args.max_seconds,

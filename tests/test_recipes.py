@@ -194,10 +194,10 @@ def test_run_names_the_recipe_and_its_overrides(capsys):
                                                 "--preset", "paper"]))
   with pytest.raises(SystemExit):
     cli.parse_args(["--method", "random", "--preset", "paper"])
-  assert "--preset apply to --method form, gaifo, gaifo_gp, vaifo, vaifo_gp, bc and expert" in capsys.readouterr().err
+  assert "--preset apply to --method form, gaifo, gaifo_gp, vaifo, vaifo_gp, bco, bc and expert" in capsys.readouterr().err
   with pytest.raises(SystemExit):  # random trains nothing, so no learner flag has a meaning
     cli.parse_args(["--method", "random", "--policy_average_decay", "0.5", "--resume"])
-  assert ("--resume, --policy_average_decay apply to --method form, gaifo, gaifo_gp, vaifo, vaifo_gp, bc and expert"
+  assert ("--resume, --policy_average_decay apply to --method form, gaifo, gaifo_gp, vaifo, vaifo_gp, bco, bc and expert"
           in capsys.readouterr().err)
   assert cli.parse_args(["--method", "random", "--physics", "fast"]).method == "random"
 

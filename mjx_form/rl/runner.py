@@ -772,6 +772,9 @@ def _progress_line(row: dict, total_iterations: int, steps_per_iteration: int) -
     line += (f"  gaifo reward {row['gaifo_reward']:.3f} (sd {row['gaifo_reward_std']:.3f}; "
              f"discriminator right on {100 * row['discriminator_expert_accuracy']:.0f}% of the "
              f"expert's, {100 * row['discriminator_imitator_accuracy']:.0f}% of the imitator's)")
+  if "inverse_model_log_prob" in row:
+    line += (f"  inverse model log-likelihood {row['inverse_model_log_prob']:.2f} (action error "
+             f"{row['inverse_model_action_error']:.4f})")
   if "bc_log_prob" in row:  # a cloning source: no critic
     return line + (f"  bc log-likelihood {row['bc_log_prob']:.2f}  action error "
                    f"{row['bc_action_error']:.4f}  mean out of bounds "
@@ -888,8 +891,9 @@ _CURVE_FIELDS = (
     "discriminator_imitator_accuracy", "discriminator_gradient_norm",
     # VAIfO: the bottleneck's KL (bounded by `kl_bound`) and its multiplier
     "discriminator_kl", "discriminator_beta",
-    # BC: the policy's mean log-likelihood of the actions it clones, its mean's squared error
-    "bc_log_prob", "bc_action_error",
+    # BC and BCO: the policy's mean log-likelihood of the actions it clones, its mean's squared
+    # error; BCO's inverse model's of the imitator's actions on the learner's batches
+    "bc_log_prob", "bc_action_error", "inverse_model_log_prob", "inverse_model_action_error",
     # FORM: the demonstrator's mean log pD of the evaluation episodes' transitions (the policy's
     # mean action): how well the policy imitates, measured without the task reward
     "eval_demonstrator_log_prob",
