@@ -160,7 +160,8 @@ def top_lines(exe, args: tuple, n: int, calls: int = 1) -> list[dict]:
   traced = [_traced_times(exe, args, module) for _ in range(calls)]
   if any(t is None for t in traced):
     return []
-  times = collections.Counter({op: min(t.get(op, 0.0) for t in traced) for op in traced[0]})
+  ops = set().union(*traced)  # each operation's least time over the traces that hold it
+  times = collections.Counter({op: min(t[op] for t in traced if op in t) for op in ops})
   instructions = hlo_instructions(text)
   by_line = collections.Counter()
   for op, us in times.items():

@@ -19,7 +19,8 @@
       observations: the paper's calibration of the tasks).
   --method bco: behavioural cloning from observation: the policy fitted to the demonstrations
       with the actions an inverse model, trained online on the imitator's own transitions,
-      infers for them (mjx_form/imitation/bco.py).
+      infers for them (mjx_form/imitation/bco.py). BC and BCO take the paper's policy head and
+      actors, and refuse MPO's options (no critic).
   --method expert: the same learner on the task reward (to train experts).
   --method random: uniform random actions in N auto-resetting environments of one task,
       sharded over all devices; reports control steps per second (compile time apart).
@@ -72,16 +73,21 @@ GAIFO = ("gaifo", "gaifo_gp", "vaifo", "vaifo_gp")  # a discriminator's reward
 IMITATION = ("form", *GAIFO, "bco")  # learn from demonstrations' observations alone
 FROM_DEMOS = (*IMITATION, "bc")  # learn from demonstrations
 LEARNERS = ("expert", *FROM_DEMOS)  # every method that trains a policy
+CLONING = ("bco", "bc")  # fit the policy by maximum likelihood: no reward, no critic, no MPO
 GAIFO_GP_DEFAULT = 10.0  # beta_gp: the paper's "typically 10"
 KL_BOUND_DEFAULT = 1.0  # VAIfO's epsilon: the paper's throughout
 # Options that only the methods that learn from demonstrations read (a user who gives one to
 # another method is told so; --reward_scale not BC's or BCO's: no reward), those that only
 # --method form reads, and those that only GAIfO's read.
-DEMO_OPTIONS = ("expert", "demos", "demo_episodes", "save_demos", "reward_scale")
+DEMO_OPTIONS = ("expert", "demos", "demo_episodes", "save_demos")
 FORM_ONLY = ("demonstrator", "member_demonstrators", "train_demonstrator", "demonstrator_seed",
              "beta_ar", "effect_l2", "turn_invariant", "angle_increments", "angle_inputs",
              "effect_max_scale", "reward_clip", "ensemble_log_pd", "imitator_every")
 GAIFO_ONLY = ("gradient_penalty", "discriminator_frames", "kl_bound")
+# The learner's options that only MPO reads (BC and BCO fit the policy alone: mjx_form/rl/cloning.py
+# uses the learning rate and gradient clip), and --preset (they take the paper's settings).
+MPO_ONLY = ("num_action_samples", "target_update_period", "action_penalty", "clip_critic_actions",
+            "epsilon_scale", "sampled_q_bfloat16", "sampled_q_float32_head", "preset")
 
 DEFAULT_COMPILATION_CACHE = os.path.join(
     os.environ.get("XDG_CACHE_HOME", os.path.expanduser("~/.cache")), "mjx_form", "jax")
@@ -422,8 +428,19 @@ def parse_args(argv=None) -> argparse.Namespace:
              if getattr(args, name) != parser.get_default(name)]
     if given:
       parser.error(f"{', '.join(given)} apply to --method {', '.join(FROM_DEMOS)}")
-  if args.method in ("bc", "bco") and args.reward_scale is not None:
-    parser.error(f"--reward_scale: --method {args.method} has no reward (it clones actions)")
+  if args.method not in ("form", *GAIFO) and args.reward_scale is not None:
+    parser.error(f"--reward_scale applies to --method form, {', '.join(GAIFO)}"
+                 + (f" (--method {args.method} has no reward: it clones actions)"
+                    if args.method in CLONING else ""))
+  if args.method in CLONING:
+    given = [f"--{name}" for name in MPO_ONLY
+             if getattr(args, name) != parser.get_default(name)]
+    given += [f"--grid {name}" for name in args.grid
+              if name in grid.LEARNER and name not in ("learning_rate", "max_grad_norm",
+                                                       "policy_average_decay")]
+    if given:
+      parser.error(f"{', '.join(given)}: --method {args.method} fits the policy alone by "
+                   f"maximum likelihood (no critic, no MPO) with the paper's settings")
   if args.method != "form":
     given = [f"--{name}" for name in FORM_ONLY
              if getattr(args, name) != parser.get_default(name)]
@@ -502,7 +519,9 @@ def parse_args(argv=None) -> argparse.Namespace:
 
 def train_config(args: argparse.Namespace) -> TrainConfig:
   """The run's TrainConfig: the method's preset for the task, then the flags."""
-  if args.method in FROM_DEMOS:  # FORM's learner settings; the paper's head and actor noise
+  if args.method in CLONING:  # the paper's policy head, actor noise, no average policy
+    chosen = dict(recipes.PAPER)
+  elif args.method in FROM_DEMOS:  # FORM's learner settings; the paper's head and actor noise
     chosen = {**recipes.PAPER, **form_run_settings(args)}
   else:
     chosen = recipes.expert_settings(args.task, args.preset or "default")
@@ -539,7 +558,8 @@ def recipe_applies(args: argparse.Namespace) -> bool:
   """Whether the run takes its task's own settings: an expert run its recipe
   (mjx_form/rl/recipes.py), a FORM run its entry in mjx_form/imitation/settings.py."""
   own = recipes.PER_TASK if args.method == "expert" else settings.PER_TASK_RUN
-  return args.method in LEARNERS and args.task in own and args.preset != "paper"
+  return (args.method in LEARNERS and args.method not in CLONING and args.task in own
+          and args.preset != "paper")
 
 
 def recipe_line(args: argparse.Namespace) -> str:

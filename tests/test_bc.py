@@ -20,7 +20,6 @@ from mjx_form.rl import learner as learner_lib
 from mjx_form.rl.learner import LearnerConfig
 from mjx_form.rl.networks import make_networks
 from mjx_form.rl.train import TrainConfig, Trainer
-from test_form import _iterate
 
 
 def test_loss_is_the_gaussian_negative_log_likelihood():
@@ -58,7 +57,11 @@ def test_update_steps_the_policy_alone_on_standardised_observations():
   obs = jnp.asarray(rng.normal(size=(32, 4)) * 3 + 1, jnp.float32)
   actions = jnp.tanh(obs[:, :2] - obs[:, 2:])
   new, metrics = cloning.update(networks, config, state, norm, obs, actions)
-  x = (np.asarray(obs) - np.asarray(norm.mean)) / np.sqrt(np.asarray(norm.var) + 1e-8)
+  x = (np.asarray(obs) - np.asarray(norm.mean)) / np.sqrt(np.asarray(norm.var) + 1e-6)
+  pi = networks.policy.apply(state.policy, jnp.asarray(x, jnp.float32))  # (before the step)
+  np.testing.assert_allclose(float(metrics["bc_log_prob"]), stats.norm.logpdf(
+      np.asarray(actions, np.float64), np.asarray(pi.mean, np.float64),
+      np.asarray(pi.scale, np.float64)).sum(-1).mean(), rtol=1e-5)
   grad = jax.grad(lambda p: cloning.loss(networks, p, jnp.asarray(x, jnp.float32),
                                          actions)[0])(state.policy)
   tx = optax.chain(optax.clip_by_global_norm(config.max_grad_norm), optax.adam(1e-2))
@@ -144,27 +147,35 @@ def _bc_source():
 
 
 def test_bc_trains_the_policy_in_the_compiled_loop():
-  """BC in the compiled loop over the mesh: the policy fits the actions (its error falls), the
-  critic and the duals are never trained, and the normaliser follows the demonstrations'
-  observations (not the imitator's). (That the cloning learner trains blind to the task reward
-  is test_bco's compiled-loop test: one program fewer to compile here.)"""
+  """BC in the compiled loop over the mesh, two members (seeds): each member's policy fits the
+  actions (its error falls) on its own draws, the critic and the duals are never trained, and
+  the normaliser follows the demonstrations' observations (not the imitator's). (That the
+  cloning learner trains blind to the task reward is test_bco's compiled-loop test: one program
+  fewer to compile here.)"""
   source, obs = _bc_source()
-  trainer = Trainer(CONFIG, mesh_lib.make_mesh(), source)
+  trainer = Trainer(CONFIG, mesh_lib.make_mesh(), source, seeds=(0, 1))
   assert trainer.clones
-  fresh = trainer.init(jax.random.PRNGKey(0)[None])
-  state, metrics = _iterate(trainer, 6)
-  errors = [float(m["bc_action_error"][0]) for m in metrics]
-  assert errors[-1] < 0.5 * errors[0], errors
-  assert int(np.asarray(state.learner.updates)[0]) == 12
+  state = fresh = trainer.init(trainer.keys())
+  fresh = jax.device_get(fresh.learner)
+  metrics = []
+  for _ in range(6):
+    state, m = trainer.iteration(state)
+    metrics.append(jax.device_get(m))
+  for member in (0, 1):
+    errors = [float(m["bc_action_error"][member]) for m in metrics]
+    assert errors[-1] < 0.5 * errors[0], (member, errors)
+  assert metrics[-1]["bc_action_error"][0] != metrics[-1]["bc_action_error"][1]
+  np.testing.assert_array_equal(np.asarray(state.learner.updates), [12, 12])
   for part in ("critic", "target_critic", "duals"):
     for a, b in zip(jax.tree.leaves(getattr(state.learner, part)),
-                    jax.tree.leaves(getattr(fresh.learner, part))):
+                    jax.tree.leaves(getattr(fresh, part))):
       np.testing.assert_array_equal(np.asarray(a), np.asarray(b), err_msg=part)
   flat = obs[:, :-1].reshape(-1, 6)  # the observations pairs are drawn from
-  np.testing.assert_allclose(np.asarray(state.normalizer.mean)[0], flat.mean(0),
-                             atol=0.15 * flat.std(0).max())
-  np.testing.assert_allclose(np.sqrt(np.asarray(state.normalizer.var)[0]), flat.std(0),
-                             rtol=0.15)
+  for member in (0, 1):
+    np.testing.assert_allclose(np.asarray(state.normalizer.mean)[member], flat.mean(0),
+                               atol=0.15 * flat.std(0).max())
+    np.testing.assert_allclose(np.sqrt(np.asarray(state.normalizer.var)[member]), flat.std(0),
+                               rtol=0.15)
   assert "q_mean" not in metrics[-1] and np.isfinite(metrics[-1]["bc_log_prob"][0])
 
 
@@ -174,38 +185,51 @@ def test_bc_config_names_its_source():
             _bc_source()[0])
 
 
-def test_run_py_bc_runs_and_refuses_what_does_not_fit(tmp_path, capsys):
-  """`scripts/run.py --method bc` end to end on the CPU: demonstrations with actions recorded
-  from the shipped expert, records named by the method with BC's metrics; --method bco's
-  source from the saved demonstrations (observations only, the task's bounds); demonstrations
-  without actions are refused for BC with exit status 2 naming the file, nothing written;
-  options BC and BCO have no use for are usage errors."""
-  import json
+def test_run_py_bc_and_bco_take_their_demonstrations_and_refuse_what_does_not_fit(
+    tmp_path, capsys):
+  """`scripts/run.py --method bc` and `bco`, up to the training (which the compiled-loop tests
+  run): demonstrations recorded with actions from the shipped expert carry the checksum of the
+  file --save_demos writes of them (a resume compares the two); BC's source takes the
+  observations and actions, BCO's the observations and the task's bounds; both take the
+  paper's settings (not FORM's per-task ones); BC's progress line reports its fit;
+  demonstrations without actions are refused for BC with exit status 2 naming the file,
+  nothing written; options BC and BCO have no use for are usage errors."""
   from conftest import load_script
   from mjx_form.files import demos
+  from mjx_form.imitation import pipeline
+  from mjx_form.rl import runner
   from test_gaifo import SMALL_RUN
+  at = SMALL_RUN.index("--num_action_samples")  # (MPO's: BC and BCO refuse it)
+  small = SMALL_RUN[:at] + SMALL_RUN[at + 2:]
   cli = load_script("run")
-  out = tmp_path / "curve.jsonl"
-  saved = tmp_path / "demos.npz"
-  assert cli.main([*SMALL_RUN, "--method", "bc", "--run_dir", str(tmp_path / "run"),
-                   "--results", str(out), "--env_steps", "400", "--save_demos", str(saved)]) == 0
-  curve = [json.loads(line) for line in open(out)]
-  curve = [r for r in curve if r["kind"] == "learning_curve"]
-  assert curve and {r["method"] for r in curve} == {"bc"}
-  assert curve[-1]["settings"]["reward"]["demonstration_episodes"] == 2
-  assert np.isfinite(curve[-1]["bc_log_prob"]) and "critic_loss" not in curve[-1]
-  assert "bc log-likelihood" in capsys.readouterr().out
-  bco = cli.bc_source(cli.parse_args([*SMALL_RUN, "--method", "bco", "--demos", str(saved)]),
-                      str(tmp_path / "bco"), print)
   env = tasks.make("reacher_easy")
-  assert isinstance(bco, BcoSource) and bco.observations.shape == (2, 1001, env.observation_size)
-  np.testing.assert_array_equal(bco.low, env.action_bounds[0])
-  assert bco.demonstrations_sha256 == demos.checksum({"observations": bco.observations})
+  saved = tmp_path / "demos.npz"
+  obs, actions, info = pipeline.demonstrations(
+      env, pipeline.Artefacts(save_demos=str(saved)), 1, "fast", 0, lambda *_: None,
+      with_actions=True)
+  assert obs.shape == (1, 1001, env.observation_size) and actions.shape == (1, 1000, 2)
+  assert info["sha256"] == demos.load_demonstrations(saved).metadata["sha256"]
+  for method, kind in (("bc", BehaviourCloning), ("bco", BcoSource)):
+    args = cli.parse_args([*small, "--method", method, "--demos", str(saved)])
+    source = cli.bc_source(args, str(tmp_path / method), lambda *_: None)
+    assert isinstance(source, kind) and source.observations.shape == obs.shape
+    assert source.demonstrations_sha256 == (info["sha256"] if method == "bc" else
+                                            demos.checksum({"observations": obs}))
+    config = cli.train_config(args)
+    assert config.reward_source == method and config.policy_head == "paper"
+    assert config.learner.policy_average_decay == 0.0 and not config.angle_features
+  np.testing.assert_array_equal(source.low, env.action_bounds[0])  # (BCO's)
+  row = {"iteration": 2, "env_steps": 400, "wall_s": 9.0, "steps_per_s": 50.0,
+         "train_return": float("nan"), "bc_log_prob": -1.25, "bc_action_error": 0.0312,
+         "mean_out_of_bounds": 0.0}
+  assert "bc log-likelihood -1.25  action error 0.0312" in runner._progress_line(row, 4, 200)
+  assert {"bc_log_prob", "bc_action_error"} <= set(runner._CURVE_FIELDS)
   observations = demos.save_demonstrations(
       tmp_path / "observations.npz", np.zeros((1, 3, env.observation_size), np.float32),
       metadata={"task": "reacher_easy", "observation_layout": env.observation_layout,
                 "physics": "fast", "expert": {}})
-  assert cli.main([*SMALL_RUN, "--method", "bc", "--demos", str(observations), "--run_dir",
+  capsys.readouterr()
+  assert cli.main([*small, "--method", "bc", "--demos", str(observations), "--run_dir",
                    str(tmp_path / "refused"), "--env_steps", "400"]) == 2
   err = capsys.readouterr().err
   assert "observations.npz" in err and "needs actions" in err
@@ -214,7 +238,16 @@ def test_run_py_bc_runs_and_refuses_what_does_not_fit(tmp_path, capsys):
     for argv, message in ((["--reward_scale", "raw"], f"--method {method} has no reward"),
                           (["--demo_episodes", "0"], f"--method {method} needs demonstrations"),
                           (["--gradient_penalty", "1"], "apply to --method gaifo"),
-                          (["--beta_ar", "1"], "apply to --method form only")):
+                          (["--beta_ar", "1"], "apply to --method form only"),
+                          (["--target_update_period", "5", "--preset", "paper"],
+                           f"--target_update_period, --preset: --method {method} fits the "
+                           "policy alone"),
+                          (["--grid", "epsilon=0.1,0.2"], "--grid epsilon: --method")):
       with pytest.raises(SystemExit):
         cli.parse_args(["--method", method, *argv])
       assert message in capsys.readouterr().err
+  assert cli.parse_args(["--method", "bc", "--grid", "learning_rate=1e-4,1e-3"]).grid
+  with pytest.raises(SystemExit):
+    cli.parse_args(["--method", "expert", "--reward_scale", "raw"])
+  assert "--reward_scale applies to --method form, gaifo, gaifo_gp, vaifo, vaifo_gp" in (
+      capsys.readouterr().err)

@@ -1,7 +1,7 @@
 """BC's source: the policy clones the expert's actions on the demonstrations' observations.
 
 A cloning source (mjx_form.rl.reward_sources): instead of rewards for MPO it gives the learner
-pairs (x, a) to fit the policy to (`policy_targets`, mjx_form.imitation.cloning), drawn
+pairs (x, a) to fit the policy to (`policy_targets`, mjx_form.rl.cloning), drawn
 uniformly from the demonstrations' K x T transitions, observation x_t with the action a_t the
 expert took there. BC reads the expert's actions, so, unlike the imitation from observations
 methods, it is not comparable with them (the paper includes it to calibrate the tasks'

@@ -675,11 +675,13 @@ class Trainer:
           state.source, unrolls, source_values)}
     observed = unrolls["observation"][:, :, :-1]  # [P, N, T, D]
     if self.clones:  # standardised as the observations the policy is fitted on
+      n = observed.shape[1] * observed.shape[2]
       def targets(source, key, values):
-        n = observed.shape[1] * observed.shape[2]
         return self._source_with(values, data).policy_targets(source, key, n)[0]
-      observed = jax.vmap(targets)(state.source, jax.vmap(lambda k: jax.random.fold_in(k, 1))(
-          learn_key), grid.split(state.settings)[2])  # [P, N * T, D]
+      # (fold_in(k, i) is split(k, U)[i], update i's key: U is one no update takes)
+      norm_keys = jax.vmap(lambda k: jax.random.fold_in(k, cfg.updates_per_iteration))(learn_key)
+      observed = jax.vmap(targets)(state.source, norm_keys,
+                                   grid.split(state.settings)[2])  # [P, N * T, D]
     norm = jax.vmap(lambda n, obs: normalizer.update(n, obs, cfg.normalizer_decay))(
         state.normalizer, observed)
     buffer = jax.vmap(replay.insert)(state.replay, unrolls)
