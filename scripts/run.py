@@ -52,13 +52,13 @@ import tasks  # noqa: E402
 from mjx_form import mesh as mesh_lib  # noqa: E402
 from mjx_form.files import checkpoint, experts  # noqa: E402
 from mjx_form.files import demos as demos_lib  # noqa: E402
+from mjx_form.imitation import bc as bc_lib  # noqa: E402
+from mjx_form.imitation import bco as bco_lib  # noqa: E402
 from mjx_form.imitation import demonstrator as demonstrator_lib  # noqa: E402
 from mjx_form.imitation import discriminator as discriminator_lib  # noqa: E402
 from mjx_form.imitation import form as form_lib  # noqa: E402
-from mjx_form.imitation import bc as bc_lib  # noqa: E402
-from mjx_form.imitation import bco as bco_lib  # noqa: E402
-from mjx_form.imitation import inverse_model as inverse_model_lib  # noqa: E402
 from mjx_form.imitation import gaifo as gaifo_lib  # noqa: E402
+from mjx_form.imitation import inverse_model as inverse_model_lib  # noqa: E402
 from mjx_form.imitation import pipeline, settings  # noqa: E402
 from mjx_form.rl import grid, recipes, runner  # noqa: E402
 from mjx_form.rl.learner import LearnerConfig  # noqa: E402
@@ -84,8 +84,8 @@ FORM_ONLY = ("demonstrator", "member_demonstrators", "train_demonstrator", "demo
              "beta_ar", "effect_l2", "turn_invariant", "angle_increments", "angle_inputs",
              "effect_max_scale", "reward_clip", "ensemble_log_pd", "imitator_every")
 GAIFO_ONLY = ("gradient_penalty", "discriminator_frames", "kl_bound")
-# The learner's options that only MPO reads (BC and BCO fit the policy alone: mjx_form/rl/cloning.py
-# uses the learning rate and gradient clip), and --preset (they take the paper's settings).
+# The learner's options that only MPO reads (BC and BCO fit the policy alone: cloning.py uses
+# the learning rate and gradient clip), and --preset (they take the paper's settings).
 MPO_ONLY = ("num_action_samples", "target_update_period", "action_penalty", "clip_critic_actions",
             "epsilon_scale", "sampled_q_bfloat16", "sampled_q_float32_head", "preset")
 
@@ -718,7 +718,7 @@ def gaifo_source(args: argparse.Namespace, run_dir: str, print_fn) -> gaifo_lib.
                                standardise_reward=args.reward_scale == "standardised")
 
 
-def bc_source(args: argparse.Namespace, run_dir: str, print_fn):
+def cloning_source(args: argparse.Namespace, run_dir: str, print_fn):
   """The demonstrations and the cloning source of --method bc (with the expert's actions; the
   checksum covers them too) or bco (observations only), once `run_dir` is known to fit (as
   `gaifo_source`)."""
@@ -819,7 +819,7 @@ def main(argv=None) -> int:
         say(recipe_line(args))
       source = (form_source(args, run_dir, results_path, say) if args.method == "form" else
                 gaifo_source(args, run_dir, say) if args.method in GAIFO else
-                bc_source(args, run_dir, say) if args.method in ("bc", "bco") else None)
+                cloning_source(args, run_dir, say) if args.method in ("bc", "bco") else None)
       rows = runner.run(config, run_dir, args.env_steps, resume=args.resume,
                         log_every=args.log_every, eval_every=args.eval_every,
                         checkpoint_every=args.checkpoint_every, max_seconds=args.max_seconds,

@@ -211,7 +211,7 @@ def test_run_py_bc_and_bco_take_their_demonstrations_and_refuse_what_does_not_fi
   assert info["sha256"] == demos.load_demonstrations(saved).metadata["sha256"]
   for method, kind in (("bc", BehaviourCloning), ("bco", BcoSource)):
     args = cli.parse_args([*small, "--method", method, "--demos", str(saved)])
-    source = cli.bc_source(args, str(tmp_path / method), lambda *_: None)
+    source = cli.cloning_source(args, str(tmp_path / method), lambda *_: None)
     assert isinstance(source, kind) and source.observations.shape == obs.shape
     assert source.demonstrations_sha256 == (info["sha256"] if method == "bc" else
                                             demos.checksum({"observations": obs}))
