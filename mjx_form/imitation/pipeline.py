@@ -80,8 +80,8 @@ def _expert_path(task: str, path: str | None) -> str:
 def demonstrations(env, artefacts: Artefacts, episodes: int, physics: str, seed: int,
                     print_fn, with_actions: bool = False) -> tuple:
   """Observations [K, T+1, D] and what they are (the demonstrator file's `demonstrations`);
-  with `with_actions`, (observations, actions [K, T, A], what they are), and a file without actions
-  is refused."""
+  with `with_actions`, (observations, actions [K, T, A], what they are), and a file without
+  actions is refused."""
   if artefacts.demos is not None:
     loaded = demos_lib.load_demonstrations(artefacts.demos, task=env.name,
                                            observation_layout=env.observation_layout,
