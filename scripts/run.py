@@ -696,20 +696,28 @@ def discriminator_config(args: argparse.Namespace) -> discriminator_lib.Discrimi
       kl_bound=bound)
 
 
-def gaifo_source(args: argparse.Namespace, run_dir: str, print_fn) -> gaifo_lib.GaifoReward:
-  """The demonstrations and the discriminator's reward source of --method gaifo, gaifo_gp,
-  vaifo or vaifo_gp, once `run_dir` is known to fit (a new run's unused, a resumed one's
-  there). A resumed run records its demonstrations again (the same seed: the same episodes)
-  or reads --demos; the checkpoint's settings name their observations' checksum (the same for
-  a recording and the file --save_demos wrote of it), so other ones are refused."""
+def run_demonstrations(args: argparse.Namespace, run_dir: str, print_fn,
+                       with_actions: bool = False) -> tuple:
+  """(the task, then `pipeline.demonstrations`' results) of the run's demonstrations (recorded,
+  or --demos; 1000 episodes by default), once `run_dir` is known to fit (a new run's unused, a
+  resumed one's there)."""
   runner.check_run_dir(run_dir, args.resume)
   env = tasks.make(args.task, physics=args.physics)
   artefacts = pipeline.Artefacts(expert=args.expert, demos=args.demos,
                                  save_demos=args.save_demos)
   episodes = (pipeline.DEFAULT_TRAINING_EPISODES if args.demo_episodes is None
               else args.demo_episodes)
-  observations, info = pipeline.demonstrations(env, artefacts, episodes, args.physics,
-                                               args.seed, print_fn)
+  return (env, *pipeline.demonstrations(env, artefacts, episodes, args.physics, args.seed,
+                                        print_fn, with_actions=with_actions))
+
+
+def gaifo_source(args: argparse.Namespace, run_dir: str, print_fn) -> gaifo_lib.GaifoReward:
+  """The demonstrations and the discriminator's reward source of --method gaifo, gaifo_gp,
+  vaifo or vaifo_gp, once `run_dir` is known to fit (a new run's unused, a resumed one's
+  there). A resumed run records its demonstrations again (the same seed: the same episodes)
+  or reads --demos; the checkpoint's settings name their observations' checksum (the same for
+  a recording and the file --save_demos wrote of it), so other ones are refused."""
+  _, observations, _ = run_demonstrations(args, run_dir, print_fn)
   config = discriminator_config(args)
   # The reward as the paper's, log(1 + D) in [0, log 2], unless --reward_scale standardised:
   # early on D is nearly constant, and its running sd ~0 would blow the standardised one up.
@@ -722,18 +730,11 @@ def cloning_source(args: argparse.Namespace, run_dir: str, print_fn):
   """The demonstrations and the cloning source of --method bc (with the expert's actions; the
   checksum covers them too) or bco (observations only), once `run_dir` is known to fit (as
   `gaifo_source`)."""
-  runner.check_run_dir(run_dir, args.resume)
-  env = tasks.make(args.task, physics=args.physics)
-  artefacts = pipeline.Artefacts(expert=args.expert, demos=args.demos,
-                                 save_demos=args.save_demos)
-  episodes = (pipeline.DEFAULT_TRAINING_EPISODES if args.demo_episodes is None
-              else args.demo_episodes)
   if args.method == "bc":
-    observations, actions, info = pipeline.demonstrations(
-        env, artefacts, episodes, args.physics, args.seed, print_fn, with_actions=True)
+    _, observations, actions, info = run_demonstrations(args, run_dir, print_fn,
+                                                        with_actions=True)
     return bc_lib.BehaviourCloning(observations, actions, info["sha256"])
-  observations, _ = pipeline.demonstrations(env, artefacts, episodes, args.physics, args.seed,
-                                            print_fn)
+  env, observations, _ = run_demonstrations(args, run_dir, print_fn)
   return bco_lib.BcoSource(inverse_model_lib.InverseModelConfig(width=args.network_width),
                            observations, env.action_bounds,
                            demos_lib.checksum({"observations": observations}))

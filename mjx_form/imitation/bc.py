@@ -20,13 +20,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-
-def draw_transitions(length: int, episodes: int, n: int, key: jax.Array
-                     ) -> tuple[jax.Array, jax.Array]:
-  """n transitions drawn uniformly from `episodes` x `length`: (episode [n], step [n])."""
-  k_key, t_key = jax.random.split(key)
-  return (jax.random.randint(k_key, (n,), 0, episodes),
-          jax.random.randint(t_key, (n,), 0, length))
+from mjx_form.imitation.draws import draw_transitions
 
 
 class BehaviourCloning:

@@ -21,7 +21,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from mjx_form.imitation import inverse_model as im
-from mjx_form.imitation.bc import draw_transitions
+from mjx_form.imitation.draws import draw_transitions
 
 
 class BcoSource:

@@ -26,6 +26,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from mjx_form.imitation import discriminator as disc
+from mjx_form.imitation.draws import draw_transitions
 from mjx_form.rl import normalizer
 
 
@@ -91,10 +92,7 @@ class GaifoReward:
   def expert_frames(self, expert: jax.Array, n: int, key: jax.Array) -> jax.Array:
     """n inputs drawn uniformly from the demonstrations' transitions: [n, frames, D] raw (the
     observation a transition leads to, after the one it starts from where frames is 2)."""
-    episodes, length = expert.shape[0], expert.shape[1]
-    k_key, t_key = jax.random.split(key)
-    k = jax.random.randint(k_key, (n,), 0, episodes)
-    t = jax.random.randint(t_key, (n,), 0, length - 1)  # transition t: x_t -> x_{t+1}
+    k, t = draw_transitions(expert.shape[1] - 1, expert.shape[0], n, key)  # t: x_t -> x_{t+1}
     steps = t[:, None] + jnp.arange(2 - self.config.frames, 2)[None, :]  # [n, frames]
     return expert[k[:, None], steps]
 
