@@ -604,13 +604,20 @@ def test_learning_tables_show_expert_runs_only():
   table = report.learning_table([*curve, *capped])
   assert table.count("(fast_ls4 physics)") == 1 and "fast physics" not in table, table
   # A run that started from a trained policy (--init_policy) counts for the highest evaluation,
-  # not for the times: its clock does not include the policy it started from.
+  # not for the times from scratch: its clock does not include the policy it started from. Its
+  # time to expert follows apart, named so.
   started = [dict(r, _file="f.jsonl", wall_s=r["wall_s"] / 100, eval_return=r["eval_return"] + 9,
                   settings=dict(base["settings"], init_policy="walker_stand " + "ab" * 32))
              for r in expert]
   summary = report.learning_summary([*curve, fast, *expert, *started])
   assert "| walker_walk | 4 | 943.1 (5.0M, f) | 90 s (1.0M, b) |" in summary, summary
-  assert "| 934.0 | 500 s (5.0M, d) |" in summary, summary
+  assert "| 934.0 | 500 s (5.0M, d); from a trained policy: 4 s (4.0M, f) |" in summary, summary
+  # (none from scratch reached it)
+  summary = report.learning_summary([*curve, fast, *started])
+  assert "| 934.0 | not reached; from a trained policy: 4 s (4.0M, f) |" in summary, summary
+  # (one that started from a trained policy and did not reach it adds nothing)
+  below = [dict(r, eval_return=900.0) for r in started]
+  assert "| 934.0 | 500 s (5.0M, d) |" in report.learning_summary([*curve, *expert, *below])
 
 
 def test_a_resumed_part_counts_once_and_for_the_thresholds_it_passes():
