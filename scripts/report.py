@@ -522,10 +522,24 @@ def _shipped_experts(folder: str = EXPERTS) -> list[tuple[dict, str]]:
   return sorted(rows, key=lambda r: _order(r[0]["task"]))
 
 
+def _final_as_fresh(record: dict) -> dict:
+  """A run's final evaluation of one policy file (`kind: final_return`) in the fields of a
+  `kind: expert_eval` record: that file evaluated afresh, by its mean action."""
+  std, n = record.get("final_return_std"), record["episodes"]
+  return {"policy_sha256": record["policy_sha256"], "episodes": n,
+          "mean_return": record["final_return"],
+          "stderr_return": None if std is None else std / n ** 0.5,
+          "device": record["device"], "time": record.get("time", "")}
+
+
 def _fresh_evaluations(records: list[dict]) -> dict[str, dict]:
-  """{policy sha256: its `kind: expert_eval` record of the most episodes (then the newest)},
-  policy mean action only."""
+  """{policy sha256: its fresh evaluation of the most episodes (then the newest)}, policy mean
+  action only: `kind: expert_eval` records, and runs' final evaluations of a policy file
+  (`kind: final_return`, not those with sampled actions)."""
   evals = [r for r in records if r.get("kind") == "expert_eval" and not r.get("stochastic")]
+  evals += [_final_as_fresh(r) for r in records
+            if r.get("kind") == "final_return" and "policy_sha256" in r and "episodes" in r
+            and not r.get("policy", "").endswith("sampled")]
   best = {}
   for r in sorted(evals, key=lambda r: (r["episodes"], r.get("time", ""))):
     best[r["policy_sha256"]] = r
@@ -548,7 +562,8 @@ def experts_table(records: list[dict] = (), folder: str = EXPERTS) -> str:
            "run's periodic evaluations (16-32 episodes; biased upwards); fresh: a later "
            "evaluation of the file over the most episodes measured "
            "(`benchmarks/expert_eval.py`, `kind: "
-           "expert_eval`), mean +- standard error; dm_control: the same policy in dm_control's "
+           "expert_eval`, or the final evaluation of the run that wrote it), mean +- standard "
+           "error; dm_control: the same policy in dm_control's "
            "own environment against as many MJX episodes on the CPU "
            f"(`benchmarks/dm_control_transfer.py`), and their ratio; bar: {bar}x the paper's "
            "expert, judged on the fresh evaluation:",

@@ -798,6 +798,16 @@ def test_experts_table_judges_the_bar_on_the_evaluation_of_most_episodes():
   assert "926.0" in row([many, evaluation(1000, 926.0, "2026-11-23T04")])  # newest of a tie
   assert row([]).startswith(f"| reacher_easy | `reacher_easy.npz` | {meta['eval_return']:.1f} | "
                             "- | - | - | 974.6 | - |")
+  # A run's final evaluation of the file (its mean action) is a fresh evaluation too; its
+  # sampled-action one is not, nor one of another file.
+  final = dict(kind="final_return", task="reacher_easy", policy="best", episodes=256,
+               policy_sha256=meta["sha256"], final_return=931.0, final_return_std=32.0,
+               device="gpu:NVIDIA H200 x1", time="2026-11-23T05")
+  sampled = dict(final, policy="final_sampled", episodes=4096, final_return=900.0)
+  other = dict(final, policy_sha256="ab" * 32, episodes=4096, final_return=900.0)
+  line = row([few, final, sampled, other])
+  assert "931.0 +- 2.0 (256, gpu)" in line and "| met |" in line, line
+  assert "925.0 +- 1.0 (1000, gpu)" in row([few, final, many])  # (most episodes)
 
 
 def test_sweep_table_keeps_errors_over_different_states_apart():
