@@ -539,7 +539,7 @@ def _fresh_evaluations(records: list[dict]) -> dict[str, dict]:
   evals = [r for r in records if r.get("kind") == "expert_eval" and not r.get("stochastic")]
   evals += [_final_as_fresh(r) for r in records
             if r.get("kind") == "final_return" and "policy_sha256" in r and "episodes" in r
-            and not r.get("policy", "").endswith("sampled")]
+            and r.get("policy") != "final_sampled"]
   best = {}
   for r in sorted(evals, key=lambda r: (r["episodes"], r.get("time", ""))):
     best[r["policy_sha256"]] = r
