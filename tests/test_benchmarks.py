@@ -289,8 +289,8 @@ def test_reward_terms_multiply_to_dm_controls_reward(tmp_path, capsys):
   with pytest.raises(SystemExit):
     bench.main(["--tasks", "walker_walk", "--out", str(out)])
   assert "walker_walk: no control cost" in capsys.readouterr().err
-  assert bench.main(["--tasks", "hopper_stand", "humanoid_walk", "--out", str(out)]) == 2
-  assert "no shipped expert for 'humanoid_walk'" in capsys.readouterr().err
+  assert bench.main(["--tasks", "hopper_stand", "humanoid_run", "--out", str(out)]) == 2
+  assert "no shipped expert for 'humanoid_run'" in capsys.readouterr().err
   assert len(open(out).readlines()) == 1  # (hopper_stand's record not written either)
 
 
