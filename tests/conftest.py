@@ -120,3 +120,33 @@ def pytest_terminal_summary(terminalreporter):
   with open(path, "w") as f:
     for row in _PARITY_REPORT:
       f.write(json.dumps(row) + "\n")
+
+
+_PROFILE = os.environ.get("MJX_FORM_TEST_PROFILE")  # a JSON-lines file: where a test's time went
+
+
+if _PROFILE:
+  from jax import monitoring as _monitoring
+
+  _SPENT: dict[str, float] = {}
+
+  def _on_duration(event, duration, **_):
+    _SPENT[event] = _SPENT.get(event, 0.0) + duration
+
+  def _on_event(event, **_):
+    _SPENT[event] = _SPENT.get(event, 0.0) + 1
+
+  _monitoring.register_event_duration_secs_listener(_on_duration)
+  _monitoring.register_event_listener(_on_event)
+
+  @pytest.hookimpl(hookwrapper=True)
+  def pytest_runtest_protocol(item, nextitem):
+    """Writes one row per test: its wall time and the JAX compile events inside it (this
+    process only; a test's subprocesses are not counted)."""
+    _SPENT.clear()
+    start = __import__("time").perf_counter()
+    yield
+    row = {"test": item.nodeid, "seconds": __import__("time").perf_counter() - start,
+           **{k.rsplit("/", 1)[-1]: round(v, 3) for k, v in _SPENT.items()}}
+    with open(_PROFILE, "a") as f:
+      f.write(json.dumps(row) + "\n")
