@@ -14,6 +14,7 @@ from conftest import load_script
 from mjx_form.rl.train import TrainConfig, Trainer
 
 
+@pytest.mark.slow
 def test_train_throughput_env_only_runs_over_the_loops_devices():
   """The env-only rollout it compares the loop with is split over the same mesh (2 forced host
   devices here): its environments end where they started, on both devices."""
@@ -56,6 +57,7 @@ def test_train_throughput_measures_the_learner_settings_it_is_given():
   assert bf16.learner.sampled_q_bfloat16 and bf16.to_dict()["learner"]["sampled_q_bfloat16"]
 
 
+@pytest.mark.slow
 def test_scaling_measures_weak_scaling_and_builds_populations_over_the_devices(tmp_path, capsys):
   """benchmarks/scaling.py on the 2 forced host devices, tiny sizes: weak scaling measured (one
   record, amounts per device scaled, each phase printed as it ends); the population it would
@@ -112,6 +114,7 @@ def test_scaling_measures_weak_scaling_and_builds_populations_over_the_devices(t
   assert "has 2 device(s)" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_evaluation_speed_times_policies_evaluated_together(tmp_path, capsys):
   """benchmarks/evaluation_speed.py, tiny sizes: a record per number of policies, the time of
   one call and per policy; bad sizes refused."""
@@ -131,6 +134,7 @@ def test_evaluation_speed_times_policies_evaluated_together(tmp_path, capsys):
       bench.main(bad)
 
 
+@pytest.mark.slow
 def test_update_speed_times_forms_work_per_learner_update(tmp_path, capsys):
   """benchmarks/update_speed.py's FORM variants, tiny sizes: one record each, with the task's
   effect-model settings and the learner FORM runs with (sampled Q in bf16)."""
@@ -330,6 +334,7 @@ def test_dm_control_transfer_runs_the_expert_in_dm_control(tmp_path):
     bench.dm_control_returns("reacher_easy", expert, swapped, task.action_size, 1, 0, 1)
 
 
+@pytest.mark.slow
 @pytest.mark.xdist_group("reacher")
 def test_same_starts_replays_one_start_in_dm_control_and_mjx(tmp_path):
   """benchmarks/same_starts.py, 3 reacher_easy episodes of 100 steps: dm_control put at each MJX start
@@ -581,6 +586,7 @@ def test_recorded_actions_are_the_mean_clipped_to_the_control_range(monkeypatch)
   np.testing.assert_allclose(act(obs[:, 0]), np.clip(mean[:, 0], low, high), atol=1e-5)
 
 
+@pytest.mark.slow
 def test_multi_device_compile_checks_each_program_in_its_own_process(tmp_path, capsys):
   """benchmarks/multi_device_compile.py on 2 forced host devices: each program compiled and
   run in a child process, one line and one record each; a child's death by a signal is named
@@ -605,6 +611,7 @@ def test_multi_device_compile_checks_each_program_in_its_own_process(tmp_path, c
     bench.main(["--task", "reacher_easy", "--devices", "3", "--out", str(out)])
 
 
+@pytest.mark.slow
 def test_multi_device_compile_runs_flag_variants_and_names_the_last_passes(tmp_path, capsys):
   """The MJX-free per-device loop, once as is and once with a flag added to XLA_FLAGS, with
   its passes dumped; the last passes of a dump are read off the files' order."""
@@ -650,6 +657,7 @@ def test_env_throughput_shares_a_raw_loop_only_between_the_same_physics():
   assert key("walker_walk", "fast_bounded") == key("walker_stand", "fast_bounded")
 
 
+@pytest.mark.slow
 def test_solver_iterations_summarises_what_a_batch_computes(tmp_path):
   """Two steps of four environments: batch maxima over disjoint groups, and the line-search
   passes a batch computes (10 per iteration of its slowest environment) against those a
@@ -858,6 +866,7 @@ def test_reacher_settling_scores_the_shoulder_by_place_and_the_crossings_of_pi()
   assert fast["at_pi"] == {"log_pd": None, "transitions": 0}  # 2.9 is not within 0.14 rad
 
 
+@pytest.mark.slow
 def test_locomotion_speed_factors_are_the_tasks_reward(tmp_path, capsys):
   """benchmarks/locomotion_speed.py: its posture and speed factors multiply to the reward the
   environment gives at every step (the script refuses to report otherwise), its summary is
@@ -960,6 +969,7 @@ def test_form_reward_landscape_names_the_component_that_explains_each_transition
   assert got["share"] == pytest.approx([np.mean(top == i) for i in range(k)])
 
 
+@pytest.mark.slow
 def test_locomotion_speed_factors_are_hopper_hops_reward():
   """hopper_hop: standing (torso 0.6-2 m above the foot) times the speed factor (1 at 2 m/s,
   0.5 at 1 m/s) is the environment's reward at every step, for hopper_stand's expert rolled out
@@ -975,6 +985,7 @@ def test_locomotion_speed_factors_are_hopper_hops_reward():
   assert row["posture_factor_mean"] > 0.9 and row["speed_factor_mean"] < 0.5
 
 
+@pytest.mark.slow
 def test_form_reward_of_behaviour_settles_where_the_runs_reward_statistics_do():
   """benchmarks/form_reward_of_behaviour.py: the reward statistics' fixed point is where a run's
   EMA statistics, folding in rewards clipped by FormReward.clip_tail, settle; the learner's
@@ -1004,6 +1015,7 @@ def test_form_reward_of_behaviour_settles_where_the_runs_reward_statistics_do():
   np.testing.assert_allclose(bench.learner_rewards(np.array([5.0]), 1.0, 2.0, 0.0, False), [5.0])
 
 
+@pytest.mark.slow
 def test_form_reward_of_behaviour_reads_a_runs_imitator_model(tmp_path):
   """benchmarks/form_reward_of_behaviour.py: a run's exported imitator.npz is read back as the
   imitator state it was (same log pI); a demonstrator file or other settings are refused."""

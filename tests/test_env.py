@@ -134,6 +134,7 @@ def test_two_devices_match_one():
   np.testing.assert_allclose(results[0][1], results[1][1], rtol=1e-5, atol=1e-6)
 
 
+@pytest.mark.slow
 @COMPILED_ONCE
 def test_each_device_steps_its_own_environments():
   """On 2 devices AutoReset steps each device's half of the batch alone: environment 1 (on the

@@ -300,6 +300,7 @@ def test_policies_beyond_the_env_limit_go_to_calls_of_one_size(form_trainer, mon
              for i, j in ((0, 1), (0, 2), (1, 2))) > 0.1  # (the three policies differ)
 
 
+@pytest.mark.slow
 def test_evaluations_on_the_host_write_what_evaluations_on_the_accelerator_write(tmp_path,
                                                                                   monkeypatch):
   """`eval_on_host` (run.py --eval_on_host): a FORM population with an average policy, trained
@@ -347,6 +348,7 @@ def test_evaluations_on_the_host_write_what_evaluations_on_the_accelerator_write
   assert runner._HostEvaluation(trainer, None, trainer.keys(1), 1).devices == jax.devices()[:1]
 
 
+@pytest.mark.slow
 def test_a_run_stopped_by_max_seconds_skips_its_last_host_evaluation(tmp_path, capsys,
                                                                       monkeypatch):
   """With `eval_on_host`, a run that `max_seconds` stops does not start a host evaluation of its
@@ -512,6 +514,7 @@ def _same_run_written(run_dir, records, host_dir, host_records, timing):
             {k: v for k, v in want_meta.items() if k != "sha256"}, file)
 
 
+@pytest.mark.slow
 def test_an_ensemble_runs_in_the_compiled_loop_on_two_devices(form_trainer):
   """An ensemble's stacked demonstrators go through the compiled loop with the batch sharded
   over two devices: an ensemble of one model twice trains as that model alone (the same log pD
@@ -528,6 +531,7 @@ def test_an_ensemble_runs_in_the_compiled_loop_on_two_devices(form_trainer):
       [np.asarray(_demonstrator().normalizer.mean)] * 2))
 
 
+@pytest.mark.slow
 def test_members_may_differ_in_how_an_ensemble_makes_log_pd():
   """A population over the two devices whose members differ only in `ensemble_log_pd` (seed 0
   each, `--grid ensemble_log_pd=mixture,mean`): their first iteration's transitions are the
@@ -578,6 +582,7 @@ def test_evaluate_run_tells_a_mixture_member_from_a_mean_member():
     evaluate_run.member_record([mean], meta, "p.npz", {"ensemble_log_pd": "mixture"})
 
 
+@pytest.mark.slow
 def test_demonstrators_per_member_give_each_member_its_own(form_trainer):
   """Demonstrators per member: member i of a population (over the two devices, one member
   each, or each member over both) imitates the i-th, computing what a single run with its seed
@@ -871,6 +876,7 @@ def test_training_never_sees_the_task_reward(form_trainer, monkeypatch):
   assert np.isfinite(metrics[-1]["form_reward"][0]) and metrics[-1]["imitator_log_prob"][0] != 0
 
 
+@pytest.mark.slow
 def test_imitator_every_k_trains_it_on_one_batch_in_k(form_trainer):
   """source_update_every k (`--imitator_every`): the imitator model takes one step per k
   learner updates, the reward statistics fold in one batch per step, the learner takes every

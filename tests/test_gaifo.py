@@ -300,6 +300,7 @@ def _gaifo_source(episodes=3):
                      demos, "sha", standardise_reward=True)
 
 
+@pytest.mark.slow
 def test_vaifo_gp_trains_in_the_compiled_loop_without_the_task_reward():
   """VAIfO+GP runs in the compiled loop over the mesh: the discriminator steps once per
   update, its bottleneck's KL is logged and its multiplier moves, and the task reward is not

@@ -152,6 +152,7 @@ def test_reference_states_cover_out_of_range_actions():
   assert (np.abs(ref["action"]) <= 1).any()
 
 
+@pytest.mark.slow
 @pytest.mark.xdist_group("walker")
 def test_line_search_cap_keeps_fast_modes_one_step_error(parity_report):
   """`fast_ls4` (fast with the line search capped at 4 passes) steps as close to dm_control as

@@ -117,6 +117,7 @@ def _states(name, physics_mode, steps=15, num_envs=4):
   return env, state
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name,iterations", [("cheetah_run", None), ("hopper_stand", 3)])
 def test_bounded_solve_steps_as_mjx_solve(name, iterations):
   """From the same states, one physics step with MJX's solve and with the bounded loop: the
@@ -155,6 +156,7 @@ def test_bounded_solve_steps_as_mjx_solve(name, iterations):
   assert np.abs(np.asarray(fewer.qacc - steps[False].qacc)).max() > 1e-3
 
 
+@pytest.mark.slow
 def test_solve_iterations_counts_the_passes_of_mjx_solve():
   """hopper_stand states in contact, with the solver capped at 3 iterations: the counts
   (iterations, line-search passes per iteration) against the same solve with both loops
@@ -227,6 +229,7 @@ COLLECTIVE = re.compile(r"\b(all-reduce|all-gather|all-to-all|ragged-all-to-all|
                         r"collective-permute|collective-broadcast)(?:-start)?\(")
 
 
+@pytest.mark.slow
 def test_bounded_loop_steps_a_split_batch_without_collectives():
   """cheetah_run's batch split over 2 devices, stepped as one program-wide batch: with MJX's
   while_loop the devices agree at every solver iteration (an all-reduce of its condition);

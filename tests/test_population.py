@@ -124,6 +124,7 @@ def _exchanged(compiled) -> dict[str, int]:
   return largest
 
 
+@pytest.mark.slow
 def test_whole_members_per_device_compute_the_same_and_exchange_no_gradients(population):
   """Two members on two devices lie one per device by default ("members"): each member's
   learner, normaliser and replay sit on one device, its updates exchange nothing with the other
@@ -265,6 +266,7 @@ def test_memory_check_refuses_a_program_larger_than_the_device():
   train_lib.check_memory(compiled, mesh_lib.make_mesh(), "population of 3")
 
 
+@pytest.mark.slow
 def test_evaluate_run_scores_a_stopped_population_afterwards(tmp_path, capsys):
   """scripts/evaluate_run.py: a population stopped by its time budget without fresh
   evaluations gets them afterwards, each member's records placed in its own run."""

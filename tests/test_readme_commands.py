@@ -42,3 +42,18 @@ def test_readme_run_commands_parse_and_pass_the_checks():
     if args.method in ("expert", "form"):
       run.train_config(args).check(1)
 
+
+
+def test_ci_runs_the_readmes_test_command_and_it_keeps_the_main_path():
+  """.ci/run's pytest line is the README's test command; that command deselects the tests
+  marked slow, and the test that runs the README's main command is not one of them."""
+  from test_form import test_form_command_line_runs_every_stage as main_command
+  root = os.path.dirname(README)
+  readme = [line for line in open(README).read().splitlines() if "-m pytest" in line]
+  assert len(readme) == 1, readme
+  command = readme[0][readme[0].index(".venv/bin/python -m pytest"):]
+  ci = [line for line in open(os.path.join(root, ".ci", "run")).read().splitlines()
+        if "-m pytest" in line and not line.startswith("#")]
+  assert ci == [command]
+  assert shlex.split(command)[shlex.split(command).index("-m", 3) + 1] == "not slow"
+  assert "slow" not in [m.name for m in getattr(main_command, "pytestmark", [])]

@@ -90,6 +90,7 @@ def trainers():
   return trainers
 
 
+@pytest.mark.slow
 def test_programs_compiled_ahead_are_reused(trainers):
   assert FIRST_CALL_COMPILES == []  # init, iteration and evaluate ran without compiling
   with count_compiles() as compiles:  # and the counter does see a compilation
@@ -149,6 +150,7 @@ class CountingTaskReward(reward_sources.TaskReward):
     return batch["reward"], {"relabelled_at": state.astype(jnp.float32)}
 
 
+@pytest.mark.slow
 def test_source_update_every_k_trains_the_source_on_one_batch_in_k():
   """4 updates per iteration, the source trained on every batch or on the first of every 2:
   each batch is relabelled by the state the source has after its latest step (1, 1, 2, 2 in
@@ -411,6 +413,7 @@ def test_command_line_trains_resumes_and_refuses_mismatches(tmp_path, capsys, mo
   assert checkpoint.latest_step(str(run_dir / "checkpoints")) == 3
 
 
+@pytest.mark.slow
 def test_a_run_starts_from_a_trained_policy(trainers, tmp_path, capsys):
   """--init_policy: every member starts from a policy file's parameters (policy and target
   policy) and observation statistics; the config, the records and the exported policies name
@@ -507,6 +510,7 @@ def test_a_run_starts_from_a_trained_policy(trainers, tmp_path, capsys):
   assert "--method expert" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_lean_checkpoints_hold_no_replay_and_resume(trainers, tmp_path):
   run_dir, quiet = tmp_path / "lean", (lambda *_: None)
   total = 2 * CONFIG.env_steps_per_iteration
@@ -729,6 +733,7 @@ def test_wrap_angles_reaches_the_agents_normaliser_and_its_policy_file(tmp_path,
     assert problem in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_angle_features_reach_the_networks_the_loop_and_the_policy_files(tmp_path, capsys):
   """`angle_features` (and the wrap) in a population beside a member without either (2
   devices): the member's normaliser has reacher's shoulder as one row and its networks take
@@ -787,6 +792,7 @@ def test_angle_features_reach_the_networks_the_loop_and_the_policy_files(tmp_pat
     Trainer(dataclasses.replace(CONFIG, task="walker_walk", angle_features=True))
 
 
+@pytest.mark.slow
 def test_average_policy_is_evaluated_exported_and_recorded(tmp_path, capsys):
   """--policy_average_decay: every evaluation scores the average policy too, on the same
   starts (progress.csv, progress lines, learning-curve records), the run exports it as
@@ -827,6 +833,7 @@ def test_average_policy_is_evaluated_exported_and_recorded(tmp_path, capsys):
   assert finals["average"]["settings"]["learner"]["policy_average_decay"] == 0.5
 
 
+@pytest.mark.slow
 def test_a_member_at_decay_zero_gets_no_average_policy_records(tmp_path):
   """In a population where one member averages and one does not, only the averaging member's
   evaluations, files and final records carry an average policy."""
@@ -872,6 +879,7 @@ def test_a_population_refuses_a_float32_head_without_bfloat16():
                                              {"sampled_q_float32_head": True}))
 
 
+@pytest.mark.slow
 def test_noise_scale_min_spreads_the_envs_noise_from_the_mean_action_to_the_policy():
   """With `noise_scale_min` k each env's actions are its mean plus the policy's noise scaled by
   its multiplier, evenly from k (first env) to 1 (last), the same draws as without: at k = 0
