@@ -146,7 +146,8 @@ if _PROFILE:
     _SPENT.clear()
     start = __import__("time").perf_counter()
     yield
-    row = {"test": item.nodeid, "seconds": __import__("time").perf_counter() - start,
+    row = {"test": item.nodeid, "worker": os.environ.get("PYTEST_XDIST_WORKER"),
+           "seconds": __import__("time").perf_counter() - start,
            **{k.rsplit("/", 1)[-1]: round(v, 3) for k, v in _SPENT.items()}}
     with open(_PROFILE, "a") as f:
       f.write(json.dumps(row) + "\n")
