@@ -30,6 +30,7 @@ jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)
 
 import importlib.util  # noqa: E402
 import json  # noqa: E402
+import time  # noqa: E402
 import warnings  # noqa: E402
 
 import pytest  # noqa: E402
@@ -144,10 +145,10 @@ if _PROFILE:
     """Writes one row per test: its wall time and the JAX compile events inside it (this
     process only; a test's subprocesses are not counted)."""
     _SPENT.clear()
-    start = __import__("time").perf_counter()
+    start = time.perf_counter()
     yield
     row = {"test": item.nodeid, "worker": os.environ.get("PYTEST_XDIST_WORKER"),
-           "seconds": __import__("time").perf_counter() - start,
+           "seconds": time.perf_counter() - start,
            **{k.rsplit("/", 1)[-1]: round(v, 3) for k, v in _SPENT.items()}}
     with open(_PROFILE, "a") as f:
       f.write(json.dumps(row) + "\n")

@@ -43,7 +43,6 @@ def test_readme_run_commands_parse_and_pass_the_checks():
       run.train_config(args).check(1)
 
 
-
 def test_ci_runs_the_readmes_test_command_and_it_keeps_the_main_path():
   """.ci/run's pytest line is the README's test command; that command deselects the tests
   marked slow, and the test that runs the README's main command is not one of them."""
