@@ -86,12 +86,13 @@ def flat_observation(observation) -> np.ndarray:
   return np.concatenate([np.asarray(v, np.float64).ravel() for v in observation.values()])
 
 
+@physics_lib.full_precision  # (as in physics_step: the stages' trace is shared with its)
 def reference_data(model: mjx.Model, arrays: dict[str, jax.Array]) -> mjx.Data:
   """MJX data holding one recorded dm_control state, its position and velocity stages
   recomputed from qpos/qvel as they are in dm_control's data after a step."""
   d = mjx.make_data(model)
   d = d.replace(**{f: jnp.asarray(arrays[f], d.qpos.dtype) for f in STATE_FIELDS})
-  return physics_lib.position_velocity_stages(model, d)
+  return physics_lib.shared_position_velocity_stages(model, d)
 
 
 def reference_task(arrays: dict[str, jax.Array]) -> dict[str, jax.Array]:
@@ -106,7 +107,8 @@ def _state_fields(arrays):
 def _physics_batch_fn(model, states, actions, n_substeps, bounded_solver_loop=False):
   def one(state, action):
     d = reference_data(model, state).replace(ctrl=jnp.asarray(action, state["qpos"].dtype))
-    return physics_lib.physics_step(model, d, n_substeps, bounded_solver_loop)
+    return physics_lib.physics_step(model, d, n_substeps, bounded_solver_loop,
+                                    stages=physics_lib.shared_position_velocity_stages)
   return jax.vmap(one)(states, actions)
 
 

@@ -136,18 +136,27 @@ def acceleration_stage_and_integrate(m: mjx.Model, d: mjx.Data,
   return mjx.euler(m, d)
 
 
+# `position_velocity_stages` as its own jitted function: a program that calls it twice (a parity
+# check recomputes a recorded state's stages, then steps) traces it once. Used by parity checks
+# only; the environments' step inlines the stages as before (its compiled program, and so its
+# rounding, unchanged). Measured: quadruped's parity step traced in 17 s instead of 26 s.
+shared_position_velocity_stages = jax.jit(position_velocity_stages)
+
+
 @full_precision
 def physics_step(m: mjx.Model, d: mjx.Data, n_substeps: int,
-                 bounded_solver_loop: bool = False) -> mjx.Data:
+                 bounded_solver_loop: bool = False,
+                 stages=position_velocity_stages) -> mjx.Data:
   """dm_control's `physics.step(n)`: `mj_step2; mj_step(n - 1); mj_step1`.
 
   Written as n repetitions of (mj_step2; mj_step1), the same sequence, so each stage is
   compiled once. `d` must have its position and velocity stages computed for its current
-  qpos/qvel (true for every state this module returns); so does the result.
+  qpos/qvel (true for every state this module returns); so does the result. `stages`: the
+  position and velocity stages' function (`shared_position_velocity_stages` for parity checks).
   """
   def substep(d, _):
     d = acceleration_stage_and_integrate(m, d, bounded_solver_loop)
-    return position_velocity_stages(m, d), None
+    return stages(m, d), None
   d, _ = jax.lax.scan(substep, d, None, length=n_substeps)
   return d
 
