@@ -538,6 +538,7 @@ def test_expert_eval_samples_actions_when_stochastic_and_counts_rewarded_episode
   assert len(calls) == 3
 
 
+@pytest.mark.slow
 def test_recorded_actions_follow_the_actors_correlated_noise():
   """experts.record with noise_correlation samples as a run's actors do: the first step's
   actions equal independent sampling's (a fresh start takes the draw itself), later ones

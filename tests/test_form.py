@@ -409,6 +409,7 @@ def test_a_run_stopped_by_max_seconds_skips_its_last_host_evaluation(tmp_path, c
   assert not (tmp_path / "cpu").exists()
 
 
+@pytest.mark.slow
 def test_a_checkpoint_due_while_the_host_evaluates_waits_for_its_rows(tmp_path, monkeypatch):
   """With `eval_on_host`, a checkpoint due as an evaluation starts there is saved at the first
   iteration after it with every row written (the accelerator trains on meanwhile), and a run
@@ -667,11 +668,13 @@ def test_the_imitator_model_is_exported_as_an_effect_model_file_and_refused_as_a
   rng = np.random.default_rng(1)
   batch = {"observation": jnp.asarray(rng.normal(size=(3, 8, D)), jnp.float32),
            "discount": jnp.ones((3, 7))}
-  states = jax.vmap(lambda k: source.init(k, D, 2))(jax.random.split(jax.random.PRNGKey(0), 2))
+  states = jax.jit(jax.vmap(lambda k: source.init(k, D, 2)))(
+      jax.random.split(jax.random.PRNGKey(0), 2))
+  update = jax.jit(jax.vmap(source.update))  # (compiled once; op by op it took CI ~40 s)
   for i in range(3):  # member 1 takes one more step than member 0, on other batches
     keys = jax.random.split(jax.random.PRNGKey(i), 2)
     batches = jax.tree.map(lambda x: jnp.stack([x, x[::-1]]), batch)
-    stepped, _ = jax.vmap(source.update)(states, batches, keys)
+    stepped, _ = update(states, batches, keys)
     states = jax.tree.map(lambda new, old: jnp.stack([new[0] if i < 2 else old[0], new[1]]),
                           stepped, states)
   trainer = SimpleNamespace(source=source, env=env, member=lambda tree, i: jax.tree.map(

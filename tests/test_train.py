@@ -658,6 +658,7 @@ def test_progress_line_shows_the_form_reward_and_its_clipped_share():
   assert "form reward -2.50 (sd 4.00; log pD 3.0" in line and "clipped" not in line, line
 
 
+@pytest.mark.slow
 def test_actors_noise_is_correlated_within_episodes_and_fresh_after_an_end():
   """With action_noise_correlation the collected actions' noise (action - mean) / scale, from
   the policy at the stored observations, follows the AR(1) within an episode and starts afresh
@@ -688,6 +689,7 @@ def test_actors_noise_is_correlated_within_episodes_and_fresh_after_an_end():
   assert plain.init(jax.random.PRNGKey(0)[None]).noise.shape == (CONFIG.num_envs, 0)
 
 
+@pytest.mark.slow
 def test_wrap_angles_reaches_the_agents_normaliser_and_its_policy_file(tmp_path, capsys):
   """`wrap_angles`: the run's normaliser carries reacher's shoulder period (2 pi) and so does
   the exported policy, whose user then sees a shoulder angle whole turns away as the same; off,
