@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+import functools
 import os
 from typing import Callable
+
+import jax
 
 from mjx_form.sim.env import Task
 from mjx_form.sim.physics import DEFAULT_PHYSICS, PHYSICS_MODES, check_physics_mode
@@ -37,9 +40,27 @@ def _check_name(name: str) -> None:
 
 
 def make(name: str, physics: str = DEFAULT_PHYSICS) -> Task:
-  """Builds the task `name` (e.g. 'humanoid_run') with the physics mode 'parity' or 'fast'."""
+  """The task `name` (e.g. 'humanoid_run') with the physics mode 'parity' or 'fast'.
+
+  One object per task, physics mode, default device and float width in a process: a task is
+  immutable once built, and its jitted `reset` and `step` are then traced once for every run
+  of the process that steps it (a cached trace of MJX saves each further run of a test suite or
+  a sweep ~5 s of tracing on the CPU). `clear_cache()` builds afresh.
+  """
   _check_name(name)
-  return _REGISTRY[name](check_physics_mode(physics))
+  return _make(_REGISTRY[name], check_physics_mode(physics), jax.config.jax_default_device,
+               jax.config.jax_enable_x64)
+
+
+@functools.cache
+def _make(factory: Callable[[str], Task], physics, device, x64: bool) -> Task:
+  del device, x64  # (keys: the model's arrays are placed on the default device at its width)
+  return factory(physics)
+
+
+def clear_cache() -> None:
+  """Forgets the tasks `make` built: the next call builds (and its first run traces) afresh."""
+  _make.cache_clear()
 
 
 # FORM demonstrator effect models trained on the shipped experts' demonstrations:

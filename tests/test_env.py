@@ -44,6 +44,27 @@ def compiled():
           jax.jit(env.step, compiler_options=RUN_ONCE))
 
 
+def test_make_keeps_one_task_per_physics_device_and_width():
+  """tasks.make gives the same object again (its traced reset and step are reused by every run
+  of the process), a new one for another physics mode, another default device (the host
+  evaluation's model stays on its device) or float64, and after clear_cache()."""
+  first = tasks.make("reacher_easy")
+  assert tasks.make("reacher_easy") is first
+  assert tasks.make("reacher_easy", physics="parity") is not first
+  assert tasks.make("reacher_hard") is not first
+  with jax.default_device(jax.devices()[1]):
+    other = tasks.make("reacher_easy")
+  assert other is not first
+  assert other.mjx_model.body_mass.devices() == {jax.devices()[1]}
+  assert first.mjx_model.body_mass.devices() == {jax.devices()[0]}
+  with jax.enable_x64(True):
+    wide = tasks.make("reacher_easy")
+  assert wide is not first and wide.mjx_model.body_mass.dtype == np.float64
+  assert first.mjx_model.body_mass.dtype == np.float32
+  tasks.clear_cache()
+  assert tasks.make("reacher_easy") is not first
+
+
 @COMPILED_ONCE
 def test_state_shapes_under_jit_and_vmap():
   reset, step = compiled()

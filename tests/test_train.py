@@ -68,6 +68,7 @@ def count_calls(cls, *names):
 
 FIRST_CALL_COMPILES = []  # filled by the `trainers` fixture
 TRACES = {}  # task methods called while building and compiling one trainer (each call: a trace)
+RETRACES = {}  # the same while building a second trainer of the config
 
 
 @pytest.fixture(scope="module")
@@ -76,10 +77,14 @@ def trainers():
   ahead; the compilations their first calls still did go to FIRST_CALL_COMPILES."""
   assert jax.device_count() == 2
   key = jax.random.PRNGKey(0)[None]  # [members, 2]
+  tasks.clear_cache()  # (a task object no earlier test of this process traced)
   with count_calls(type(tasks.make(CONFIG.task)), "initialize_episode", "get_reward") as calls:
     first = Trainer(CONFIG, mesh_lib.make_mesh(jax.devices()[:1]))
     first.compile_ahead(key)
   TRACES.update(calls)
+  with count_calls(type(first.env), "initialize_episode") as calls:
+    again = Trainer(CONFIG, mesh_lib.make_mesh(jax.devices()[:1]))  # (builds its init's shapes)
+  RETRACES.update(calls, same_task=again.env is first.env)
   trainers = (first, Trainer(CONFIG, mesh_lib.make_mesh()))
   trainers[1].compile_ahead(key)
   with count_compiles() as compiles:
@@ -103,6 +108,11 @@ def test_env_step_and_reset_are_traced_once_per_run(trainers):
   # the auto-reset's restarts and the evaluation (the observation layout is declared, not
   # traced). (Tracing MJX is most of a run's start-up; before: 2 and 5, then 1 and 2.)
   assert TRACES == {"get_reward": 1, "initialize_episode": 1}
+  # A second run of the task in the process steps the same task object (tasks.make keeps one
+  # per task, physics, device and width) and does not trace its reset again. (A run on another
+  # mesh, as the two-device trainer here, traces the task's programs for that mesh.)
+  assert RETRACES == {"initialize_episode": 0, "same_task": True}
+  assert trainers[0].env is trainers[1].env
 
 
 def run_iterations(trainer, state, n):
