@@ -42,14 +42,20 @@ def _check_name(name: str) -> None:
 def make(name: str, physics: str = DEFAULT_PHYSICS) -> Task:
   """The task `name` (e.g. 'humanoid_run') with the physics mode 'parity' or 'fast'.
 
-  One object per task, physics mode, default device and float width in a process: a task is
-  immutable once built, and its jitted `reset` and `step` are then traced once for every run
-  of the process that steps it (a cached trace of MJX saves each further run of a test suite or
-  a sweep ~5 s of tracing on the CPU). `clear_cache()` builds afresh.
+  One object per task, physics mode, default device and float width in a process, shared by
+  every caller: its jitted `reset` and `step` are then traced once for every run of the process
+  that steps it (a cached trace of MJX saves each further run of a test suite or a sweep ~5 s
+  of tracing on the CPU). Do not change it; `build` gives an object of one's own.
   """
   _check_name(name)
   return _make(_REGISTRY[name], check_physics_mode(physics), jax.config.jax_default_device,
                jax.config.jax_enable_x64)
+
+
+def build(name: str, physics: str = DEFAULT_PHYSICS) -> Task:
+  """A new task object (`make` without the sharing), e.g. to change it in a test."""
+  _check_name(name)
+  return _REGISTRY[name](check_physics_mode(physics))
 
 
 @functools.cache

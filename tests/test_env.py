@@ -47,7 +47,8 @@ def compiled():
 def test_make_keeps_one_task_per_physics_device_and_width():
   """tasks.make gives the same object again (its traced reset and step are reused by every run
   of the process), a new one for another physics mode, another default device (the host
-  evaluation's model stays on its device) or float64, and after clear_cache()."""
+  evaluation's model stays on its device) or float64, and after clear_cache(); tasks.build
+  always a new one."""
   first = tasks.make("reacher_easy")
   assert tasks.make("reacher_easy") is first
   assert tasks.make("reacher_easy", physics="parity") is not first
@@ -61,6 +62,7 @@ def test_make_keeps_one_task_per_physics_device_and_width():
     wide = tasks.make("reacher_easy")
   assert wide is not first and wide.mjx_model.body_mass.dtype == np.float64
   assert first.mjx_model.body_mass.dtype == np.float32
+  assert tasks.build("reacher_easy") is not first
   tasks.clear_cache()
   assert tasks.make("reacher_easy") is not first
 

@@ -81,12 +81,14 @@ def test_fast_mode_changes_only_solver_settings(name):
 
 
 def test_a_wrong_observation_declaration_is_caught_while_tracing():
-  """The declared layout is checked against get_observation by every reset and step trace."""
-  env = tasks.make("reacher_easy")
+  """The declared layout is checked against get_observation by every reset and step trace.
+  (Objects of its own, `tasks.build`: the one `tasks.make` shares must stay as built.)"""
+  env = tasks.build("reacher_easy")
   env.observation_elements = (("position", 2), ("velocity", 2), ("to_target", 2))  # reordered
   with pytest.raises(ValueError, match="reacher_easy: get_observation gives .*to_target"):
     jax.eval_shape(env.reset, jax.random.PRNGKey(0))
-  state = jax.eval_shape(tasks.make("reacher_easy").reset, jax.random.PRNGKey(0))
+  state = jax.eval_shape(tasks.build("reacher_easy").reset, jax.random.PRNGKey(0))
+  assert tasks.make("reacher_easy").observation_elements != env.observation_elements
   env.observation_elements = (("position", 2), ("to_target", 3), ("velocity", 2))  # a size
   with pytest.raises(ValueError, match="observation_elements"):
     jax.eval_shape(env.step, state, jax.numpy.zeros(2))
