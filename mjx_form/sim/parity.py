@@ -86,7 +86,7 @@ def flat_observation(observation) -> np.ndarray:
   return np.concatenate([np.asarray(v, np.float64).ravel() for v in observation.values()])
 
 
-@physics_lib.full_precision  # (physics_step's context, so that it reuses this stages' trace)
+@physics_lib.full_precision  # (physics_step's context: its stages reuse this trace)
 def reference_data(model: mjx.Model, arrays: dict[str, jax.Array]) -> mjx.Data:
   """MJX data holding one recorded dm_control state, its position and velocity stages
   recomputed from qpos/qvel as they are in dm_control's data after a step."""
