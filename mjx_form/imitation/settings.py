@@ -150,11 +150,17 @@ LEARNER_KEYS = ("clip_critic_actions", "epsilon_scale")
 #     at 14.4M, first >= 0.95 at 4.1-7.2M steps (7.2-11.7 min; 2026-11-28_..._form_seeds012_14m);
 #   quadruped_run (`--physics fast_ls4`, its expert's; session 55, 2026-11-29_learning_curve_
 #     h200_quadruped_run_form_recipe_seeds012_4m): 926.7 / 932.7 / 936.5 (mean 932.0, 0.99 of the
-#     demonstrations' 941.5; the paper's 0.985) at 4.1M steps; no FORM run of it before.
+#     demonstrations' 941.5; the paper's 0.985) at 4.1M steps; no FORM run of it before;
+#   quadruped_walk (`--physics fast_ls4`, the shipped demonstrator; session 68, 2026-12-01_
+#     learning_curve_h200_quadruped_walk_form_recipe_seeds012_10m): 919.9 / 919.9 / 890.3 (mean
+#     910.0, 0.97 of the demonstrations' 934.9; the paper's 0.991) at 10.0M steps, cut by the
+#     sitting; the critic clipping alone at 128 updates: 857.8 +- 24.8 at 13.7M (0.92;
+#     2026-11-26_..._quadruped_walk_form_fast_ls4_clip_seeds012).
 RECIPE_LEARNER = {"clip_critic_actions": True, "epsilon_scale": 1e-6}
 PER_TASK_RUN: dict[str, dict] = {
     "walker_walk": dict(RECIPE_LEARNER),
     "quadruped_run": dict(RECIPE_LEARNER),
+    "quadruped_walk": dict(RECIPE_LEARNER),
     # hopper_stand: the actor of its expert recipe (mjx_form/rl/recipes.py: without the acme head
     # and noise correlated at 0.9 the expert runs never rose; wrapped angles fixed its falls from
     # starts past pi), not A/B'd under FORM. T 100 against 25, measured on one H100 (512 envs x
