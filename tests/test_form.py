@@ -1413,6 +1413,78 @@ def test_a_demonstrator_of_another_expert_is_named():
   assert pipeline.another_expert(demonstrator.metadata, {"expert": {}}) is None  # unknown
 
 
+def test_a_demonstrator_far_below_its_held_out_fit_on_its_own_experts_episodes_is_named():
+  """misfit: a demonstrator whose offset-1 log-likelihood on this run's demonstrations of the
+  expert policy it learned lies more than MISFIT_NATS below its own held-out figure learned
+  other behaviour of it (quadruped_walk's former one: -325.6 against 27.6, its demonstrations
+  recorded with actions clipped inside the control range). Not said of another policy's
+  demonstrations (another_expert's notice) or where a policy or the figure is unknown."""
+  from mjx_form.imitation import pipeline
+  meta = effect_models.load_effect_model(tasks.bundled_demonstrator("reacher_easy")).metadata
+  held = meta["training"]["heldout_log_likelihood"][0]
+  sha = meta["demonstrations"]["expert"]["policy_sha256"]
+  ours = {"episodes": 16, "expert": {"policy_sha256": sha}}
+  fit = lambda first: np.array([first, 0.0, 0.0, 0.0, 0.0])
+  assert pipeline.misfit(meta, ours, fit(held - pipeline.MISFIT_NATS + 0.01)) is None
+  assert pipeline.misfit(meta, ours, fit(held + 5.0)) is None
+  low = held - pipeline.MISFIT_NATS - 0.01
+  why = pipeline.misfit(meta, ours, fit(low))
+  assert why is not None and f"{low:.2f}" in why and f"{held:.2f}" in why, why
+  assert sha[:12] in why and "16 demonstrations" in why, why
+  other = {"episodes": 16, "expert": {"policy_sha256": "0" * 64}}
+  assert pipeline.misfit(meta, other, fit(low)) is None
+  assert pipeline.misfit(meta, {"episodes": 16, "expert": {}}, fit(low)) is None
+  assert pipeline.misfit(dict(meta, training={}), ours, fit(low)) is None
+
+
+def _stub_recording_of_the_expert(monkeypatch, pipeline, sha256: str) -> list:
+  """Replaces the pipeline's recording by 2 random episodes of reacher's shape said to be the
+  expert `sha256`'s (no demonstrator fits them); the list gets the episodes asked for."""
+  demo_obs = np.random.default_rng(0).normal(size=(2, 201, D)).astype(np.float32)
+  asked = []
+  def record(env, artefacts, episodes, *args, **kwargs):
+    asked.append(episodes)
+    return demo_obs, {"episodes": episodes, "expert": {"policy_sha256": sha256}}
+  monkeypatch.setattr(pipeline, "demonstrations", record)
+  return asked
+
+
+def test_a_demonstrator_that_misfits_its_experts_episodes_is_refused_or_replaced(tmp_path,
+                                                                                   monkeypatch):
+  """A --demonstrator file that misfits this run's demonstrations of its own expert (misfit) is
+  refused by name before anything is written; --demo_episodes 0 uses it unchecked. The shipped
+  one is replaced: the run records the 1000 training episodes and trains one on them."""
+  from mjx_form.imitation import pipeline
+  env = tasks.make("reacher_easy")
+  config = settings.effect_model_config("reacher_easy", env)
+  shipped = tasks.bundled_demonstrator("reacher_easy")
+  meta = effect_models.load_effect_model(shipped).metadata
+  asked = _stub_recording_of_the_expert(monkeypatch, pipeline,
+                                        meta["demonstrations"]["expert"]["policy_sha256"])
+  prepare = lambda run_dir, artefacts, lines=None: pipeline.prepare(
+      env, config, {}, artefacts, str(tmp_path / run_dir), resume=False, physics="fast", seed=0,
+      results_path=None, print_fn=(lines if lines is not None else []).append)
+  with pytest.raises(pipeline.PipelineError, match=re.escape(shipped) + ": its log-likelihood "
+                     "at offset 1 .* below its own held-out .*--train_demonstrator"):
+    prepare("given", pipeline.Artefacts(demonstrator=(shipped,)))
+  assert asked == [pipeline.DEFAULT_CHECK_EPISODES] and not (tmp_path / "given").exists()
+  source = prepare("unchecked", pipeline.Artefacts(demonstrator=(shipped,), demo_episodes=0))
+  assert source.demonstrator_sha256 == meta["sha256"] and len(asked) == 1
+
+  class Trains(Exception):
+    pass
+  def train(env, config, demos_obs, demos_info, *args, **kwargs):
+    raise Trains(demos_info["episodes"])
+  monkeypatch.setattr(pipeline, "train_demonstrator", train)
+  lines = []
+  with pytest.raises(Trains) as trained:
+    prepare("shipped", pipeline.Artefacts(), lines)
+  assert trained.value.args == (pipeline.DEFAULT_TRAINING_EPISODES,)
+  assert asked[1:] == [pipeline.DEFAULT_CHECK_EPISODES, pipeline.DEFAULT_TRAINING_EPISODES]
+  assert any(line.startswith(f"the shipped demonstrator {shipped}: its log-likelihood")
+             and "training one on this run's demonstrations" in line for line in lines), lines
+
+
 def test_a_demonstrator_that_does_not_fit_is_refused_before_anything_is_recorded(tmp_path,
                                                                                    monkeypatch):
   """A run given --demonstrator checks the file first: another task's or a damaged one is

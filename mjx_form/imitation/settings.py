@@ -151,11 +151,12 @@ LEARNER_KEYS = ("clip_critic_actions", "epsilon_scale")
 #   quadruped_run (`--physics fast_ls4`, its expert's; session 55, 2026-11-29_learning_curve_
 #     h200_quadruped_run_form_recipe_seeds012_4m): 926.7 / 932.7 / 936.5 (mean 932.0, 0.99 of the
 #     demonstrations' 941.5; the paper's 0.985) at 4.1M steps; no FORM run of it before;
-#   quadruped_walk (`--physics fast_ls4`, the shipped demonstrator; session 68, 2026-12-01_
-#     learning_curve_h200_quadruped_walk_form_recipe_seeds012_10m): 919.9 / 919.9 / 890.3 (mean
-#     910.0, 0.97 of the demonstrations' 934.9; the paper's 0.991) at 10.0M steps, cut by the
-#     sitting; the critic clipping alone at 128 updates: 857.8 +- 24.8 at 13.7M (0.92;
-#     2026-11-26_..._quadruped_walk_form_fast_ls4_clip_seeds012).
+#   quadruped_walk (`--physics fast_ls4`; session 68, 2026-12-01_learning_curve_h200_quadruped_
+#     walk_form_recipe_seeds012_10m): 919.9 / 919.9 / 890.3 (mean 910.0, 0.97 of the
+#     demonstrations' 934.9; the paper's 0.991) at 10.0M steps, cut by the sitting; the critic
+#     clipping alone at 128 updates: 857.8 +- 24.8 at 13.7M (0.92; 2026-11-26_..._quadruped_walk_
+#     form_fast_ls4_clip_seeds012). Both with the demonstrator then shipped, since archived: it
+#     learned demonstrations recorded with the lift clipped at 1 (pipeline.MISFIT_NATS).
 RECIPE_LEARNER = {"clip_critic_actions": True, "epsilon_scale": 1e-6}
 PER_TASK_RUN: dict[str, dict] = {
     "walker_walk": dict(RECIPE_LEARNER),
