@@ -46,10 +46,13 @@ DEFAULT_CHECK_EPISODES = 16
 # A ready demonstrator whose offset-1 log-likelihood on this run's demonstrations of the expert
 # it learned lies more than this many nats per transition below its own held-out figure learned
 # other behaviour of that expert (`misfit`). Measured on the CPU (session 68, 16 fresh episodes of
-# each shipped pair): the seven others within 3.5 nats either way; quadruped_walk's, trained on
-# demonstrations recorded while actions were clipped to [-1, 1] inside its control range (lift to
-# 1.1; benchmarks/NOTES.md, session 54), 353 below (-325.6 against 27.6).
-MISFIT_NATS = 10.0
+# each shipped pair, 2026-12-01_demonstrator_heldout_cpu_shipped_fresh16): the seven in use lie
+# within 3.5 nats of their held-out figure on the mean, their single episodes at most 38.5 below
+# (reacher_easy; the others 15); quadruped_walk's former one, trained on demonstrations recorded
+# while actions were clipped to [-1, 1] inside its control range (lift to 1.1; benchmarks/
+# NOTES.md, session 54), 376 below on the mean and every episode at least 304 below. So even a
+# check on one episode keeps 2.6x room either side.
+MISFIT_NATS = 100.0
 
 
 class PipelineError(ValueError):
