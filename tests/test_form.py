@@ -1444,6 +1444,9 @@ def _stub_recording_of_the_expert(monkeypatch, pipeline, sha256: str) -> list:
   asked = []
   def record(env, artefacts, episodes, *args, **kwargs):
     asked.append(episodes)
+    if artefacts.save_demos:  # (as save_demonstrations: never over an existing file)
+      with open(artefacts.save_demos, "x") as f:
+        f.write(str(episodes))
     return demo_obs, {"episodes": episodes, "expert": {"policy_sha256": sha256}}
   monkeypatch.setattr(pipeline, "demonstrations", record)
   return asked
@@ -1476,11 +1479,12 @@ def test_a_demonstrator_that_misfits_its_experts_episodes_is_refused_or_replaced
   def train(env, config, demos_obs, demos_info, *args, **kwargs):
     raise Trains(demos_info["episodes"])
   monkeypatch.setattr(pipeline, "train_demonstrator", train)
-  lines = []
+  lines, saved = [], tmp_path / "demos.npz"
   with pytest.raises(Trains) as trained:
-    prepare("shipped", pipeline.Artefacts(), lines)
+    prepare("shipped", pipeline.Artefacts(save_demos=str(saved)), lines)
   assert trained.value.args == (pipeline.DEFAULT_TRAINING_EPISODES,)
   assert asked[1:] == [pipeline.DEFAULT_CHECK_EPISODES, pipeline.DEFAULT_TRAINING_EPISODES]
+  assert saved.read_text() == str(pipeline.DEFAULT_TRAINING_EPISODES)  # (the 16 gave way)
   assert any(line.startswith(f"the shipped demonstrator {shipped}: its log-likelihood")
              and "training one on this run's demonstrations" in line for line in lines), lines
 
