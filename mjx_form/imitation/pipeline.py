@@ -205,7 +205,7 @@ def prepare(env, config: em.EffectModelConfig, explicit: dict, artefacts: Artefa
       print_fn(f"the shipped demonstrator {path}: {why}; training one on this run's "
                "demonstrations (--demo_episodes 0 would use it unchecked)")
       ready, fits = [], {}
-      if artefacts.demos is None and artefacts.demo_episodes is None:  # (16 check one)
+      if artefacts.demos is None and artefacts.demo_episodes is None:  # (16 only to check)
         if artefacts.save_demos:  # (the 16 just written there give way to the 1000)
           os.remove(artefacts.save_demos)
         demos_obs, demos_info = demonstrations(env, artefacts, DEFAULT_TRAINING_EPISODES,
@@ -386,12 +386,18 @@ def shipped_demonstrator(env, config: em.EffectModelConfig
   return shipped, file, ""
 
 
+def _experts(demonstrator_metadata: dict, demos_info: dict) -> tuple[dict, dict]:
+  """What the demonstrator's demonstrations and this run's say of their expert policy ({} where
+  nothing)."""
+  return (demonstrator_metadata.get("demonstrations", {}).get("expert") or {},
+          demos_info.get("expert") or {})
+
+
 def another_expert(demonstrator_metadata: dict, demos_info: dict) -> str | None:
   """A notice where a demonstrator was trained on demonstrations of another expert policy than
   this run's demonstrations (by the policies' sha256; None where they agree or are unknown):
   it then imitates that expert, and the run's expert return is not the one it imitates."""
-  theirs = demonstrator_metadata.get("demonstrations", {}).get("expert") or {}
-  ours = demos_info.get("expert") or {}
+  theirs, ours = _experts(demonstrator_metadata, demos_info)
   a, b = theirs.get("policy_sha256"), ours.get("policy_sha256")
   if not a or not b or a == b:
     return None
@@ -407,8 +413,7 @@ def misfit(demonstrator_metadata: dict, demos_info: dict, fit) -> str | None:
   learned: its log-likelihood on them at offset 1 (`fit`, by offset) lies more than MISFIT_NATS
   below its own held-out figure. None where it fits, where they are another policy's (see
   `another_expert`) or where either policy or the held-out figure is unknown."""
-  theirs = demonstrator_metadata.get("demonstrations", {}).get("expert") or {}
-  ours = demos_info.get("expert") or {}
+  theirs, ours = _experts(demonstrator_metadata, demos_info)
   heldout = (demonstrator_metadata.get("training") or {}).get("heldout_log_likelihood")
   sha = theirs.get("policy_sha256")
   if not sha or sha != ours.get("policy_sha256") or not heldout:
