@@ -156,7 +156,11 @@ LEARNER_KEYS = ("clip_critic_actions", "epsilon_scale")
 #     demonstrations' 934.9; the paper's 0.991) at 10.0M steps, cut by the sitting; the critic
 #     clipping alone at 128 updates: 857.8 +- 24.8 at 13.7M (0.92; 2026-11-26_..._quadruped_walk_
 #     form_fast_ls4_clip_seeds012). Both with the demonstrator then shipped, since archived: it
-#     learned demonstrations recorded with the lift clipped at 1 (pipeline.MISFIT_NATS).
+#     learned demonstrations recorded with the lift clipped at 1 (pipeline.MISFIT_NATS). With
+#     the one shipped now, trained in the run on 1000 episodes in the control range (session
+#     69, 2026-12-01_..._quadruped_walk_form_recipe_own_demonstrator_seeds012_7m): 901.6 /
+#     917.3 / 886.6 at 7.5M steps (mean 901.8, 0.97 of its demonstrations' 932.3), average
+#     policies 925.2 / 917.5 / 932.8 (0.99).
 RECIPE_LEARNER = {"clip_critic_actions": True, "epsilon_scale": 1e-6}
 PER_TASK_RUN: dict[str, dict] = {
     "walker_walk": dict(RECIPE_LEARNER),
