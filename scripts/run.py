@@ -60,7 +60,7 @@ from mjx_form.imitation import form as form_lib  # noqa: E402
 from mjx_form.imitation import gaifo as gaifo_lib  # noqa: E402
 from mjx_form.imitation import inverse_model as inverse_model_lib  # noqa: E402
 from mjx_form.imitation import pipeline, settings  # noqa: E402
-from mjx_form.rl import grid, recipes, runner  # noqa: E402
+from mjx_form.rl import cloning, grid, recipes, runner  # noqa: E402
 from mjx_form.rl.learner import LearnerConfig  # noqa: E402
 from mjx_form.rl.networks import POLICY_HEADS  # noqa: E402
 from mjx_form.rl.train import TrainConfig  # noqa: E402
@@ -84,6 +84,7 @@ FORM_ONLY = ("demonstrator", "member_demonstrators", "train_demonstrator", "demo
              "beta_ar", "effect_l2", "turn_invariant", "angle_increments", "angle_inputs",
              "effect_max_scale", "reward_clip", "ensemble_log_pd", "imitator_every")
 GAIFO_ONLY = ("gradient_penalty", "discriminator_frames", "kl_bound")
+CLONING_ONLY = ("cloning_loss",)
 # The learner's options that only MPO reads (BC and BCO fit the policy alone: cloning.py uses
 # the learning rate and gradient clip), and --preset (they take the paper's settings).
 MPO_ONLY = ("num_action_samples", "target_update_period", "action_penalty", "clip_critic_actions",
@@ -365,6 +366,13 @@ def parse_args(argv=None) -> argparse.Namespace:
   gaifo.add_argument("--discriminator_frames", type=int, default=1, choices=(1, 2),
                      help="the discriminator sees x_{t+1} (1, the paper's main table) or "
                           "(x_t, x_{t+1}) (2)")
+  cloning_group = parser.add_argument_group("BC and BCO (--method bc, bco)")
+  cloning_group.add_argument(
+      "--cloning_loss", default=None, choices=cloning.CLONING_LOSSES,
+      help="how the Gaussian policy is fitted to the actions: decoupled (the default): the "
+           "mean by squared error, the scale by likelihood with the mean held; likelihood: "
+           "-log pi(a|x), the paper's, whose mean barely moves where the scale has shrunk. The "
+           "same minimiser per state (mjx_form/rl/cloning.py)")
   train.add_argument("--preset", default=None, choices=settings.PRESETS,
                      help="default: measured settings; paper: the paper's. For form: the "
                           "reward scale, reward clip, target period and sampled-Q precision "
@@ -441,6 +449,8 @@ def parse_args(argv=None) -> argparse.Namespace:
     if given:
       parser.error(f"{', '.join(given)}: --method {args.method} fits the policy alone by "
                    f"maximum likelihood (no critic, no MPO) with the paper's settings")
+  if args.method not in CLONING and args.cloning_loss is not None:
+    parser.error(f"--cloning_loss applies to --method {', '.join(CLONING)}")
   if args.method != "form":
     given = [f"--{name}" for name in FORM_ONLY
              if getattr(args, name) != parser.get_default(name)]
@@ -533,6 +543,8 @@ def train_config(args: argparse.Namespace) -> TrainConfig:
       sampled_q_bfloat16=bfloat16, sampled_q_float32_head=args.sampled_q_float32_head,
       policy_average_decay=chosen.get("policy_average_decay", 0.0)
       if args.policy_average_decay is None else args.policy_average_decay,
+      cloning_loss=(args.cloning_loss or cloning.DEFAULT_CLONING_LOSS) if args.method in CLONING
+      else LearnerConfig().cloning_loss,
       mpo=dataclasses.replace(LearnerConfig().mpo, action_penalty=chosen["action_penalty"],
                               epsilon_scale=chosen["epsilon_scale"]))
   seed = args.seeds[0] if args.seeds else args.seed

@@ -43,6 +43,66 @@ def test_loss_is_the_gaussian_negative_log_likelihood():
                              stats.norm.entropy(0.0, scale).sum(-1).mean(), rtol=1e-5)
 
 
+def test_decoupled_loss_divides_no_gradient_by_the_variance():
+  """The decoupled fit's gradient for the mean is (mean - a), the likelihood's (mean - a) /
+  scale^2 (finite differences of scipy's log-density); for the scale both are the likelihood's;
+  its value is the squared error plus the likelihood at the held mean."""
+  from mjx_form.rl.distributions import DiagonalGaussian
+  rng = np.random.default_rng(2)
+  mean = rng.normal(size=(5, 3))
+  scale = rng.uniform(0.05, 1.5, size=(5, 3))
+  actions = rng.normal(size=(5, 3))
+  f32 = lambda x: jnp.asarray(x, jnp.float32)
+  def total(kind, m, s):
+    return jnp.sum(cloning.fit_loss(DiagonalGaussian(m, s), f32(actions), kind))
+  g_mean = {k: np.asarray(jax.grad(total, 1)(k, f32(mean), f32(scale)), np.float64)
+            for k in cloning.CLONING_LOSSES}
+  g_scale = {k: np.asarray(jax.grad(total, 2)(k, f32(mean), f32(scale)), np.float64)
+             for k in cloning.CLONING_LOSSES}
+  value = float(total("decoupled", f32(mean), f32(scale)))
+  nll = lambda m, s: -stats.norm.logpdf(actions, m, s).sum()
+  h = 1e-6
+  fd_mean = np.zeros_like(mean)
+  fd_scale = np.zeros_like(scale)
+  for idx in np.ndindex(mean.shape):
+    e = np.zeros_like(mean)
+    e[idx] = h
+    fd_mean[idx] = (nll(mean + e, scale) - nll(mean - e, scale)) / (2 * h)
+    fd_scale[idx] = (nll(mean, scale + e) - nll(mean, scale - e)) / (2 * h)
+  np.testing.assert_allclose(g_mean["likelihood"], fd_mean, rtol=1e-4, atol=1e-4)
+  np.testing.assert_allclose(g_mean["decoupled"], mean - actions, rtol=1e-5, atol=1e-6)
+  for kind in cloning.CLONING_LOSSES:
+    np.testing.assert_allclose(g_scale[kind], fd_scale, rtol=1e-4, atol=1e-4)
+  np.testing.assert_allclose(value, 0.5 * np.sum((mean - actions) ** 2) + nll(mean, scale),
+                             rtol=1e-5)
+  with pytest.raises(ValueError, match="unknown cloning loss 'mse'; valid: likelihood"):
+    cloning.fit_loss(DiagonalGaussian(jnp.zeros(2), jnp.ones(2)), jnp.zeros(2), "mse")
+
+
+def test_both_cloning_losses_reach_the_actions_mean_and_deviation():
+  """Fitting one state's free mean and scale to its actions by gradient descent, both losses
+  end at numpy's mean and standard deviation of them (the same maximum-likelihood fit)."""
+  from mjx_form.rl.distributions import DiagonalGaussian
+  actions = jnp.asarray(np.random.default_rng(3).normal([0.3, -0.5], [0.2, 0.05], (400, 2)),
+                        jnp.float32)
+  for kind in cloning.CLONING_LOSSES:
+    def objective(p):
+      pi = DiagonalGaussian(jnp.broadcast_to(p[0], actions.shape),
+                            jnp.broadcast_to(jnp.exp(p[1]), actions.shape))
+      return jnp.mean(cloning.fit_loss(pi, actions, kind))
+    opt = optax.adam(1e-2)
+    params = jnp.zeros((2, 2))
+    state = opt.init(params)
+    step = jax.jit(lambda p, s: (lambda g: (lambda u, s2: (optax.apply_updates(p, u), s2))(
+        *opt.update(g, s, p)))(jax.grad(objective)(p)))
+    for _ in range(4000):
+      params, state = step(params, state)
+    np.testing.assert_allclose(params[0], np.mean(np.asarray(actions), 0), atol=2e-3,
+                               err_msg=kind)
+    np.testing.assert_allclose(np.exp(params[1]), np.std(np.asarray(actions), 0), rtol=2e-2,
+                               err_msg=kind)
+
+
 def test_update_steps_the_policy_alone_on_standardised_observations():
   """One update is optax's step of the policy's optimiser on the loss's gradient at the
   observations standardised by the given normaliser; critic, targets and duals stay; the
@@ -69,6 +129,17 @@ def test_update_steps_the_policy_alone_on_standardised_observations():
   expected = optax.apply_updates(state.policy, change)
   for a, b in zip(jax.tree.leaves(new.policy), jax.tree.leaves(expected)):
     np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-4, atol=1e-6)
+  decoupled = dataclasses.replace(config, cloning_loss="decoupled")  # its own loss's step
+  new_d, _ = cloning.update(networks, decoupled, state, norm, obs, actions)
+  grad_d = jax.grad(lambda p: cloning.loss(networks, p, jnp.asarray(x, jnp.float32), actions,
+                                           "decoupled")[0])(state.policy)
+  change_d, _ = tx.update(grad_d, tx.init(state.policy), state.policy)
+  for a, b, c in zip(jax.tree.leaves(new_d.policy),
+                     jax.tree.leaves(optax.apply_updates(state.policy, change_d)),
+                     jax.tree.leaves(new.policy)):
+    np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-4, atol=1e-6)
+  assert any(not np.allclose(a, c) for a, c in zip(jax.tree.leaves(new_d.policy),
+                                                   jax.tree.leaves(new.policy)))
   for part in ("critic", "target_critic", "target_policy", "duals", "critic_opt", "dual_opt"):
     for a, b in zip(jax.tree.leaves(getattr(new, part)), jax.tree.leaves(getattr(state, part))):
       np.testing.assert_array_equal(np.asarray(a), np.asarray(b), err_msg=part)
@@ -218,6 +289,10 @@ def test_run_py_bc_and_bco_take_their_demonstrations_and_refuse_what_does_not_fi
     config = cli.train_config(args)
     assert config.reward_source == method and config.policy_head == "paper"
     assert config.learner.policy_average_decay == 0.0 and not config.angle_features
+    assert config.learner.cloning_loss == "decoupled"  # (the default: cloning.py)
+    assert cli.train_config(cli.parse_args([*small, "--method", method, "--cloning_loss",
+                                            "likelihood"])).learner.cloning_loss == "likelihood"
+  assert cli.train_config(cli.parse_args(small)).learner.cloning_loss == "likelihood"  # unused
   np.testing.assert_array_equal(source.low, env.action_bounds[0])  # (BCO's)
   row = {"iteration": 2, "env_steps": 400, "wall_s": 9.0, "steps_per_s": 50.0,
          "train_return": float("nan"), "bc_log_prob": -1.25, "bc_action_error": 0.0312,
@@ -247,6 +322,10 @@ def test_run_py_bc_and_bco_take_their_demonstrations_and_refuse_what_does_not_fi
         cli.parse_args(["--method", method, *argv])
       assert message in capsys.readouterr().err
   assert cli.parse_args(["--method", "bc", "--grid", "learning_rate=1e-4,1e-3"]).grid
+  for method in ("form", "gaifo", "expert"):
+    with pytest.raises(SystemExit):
+      cli.parse_args(["--method", method, "--cloning_loss", "decoupled"])
+    assert "--cloning_loss applies to --method bco, bc" in capsys.readouterr().err
   with pytest.raises(SystemExit):
     cli.parse_args(["--method", "expert", "--reward_scale", "raw"])
   assert "--reward_scale applies to --method form, gaifo, gaifo_gp, vaifo, vaifo_gp" in (

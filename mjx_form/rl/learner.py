@@ -56,6 +56,9 @@ class LearnerConfig:
   # d of the policy's parameters averaged over updates (module docstring); 0: none kept (the
   # paper evaluates the online policy).
   policy_average_decay: float = 0.0
+  # How BC and BCO fit the policy to actions (cloning.py): "likelihood" (the paper's) or
+  # "decoupled" (the mean by squared error, the scale by likelihood). MPO ignores it.
+  cloning_loss: str = "likelihood"
   mpo: mpo.MPOConfig = mpo.MPOConfig()
 
 

@@ -65,7 +65,8 @@ ADDED_SETTINGS = {"learner.mpo.action_penalty": False, "learner.mpo.epsilon_pena
                   "policy_head": "paper", "action_noise_correlation": 0.0,
                   "wrap_angles": False, "init_policy": None, "angle_features": False,
                   "learner.policy_average_decay": 0.0, "source_update_every": 1,
-                  "learner.sampled_q_float32_head": False, "noise_scale_min": 1.0}
+                  "learner.sampled_q_float32_head": False, "noise_scale_min": 1.0,
+                  "learner.cloning_loss": "likelihood"}
 
 
 # Columns that not every row has (evaluation rows; devices that report memory).
