@@ -150,6 +150,8 @@ def check(jobs_file: Path, deadline_s: float = 1200.0) -> list[str]:
                + ("" if discriminator.kl_bound is None
                   else f"bottleneck KL <= {discriminator.kl_bound:g}, ")
                + f"reward {args.reward_scale or 'raw'}")
+    elif args.method in run.CLONING:  # (MPO's settings below are unused: cloning.py)
+      grid += f"; cloning loss {learner.cloning_loss}"
     lines.append(
         f"{job['name']}: {config.task} {args.method}, seeds {seeds}{grid}; {config.num_envs} "
         f"envs x {config.updates_per_iteration} updates (replay ratio {config.replay_ratio:g}"

@@ -247,12 +247,15 @@ def test_check_parses_run_jobs_as_run_does_and_names_a_bad_one(tmp_path, capsys)
       "gg: python scripts/run.py --task walker_walk --method gaifo_gp --gradient_penalty 5 "
       "--discriminator_frames 2\n"
       "ga: python scripts/run.py --task walker_walk --method gaifo --reward_scale standardised\n"
-      "gv: python scripts/run.py --task walker_walk --method vaifo_gp --kl_bound 0.5\n")
+      "gv: python scripts/run.py --task walker_walk --method vaifo_gp --kl_bound 0.5\n"
+      "bl: python scripts/run.py --task walker_walk --method bc --cloning_loss likelihood\n"
+      "bo: python scripts/run.py --task walker_walk --method bco\n")
   assert gpu_jobs.main(["check", str(jobs), "--deadline", "900"]) == 0
   out = [line for line in capsys.readouterr().out.splitlines()  # (not MuJoCo's import notes)
          if line.startswith(("rx:", "fx:", "fc:", "fl:", "fw:", "fd:", "fe:", "fm:", "fp:",
-                             "ft:", "fn:", "fg:", "ls:", "rr:", "rl:", "gg:", "ga:", "gv:"))]
-  assert len(out) == 18 and out[0].startswith(
+                             "ft:", "fn:", "fg:", "ls:", "rr:", "rl:", "gg:", "ga:", "gv:",
+                             "bl:", "bo:"))]
+  assert len(out) == 20 and out[0].startswith(
       "rx: reacher_hard expert, seeds 0,1; grid target_update_period=25,100")
   for part in ("512 envs x 256 updates (replay ratio 32)", "T 25", "action penalty True",
                "average policy decay 0,",
@@ -296,6 +299,9 @@ def test_check_parses_run_jobs_as_run_does_and_names_a_bad_one(tmp_path, capsys)
                             "gradient penalty 0, reward standardised;"), out
   assert out[17].startswith("gv: walker_walk vaifo_gp, seeds 0; discriminator: 1 frame(s), "
                             "gradient penalty 10, bottleneck KL <= 0.5, reward raw;"), out
+  # BC and BCO: how the policy is fitted (the flag's, else the default)
+  assert out[18].startswith("bl: walker_walk bc, seeds 0; cloning loss likelihood;"), out
+  assert out[19].startswith("bo: walker_walk bco, seeds 0; cloning loss decoupled;"), out
   for bad, said in (("--task walker_walk --method form --turn_invariant", "unbounded"),
                     ("--task reacher_easy --method form --demonstrator "
                      "tasks/demonstrators/reacher_hard.npz", "reacher_hard"),
