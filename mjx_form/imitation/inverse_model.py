@@ -11,7 +11,9 @@ softplus + 1e-4.
 Objective: the mean log-likelihood of the actions the imitator took at its own transitions
 (those whose successor is stored), each action as the environment applied it (clipped to the
 task's control range, `bounds`: a sample beyond a bound moves the body as the bound does, so
-nothing in (x_t, x_{t+1}) tells them apart). Adam, learning rate 1e-4.
+nothing in (x_t, x_{t+1}) tells them apart). Adam, learning rate 1e-4. (Not the decoupled fit
+of BC's policy, mjx_form/rl/cloning.py: on transitions of evenly spread actions the likelihood
+fitted the mean faster; NOTES session 69.)
 """
 
 from __future__ import annotations
