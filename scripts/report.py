@@ -266,9 +266,11 @@ def _member(record: dict) -> str:
   settings = record.get("settings", {})
   reward = settings.get("reward", {})
   learner = settings.get("learner")
-  if learner is not None and not learner.get("sampled_q_float32_head", False):
-    # (added 2026-11-29: a run resumed across it keeps one key)
-    learner = {k: v for k, v in learner.items() if k != "sampled_q_float32_head"}
+  if learner is not None:  # settings added later, at the value that ran before them (a run
+    # resumed across one keeps one key): sampled_q_float32_head (2026-11-29), cloning_loss
+    # (2026-12-01)
+    learner = {k: v for k, v in learner.items()
+               if (k, v) not in (("sampled_q_float32_head", False), ("cloning_loss", "likelihood"))}
   return json.dumps([learner, reward.get("standardise_reward"),
                      reward.get("reward_clip", 0.0), settings.get("action_noise_correlation", 0.0),
                      settings.get("wrap_angles", False), settings.get("init_policy"),

@@ -73,7 +73,7 @@ GAIFO = ("gaifo", "gaifo_gp", "vaifo", "vaifo_gp")  # a discriminator's reward
 IMITATION = ("form", *GAIFO, "bco")  # learn from demonstrations' observations alone
 FROM_DEMOS = (*IMITATION, "bc")  # learn from demonstrations
 LEARNERS = ("expert", *FROM_DEMOS)  # every method that trains a policy
-CLONING = ("bco", "bc")  # fit the policy by maximum likelihood: no reward, no critic, no MPO
+CLONING = ("bco", "bc")  # fit the policy to actions (cloning.py): no reward, no critic, no MPO
 GAIFO_GP_DEFAULT = 10.0  # beta_gp: the paper's "typically 10"
 KL_BOUND_DEFAULT = 1.0  # VAIfO's epsilon: the paper's throughout
 # Options that only the methods that learn from demonstrations read (a user who gives one to
@@ -371,8 +371,8 @@ def parse_args(argv=None) -> argparse.Namespace:
       "--cloning_loss", default=None, choices=cloning.CLONING_LOSSES,
       help="how the Gaussian policy is fitted to the actions: decoupled (the default): the "
            "mean by squared error, the scale by likelihood with the mean held; likelihood: "
-           "-log pi(a|x), the paper's, whose mean barely moves where the scale has shrunk. The "
-           "same minimiser per state (mjx_form/rl/cloning.py)")
+           "-log pi(a|x), the paper's, whose 1/scale^2 lets the states of small scale (an expert "
+           "at rest) drown the mean's gradient elsewhere (mjx_form/rl/cloning.py)")
   train.add_argument("--preset", default=None, choices=settings.PRESETS,
                      help="default: measured settings; paper: the paper's. For form: the "
                           "reward scale, reward clip, target period and sampled-Q precision "
@@ -447,10 +447,12 @@ def parse_args(argv=None) -> argparse.Namespace:
               if name in grid.LEARNER and name not in ("learning_rate", "max_grad_norm",
                                                        "policy_average_decay")]
     if given:
-      parser.error(f"{', '.join(given)}: --method {args.method} fits the policy alone by "
-                   f"maximum likelihood (no critic, no MPO) with the paper's settings")
-  if args.method not in CLONING and args.cloning_loss is not None:
-    parser.error(f"--cloning_loss applies to --method {', '.join(CLONING)}")
+      parser.error(f"{', '.join(given)}: --method {args.method} fits the policy alone to "
+                   f"its actions (no critic, no MPO) with the paper's settings")
+  if args.method not in CLONING:
+    given = [f"--{name}" for name in CLONING_ONLY if getattr(args, name) is not None]
+    if given:
+      parser.error(f"{', '.join(given)} applies to --method {', '.join(CLONING)}")
   if args.method != "form":
     given = [f"--{name}" for name in FORM_ONLY
              if getattr(args, name) != parser.get_default(name)]
@@ -604,6 +606,9 @@ def recipe_hint(args: argparse.Namespace, error: ValueError) -> str:
     return (" (a FORM run started before FORM kept the average policy by default, 2026-11-28, "
             "or with another --policy_average_decay, resumes with the value it was started "
             "with: --policy_average_decay 0 for none)")
+  if "learner.cloning_loss" in error.keys:
+    return (" (a BC or BCO run started before --cloning_loss existed, 2026-12-01, fitted by "
+            "likelihood: it resumes with --cloning_loss likelihood)")
   if "reward.ensemble_log_pd" in error.keys:
     return (" (a run started with --ensemble_log_pd mean resumes with it; one started without "
             "it, without it)")

@@ -204,7 +204,8 @@ def test_source_refuses_demonstrations_that_do_not_fit():
 CONFIG = TrainConfig(task="reacher_easy", reward_source="bc", num_envs=4, unroll_length=50,
                      batch_size=4, replay_capacity=12, updates_per_iteration=2,
                      network_width=32, eval_envs=2,
-                     learner=LearnerConfig(learning_rate=3e-3, num_action_samples=4))
+                     learner=LearnerConfig(learning_rate=3e-3, num_action_samples=4,
+                                           cloning_loss="decoupled"))  # (run.py's default)
 
 
 def _bc_source():
@@ -326,6 +327,11 @@ def test_run_py_bc_and_bco_take_their_demonstrations_and_refuse_what_does_not_fi
     with pytest.raises(SystemExit):
       cli.parse_args(["--method", method, "--cloning_loss", "decoupled"])
     assert "--cloning_loss applies to --method bco, bc" in capsys.readouterr().err
+  # a BC run from before the flag (fitted by likelihood), refused on resume, is told how
+  from mjx_form.files import checkpoint
+  refused = checkpoint.CheckpointError("differs", ("learner.cloning_loss",))
+  assert "resumes with --cloning_loss likelihood" in cli.recipe_hint(
+      cli.parse_args(["--method", "bc", "--resume"]), refused)
   with pytest.raises(SystemExit):
     cli.parse_args(["--method", "expert", "--reward_scale", "raw"])
   assert "--reward_scale applies to --method form, gaifo, gaifo_gp, vaifo, vaifo_gp" in (

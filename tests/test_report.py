@@ -679,6 +679,14 @@ def test_expert_runs_tell_members_apart_by_every_grid_setting():
   # Records written before the noise and the wrap were settings read as their defaults.
   old = dict(base, settings={"learner": {"target_update_period": 25}, "reward": {}})
   assert report._member(old) == report._member(dict(base, settings=settings))
+  # Learner settings added later, at the value that ran before them, keep a resumed run whole;
+  # another value is another member.
+  for key, before, other in (("sampled_q_float32_head", False, True),
+                             ("cloning_loss", "likelihood", "decoupled")):
+    added = lambda v: dict(base, settings=dict(settings, learner={"target_update_period": 25,
+                                                                   key: v}))
+    assert report._member(added(before)) == report._member(old), key
+    assert report._member(added(other)) != report._member(old), key
 
 
 def test_learning_summary_sets_cheetah_against_brax_ppo_cold_and_warm():

@@ -17,8 +17,8 @@ in an MPO update.
   0.059 -> 0.034 in 20,000 updates, against 0.0035 in 5,000 by squared error; NOTES session 69).
 - "decoupled": the mean by squared error, the scale by -log pi(a | x) with the mean held
   (stop-gradient). Per state both losses have the same minimiser (the mean and standard
-  deviation of the actions there), so this is still a maximum-likelihood fit; only the mean's
-  gradient is no longer divided by the predicted variance.
+  deviation of the actions there); a network that cannot fit every state exactly trades the
+  states' errors off evenly (least squares) instead of by their predicted variance.
 """
 
 from __future__ import annotations

@@ -36,7 +36,7 @@ A source is an object with:
       state that checkpoints save)
   policy_targets(state, key, n) -> (observations [n, D] raw, actions [n, A], metrics)
       (optional): makes the source a cloning source (BC, BCO): the learner fits the policy to
-      these pairs by maximum likelihood (mjx_form.rl.cloning) instead of MPO on rewards, and the
+      these pairs (mjx_form.rl.cloning) instead of MPO on rewards, and the
       observation normaliser follows these observations; it needs no `relabel`
 where `batch` is a dict of unrolls: observation [B, T+1, D] (raw, not standardised), action
 [B, T, A], discount [B, T], and reward [B, T] only when needs_task_reward is set.
