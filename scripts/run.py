@@ -450,7 +450,8 @@ def parse_args(argv=None) -> argparse.Namespace:
       parser.error(f"{', '.join(given)}: --method {args.method} fits the policy alone to "
                    f"its actions (no critic, no MPO) with the paper's settings")
   if args.method not in CLONING:
-    given = [f"--{name}" for name in CLONING_ONLY if getattr(args, name) is not None]
+    given = [f"--{name}" for name in CLONING_ONLY
+             if getattr(args, name) != parser.get_default(name)]
     if given:
       parser.error(f"{', '.join(given)} applies to --method {', '.join(CLONING)}")
   if args.method != "form":

@@ -17,6 +17,7 @@ from mjx_form.imitation.bc import BehaviourCloning
 from mjx_form.imitation.bco import BcoSource
 from mjx_form.rl import cloning, normalizer
 from mjx_form.rl import learner as learner_lib
+from mjx_form.rl.distributions import DiagonalGaussian
 from mjx_form.rl.learner import LearnerConfig
 from mjx_form.rl.networks import make_networks
 from mjx_form.rl.train import TrainConfig, Trainer
@@ -47,7 +48,6 @@ def test_decoupled_loss_divides_no_gradient_by_the_variance():
   """The decoupled fit's gradient for the mean is (mean - a), the likelihood's (mean - a) /
   scale^2 (finite differences of scipy's log-density); for the scale both are the likelihood's;
   its value is the squared error plus the likelihood at the held mean."""
-  from mjx_form.rl.distributions import DiagonalGaussian
   rng = np.random.default_rng(2)
   mean = rng.normal(size=(5, 3))
   scale = rng.uniform(0.05, 1.5, size=(5, 3))
@@ -82,7 +82,6 @@ def test_decoupled_loss_divides_no_gradient_by_the_variance():
 def test_both_cloning_losses_reach_the_actions_mean_and_deviation():
   """Fitting one state's free mean and scale to its actions by gradient descent, both losses
   end at numpy's mean and standard deviation of them (the same maximum-likelihood fit)."""
-  from mjx_form.rl.distributions import DiagonalGaussian
   actions = jnp.asarray(np.random.default_rng(3).normal([0.3, -0.5], [0.2, 0.05], (400, 2)),
                         jnp.float32)
   for kind in cloning.CLONING_LOSSES:
@@ -93,8 +92,10 @@ def test_both_cloning_losses_reach_the_actions_mean_and_deviation():
     opt = optax.adam(1e-2)
     params = jnp.zeros((2, 2))
     state = opt.init(params)
-    step = jax.jit(lambda p, s: (lambda g: (lambda u, s2: (optax.apply_updates(p, u), s2))(
-        *opt.update(g, s, p)))(jax.grad(objective)(p)))
+    @jax.jit
+    def step(p, s):
+      change, s = opt.update(jax.grad(objective)(p), s, p)
+      return optax.apply_updates(p, change), s
     for _ in range(4000):
       params, state = step(params, state)
     np.testing.assert_allclose(params[0], np.mean(np.asarray(actions), 0), atol=2e-3,
