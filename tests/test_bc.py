@@ -75,6 +75,17 @@ def test_decoupled_loss_divides_no_gradient_by_the_variance():
     np.testing.assert_allclose(g_scale[kind], fd_scale, rtol=1e-4, atol=1e-4)
   np.testing.assert_allclose(value, 0.5 * np.sum((mean - actions) ** 2) + nll(mean, scale),
                              rtol=1e-5)
+  # The scale's term weighted (cloning_fit's variants): the scale's gradient scales with it,
+  # the mean's does not change.
+  weighted = lambda m, s: jnp.sum(cloning.fit_loss(DiagonalGaussian(m, s), f32(actions),
+                                                   "decoupled", 0.01))
+  np.testing.assert_allclose(jax.grad(weighted, 0)(f32(mean), f32(scale)), mean - actions,
+                             rtol=1e-5, atol=1e-6)
+  np.testing.assert_allclose(jax.grad(weighted, 1)(f32(mean), f32(scale)), 0.01 * fd_scale,
+                             rtol=1e-4, atol=1e-5)
+  np.testing.assert_allclose(float(weighted(f32(mean), f32(scale))),
+                             0.5 * np.sum((mean - actions) ** 2) + 0.01 * nll(mean, scale),
+                             rtol=1e-5)
   with pytest.raises(ValueError, match="unknown cloning loss 'mse'; valid: likelihood"):
     cloning.fit_loss(DiagonalGaussian(jnp.zeros(2), jnp.ones(2)), jnp.zeros(2), "mse")
 

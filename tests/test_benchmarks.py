@@ -1144,3 +1144,67 @@ def test_sampled_q_precision_counts_a_grids_members_apart_and_averages_their_las
     assert bench.main([*given, "--runs"]) == 0, given
     out = capsys.readouterr().out
     assert "| walker_run | form | bf16 | 1 |" in out and out.count("form.jsonl") == 1, out
+
+
+def _linear_demos(path, episodes: int, steps: int, seed: int = 0, actions: bool = True,
+                  task: str = "reacher_easy"):
+  """Demonstrations of `task`'s layout whose actions are a fixed function of the observation."""
+  import tasks
+  from mjx_form.files import demos
+  env = tasks.make(task)
+  rng = np.random.default_rng(seed)
+  obs = rng.normal(size=(episodes, steps + 1, env.observation_size)).astype(np.float32)
+  w = rng.normal(size=(env.observation_size, env.action_size)) / np.sqrt(env.observation_size)
+  act = np.tanh(obs[:, :-1] @ w).astype(np.float32)
+  demos.save_demonstrations(path, obs, act if actions else None, metadata={
+      "task": task, "observation_layout": env.observation_layout, "physics": env.physics})
+  return obs, act
+
+
+def test_cloning_fit_holds_out_whole_episodes_and_measures_each_loss(tmp_path, capsys):
+  """cloning_fit: the held-out pairs are the file's last episodes, whole; fitting actions that
+  are a function of the observation lowers the mean action's error on held-out episodes, for
+  the mean alone and the weighted decoupled loss, and writes one record per loss and rate with
+  its measurements over the updates; `--loss` and the file are checked."""
+  bench = load_script("cloning_fit", folder="benchmarks")
+  obs, act = _linear_demos(tmp_path / "d.npz", episodes=10, steps=20)
+  (x, a), (hx, ha) = bench.split_pairs(obs, act, 0.2)
+  np.testing.assert_array_equal(hx, obs[8:, :-1].reshape(-1, obs.shape[-1]))
+  np.testing.assert_array_equal(ha, act[8:].reshape(-1, act.shape[-1]))
+  assert x.shape == (8 * 20, obs.shape[-1]) and a.shape == (8 * 20, act.shape[-1])
+  with pytest.raises(ValueError, match="leave none to train on"):
+    bench.split_pairs(obs[:1], act[:1], 0.2)
+  assert bench.parse_loss("decoupled:0.01") == ("decoupled", 0.01)
+  assert bench.parse_loss("likelihood") == ("likelihood", 1.0)
+  for bad, message in (("mse", "unknown loss 'mse'"), ("likelihood:0.1", "only the decoupled"),
+                       ("decoupled:x", "not a number"), ("decoupled:0", "must be positive")):
+    with pytest.raises(ValueError, match=message):
+      bench.parse_loss(bad)
+  out = tmp_path / "fit.jsonl"
+  args = ["--task", "reacher_easy", "--demos", str(tmp_path / "d.npz"), "--loss", "mean",
+          "--loss", "decoupled:0.01", "--learning_rate", "1e-3", "--updates", "300",
+          "--every", "150", "--batch", "64", "--width", "32", "--heldout", "0.2"]
+  assert bench.main(args + ["--results", str(out)]) == 0
+  rows = [json.loads(line) for line in out.read_text().splitlines()]
+  assert [(r["kind"], r["loss"], r["scale_weight"]) for r in rows] == [
+      ("cloning_fit", "mean", 1.0), ("cloning_fit", "decoupled", 0.01)]
+  for r in rows:
+    assert r["updates"] == [0, 150, 300] and r["demonstrations"]["heldout_episodes"] == 2
+    errors = r["heldout_action_error"]
+    assert errors[-1] < 0.5 * errors[0], errors
+  # the mean alone leaves the scale near where it starts (only the shared layers move it); the
+  # decoupled loss fits it
+  assert rows[0]["heldout_scale"][-1] == pytest.approx(rows[0]["heldout_scale"][0], rel=0.02)
+  assert rows[1]["heldout_scale"][-1] < 0.5 * rows[1]["heldout_scale"][0]
+  # bad input: a file without actions, another task's, --updates not a multiple of --every
+  _linear_demos(tmp_path / "obs_only.npz", episodes=4, steps=5, actions=False)
+  _linear_demos(tmp_path / "walker.npz", episodes=4, steps=5, task="walker_walk")
+  for name in ("obs_only.npz", "walker.npz"):
+    capsys.readouterr()
+    assert bench.main(["--task", "reacher_easy", "--demos", str(tmp_path / name),
+                       "--loss", "mean"]) == 2
+    assert "error:" in capsys.readouterr().err
+  with pytest.raises(SystemExit) as exit_:
+    bench.main(args[:-4] + ["--updates", "100"])
+  assert exit_.value.code == 2
+  assert len(out.read_text().splitlines()) == 2  # nothing more written

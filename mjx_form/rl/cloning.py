@@ -38,19 +38,22 @@ CLONING_LOSSES = ("likelihood", "decoupled")
 DEFAULT_CLONING_LOSS = "decoupled"
 
 
-def fit_loss(pi, actions: jax.Array, kind: str = "likelihood") -> jax.Array:
+def fit_loss(pi, actions: jax.Array, kind: str = "likelihood",
+             scale_weight: float = 1.0) -> jax.Array:
   """Per pair loss [N] of a Gaussian `pi` (batch [N], mean and scale [N, A]) fitted to actions
-  [N, A]: -log pi(a) ("likelihood"), or the decoupled fit (module docstring)."""
+  [N, A]: -log pi(a) ("likelihood"), or the decoupled fit (module docstring) with its scale
+  term weighted by `scale_weight`."""
   if kind == "likelihood":
     return -pi.log_prob(actions)
   if kind != "decoupled":
     raise ValueError(f"unknown cloning loss {kind!r}; valid: {', '.join(CLONING_LOSSES)}")
   held = pi._replace(mean=jax.lax.stop_gradient(pi.mean))
-  return 0.5 * jnp.sum(jnp.square(pi.mean - actions), axis=-1) - held.log_prob(actions)
+  return (0.5 * jnp.sum(jnp.square(pi.mean - actions), axis=-1)
+          - scale_weight * held.log_prob(actions))
 
 
 def loss(networks: Networks, policy_params, obs: jax.Array, actions: jax.Array,
-         kind: str = "likelihood") -> tuple[jax.Array, dict]:
+         kind: str = "likelihood", scale_weight: float = 1.0) -> tuple[jax.Array, dict]:
   """The mean `fit_loss` over standardised observations [N, D] and actions [N, A], and the
   metrics: the mean log-likelihood, the mean squared error of the policy's mean action, its
   mean scale and entropy, and the share of its mean outside [-1, 1] (as MPO's)."""
@@ -60,7 +63,7 @@ def loss(networks: Networks, policy_params, obs: jax.Array, actions: jax.Array,
              "bc_action_error": jnp.mean(jnp.square(pi.mean - actions)),
              "scale_mean": jnp.mean(pi.scale), "entropy": jnp.mean(pi.entropy()),
              "mean_out_of_bounds": jnp.mean(jnp.abs(pi.mean) > 1.0)}
-  return jnp.mean(fit_loss(pi, actions, kind)), metrics
+  return jnp.mean(fit_loss(pi, actions, kind, scale_weight)), metrics
 
 
 def update(networks: Networks, config: learner_lib.LearnerConfig,
