@@ -369,10 +369,11 @@ def parse_args(argv=None) -> argparse.Namespace:
   cloning_group = parser.add_argument_group("BC and BCO (--method bc, bco)")
   cloning_group.add_argument(
       "--cloning_loss", default=None, choices=cloning.CLONING_LOSSES,
-      help="how the Gaussian policy is fitted to the actions: decoupled (the default): the "
-           "mean by squared error, the scale by likelihood with the mean held; likelihood: "
-           "-log pi(a|x), the paper's, whose 1/scale^2 lets the states of small scale (an expert "
-           "at rest) drown the mean's gradient elsewhere (mjx_form/rl/cloning.py)")
+      help="how the Gaussian policy is fitted to the actions: squared (the default): the mean "
+           "by squared error, the scale by likelihood through the last layer alone; decoupled: "
+           "the same with the scale's term reaching every layer (it slows the mean's fit); "
+           "likelihood: -log pi(a|x), the paper's, whose 1/scale^2 lets the states of small "
+           "scale (an expert at rest) drown the mean's gradient elsewhere (mjx_form/rl/cloning.py)")
   train.add_argument("--preset", default=None, choices=settings.PRESETS,
                      help="default: measured settings; paper: the paper's. For form: the "
                           "reward scale, reward clip, target period and sampled-Q precision "

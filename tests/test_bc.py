@@ -90,6 +90,40 @@ def test_decoupled_loss_divides_no_gradient_by_the_variance():
     cloning.fit_loss(DiagonalGaussian(jnp.zeros(2), jnp.ones(2)), jnp.zeros(2), "mse")
 
 
+def test_squared_loss_trains_the_shared_layers_on_the_mean_alone():
+  """"squared" through the policy network: the layers below the last get the gradient of the
+  mean's squared error alone (the scale's likelihood leaves them untouched), the last layer
+  the decoupled fit's gradient; with the features held, the policy's outputs are unchanged."""
+  networks = make_networks(3, width=16)
+  rng = np.random.default_rng(4)
+  x = jnp.asarray(rng.normal(size=(12, 5)), jnp.float32)
+  actions = jnp.asarray(rng.uniform(-1, 1, size=(12, 3)), jnp.float32)
+  params = networks.policy.init(jax.random.PRNGKey(3), x[:1])
+  params = jax.tree.map(lambda p: p + 0.3 * jax.random.normal(jax.random.PRNGKey(5), p.shape),
+                        params)  # (the last layer's initial weights are ~0)
+  held = networks.policy.apply(params, x, hold_features=True)
+  plain = networks.policy.apply(params, x)
+  np.testing.assert_array_equal(np.asarray(held.mean), np.asarray(plain.mean))
+  np.testing.assert_array_equal(np.asarray(held.scale), np.asarray(plain.scale))
+  grad = lambda f: jax.grad(f)(params)["params"]
+  squared = grad(lambda p: cloning.loss(networks, p, x, actions, "squared")[0])
+  decoupled = grad(lambda p: cloning.loss(networks, p, x, actions, "decoupled")[0])
+  mean_only = grad(lambda p: 0.5 * jnp.mean(jnp.sum(jnp.square(
+      networks.policy.apply(p, x).mean - actions), -1)))
+  last = [k for k in squared if k.startswith("Dense")]
+  assert last == ["Dense_0"] and set(squared) == {"Encoder_0", "Dense_0"}
+  for a, b in zip(jax.tree.leaves(squared["Encoder_0"]), jax.tree.leaves(mean_only["Encoder_0"])):
+    np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-4, atol=1e-7)
+  for a, b in zip(jax.tree.leaves(squared["Dense_0"]), jax.tree.leaves(decoupled["Dense_0"])):
+    np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-4, atol=1e-7)
+  # (and the decoupled fit's scale term does reach the shared layers: the difference is real)
+  assert not all(np.allclose(a, b, rtol=1e-3, atol=1e-6) for a, b in zip(
+      jax.tree.leaves(decoupled["Encoder_0"]), jax.tree.leaves(mean_only["Encoder_0"])))
+  value = float(cloning.loss(networks, params, x, actions, "squared")[0])
+  np.testing.assert_allclose(value, float(cloning.loss(networks, params, x, actions,
+                                                       "decoupled")[0]), rtol=1e-6)
+
+
 def test_both_cloning_losses_reach_the_actions_mean_and_deviation():
   """Fitting one state's free mean and scale to its actions by gradient descent, both losses
   end at numpy's mean and standard deviation of them (the same maximum-likelihood fit)."""
@@ -217,7 +251,7 @@ CONFIG = TrainConfig(task="reacher_easy", reward_source="bc", num_envs=4, unroll
                      batch_size=4, replay_capacity=12, updates_per_iteration=2,
                      network_width=32, eval_envs=2,
                      learner=LearnerConfig(learning_rate=3e-3, num_action_samples=4,
-                                           cloning_loss="decoupled"))  # (run.py's default)
+                                           cloning_loss="squared"))  # (run.py's default)
 
 
 def _bc_source():
@@ -302,7 +336,7 @@ def test_run_py_bc_and_bco_take_their_demonstrations_and_refuse_what_does_not_fi
     config = cli.train_config(args)
     assert config.reward_source == method and config.policy_head == "paper"
     assert config.learner.policy_average_decay == 0.0 and not config.angle_features
-    assert config.learner.cloning_loss == "decoupled"  # (the default: cloning.py)
+    assert config.learner.cloning_loss == "squared"  # (the default: cloning.py)
     assert cli.train_config(cli.parse_args([*small, "--method", method, "--cloning_loss",
                                             "likelihood"])).learner.cloning_loss == "likelihood"
   assert cli.train_config(cli.parse_args(small)).learner.cloning_loss == "likelihood"  # unused

@@ -301,7 +301,7 @@ def test_check_parses_run_jobs_as_run_does_and_names_a_bad_one(tmp_path, capsys)
                             "gradient penalty 10, bottleneck KL <= 0.5, reward raw;"), out
   # BC and BCO: how the policy is fitted (the flag's, else the default)
   assert out[18].startswith("bl: walker_walk bc, seeds 0; cloning loss likelihood;"), out
-  assert out[19].startswith("bo: walker_walk bco, seeds 0; cloning loss decoupled;"), out
+  assert out[19].startswith("bo: walker_walk bco, seeds 0; cloning loss squared;"), out
   for bad, said in (("--task walker_walk --method form --turn_invariant", "unbounded"),
                     ("--task reacher_easy --method form --demonstrator "
                      "tasks/demonstrators/reacher_hard.npz", "reacher_hard"),

@@ -79,8 +79,12 @@ class GaussianPolicy(nn.Module):
   head: PolicyHead = PolicyHead()
 
   @nn.compact
-  def __call__(self, obs: jax.Array) -> DiagonalGaussian:
+  def __call__(self, obs: jax.Array, hold_features: bool = False) -> DiagonalGaussian:
+    """hold_features: no gradient reaches the layers below the last (BC's "squared" fit trains
+    the scale through the last layer alone, mjx_form/rl/cloning.py)."""
     h = Encoder(self.width)(obs)
+    if hold_features:
+      h = jax.lax.stop_gradient(h)
     out = nn.Dense(2 * self.action_size, kernel_init=nn.initializers.variance_scaling(
         1e-4, "fan_in", "truncated_normal"))(h)  # small initial means: actions near 0
     mean, raw_scale = jnp.split(out, 2, axis=-1)
