@@ -1130,9 +1130,97 @@ def effect_model_table(records: list[dict], best_per_task: bool = True,
   return "\n".join(lines)
 
 
+BASELINES = tuple(paper.BASELINES)  # run.py's baseline methods
+
+
+def _baseline_variant(record: dict) -> str:
+  """What a baseline run varied beyond the learner: the discriminator (GAIfO's family) or the
+  cloning fit (BC, BCO); e.g. `1 frame, GP 10, raw reward` or `squared, lr 0.001`."""
+  settings = record.get("settings", {})
+  reward = settings.get("reward", {})
+  if record["method"] in ("bc", "bco"):
+    learner = settings.get("learner", {})
+    return f"{learner.get('cloning_loss', 'likelihood')}, lr {learner.get('learning_rate', 1e-4):g}"
+  d = reward.get("discriminator", {})
+  return (f"{d.get('frames', 1)} frame{'s' if d.get('frames', 1) > 1 else ''}, "
+          f"GP {d.get('gradient_penalty', 0):g}"
+          + ("" if d.get("kl_bound") is None else f", KL <= {d['kl_bound']:g}")
+          + f", {'standardised' if reward.get('standardise_reward') else 'raw'} reward")
+
+
+def baselines_table(records: list[dict], expert_returns: dict[str, float] | None = None,
+                    fraction: float = 0.9) -> str:
+  """The baselines' GPU runs (BC, BCO, GAIfO, GAIfO+GP, VAIfO, VAIfO+GP), one row per task,
+  method and configuration (one result file's runs of one setting) over its seeds. Each seed's
+  return: its fresh final evaluation (`kind: final_return`, policy "final") where the run wrote
+  one, else its last periodic evaluation (a run stopped before its final evaluation). Expert:
+  `expert_returns` (default: the shipped experts' returns at export)."""
+  curves: dict[tuple, dict[int, list[dict]]] = {}
+  finals: dict[tuple, dict[int, dict]] = {}
+  for r in sorted(records, key=lambda r: r.get("time", "")):
+    if r.get("method") not in BASELINES or not r.get("device", "").startswith("gpu"):
+      continue
+    key = (r["task"], r["method"], r["_file"], _member(r), _baseline_variant(r))
+    if r.get("kind") == "learning_curve" and r.get("eval_return") is not None:
+      curves.setdefault(key, {}).setdefault(r["seed"], []).append(r)
+    elif r.get("kind") == "final_return" and r.get("policy") == "final":
+      finals.setdefault(key, {})[r["seed"]] = r
+  if not curves:
+    return ("No GPU result for the baselines yet: a GPU run's result file "
+            "(`--method gaifo`, `gaifo_gp`, `vaifo`, `vaifo_gp`, `bco`, `bc`) copied to "
+            "`benchmarks/results/` appears here.")
+  if expert_returns is None:
+    expert_returns = {meta["task"]: meta["eval_return"] for meta, _ in _shipped_experts()}
+  lines = [
+      "The baselines on a GPU, one row per task, method and configuration (one result file's "
+      "runs of one setting), mean +- standard deviation over its seeds of each seed's return: "
+      "the final policy's fresh evaluation after training (`fresh`, `--final_eval_envs` "
+      "episodes), else, where the run stopped before it, its last periodic evaluation (`last`, "
+      "`--eval_envs` episodes); policy mean action. Best: the mean over seeds of each seed's "
+      f"best periodic evaluation. {fraction:g}x expert: the wall clock (env steps) by which "
+      f"every seed had a periodic evaluation at or above {fraction:g}x the expert, compilation "
+      "and recording the demonstrations included. Expert: the shipped expert's return at "
+      "export (the runs imitate its demonstrations); fraction = return / expert; paper: the "
+      "method's return in the paper's Table 1, and its fraction of the paper's expert. "
+      "Setting: the discriminator's input frames, gradient penalty, bottleneck and reward "
+      "(GAIfO's family), or the cloning fit and learning rate (BC, BCO); every run uses FORM's "
+      "learner (T: its target period):", "",
+      "| task | method | setting | device | envs | updates / iteration (replay ratio) | T | "
+      "seeds | env steps | wall clock | return | best | "
+      f"{fraction:g}x expert | expert | fraction | paper | paper's fraction | result file |",
+      "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+  for key in sorted(curves, key=lambda k: (_order(k[0]), BASELINES.index(k[1]), k[2], k[3])):
+    task, method = key[0], key[1]
+    seeds = {seed: sorted(c, key=lambda r: r["env_steps"]) for seed, c in curves[key].items()}
+    final = finals.get(key, {})
+    returns = [final[s]["final_return"] if s in final else c[-1]["eval_return"]
+               for s, c in seeds.items()]
+    kinds = {"fresh" if s in final else "last" for s in seeds}
+    mean, sd = _mean_std(returns)
+    best = _mean_std([max(r["eval_return"] for r in c) for c in seeds.values()])[0]
+    last = max((c[-1] for c in seeds.values()), key=lambda r: r["env_steps"])
+    expert = expert_returns.get(task)
+    reached = ([next((r for r in c if r["eval_return"] >= fraction * expert), None)
+                for c in seeds.values()] if expert else [None])
+    at = ("-" if None in reached else
+          f"{_duration(max(r['wall_s'] + r.get('pre_training_s', 0.0) for r in reached))} "
+          f"({max(r['env_steps'] for r in reached) / 1e6:.1f}M)")
+    ours = paper.BASELINES[method].get(task)
+    lines.append(
+        f"| {task} | {paper.BASELINE_NAMES[method]} | {key[4]} | `{last['device']}` | "
+        f"{last['num_envs']} | {_updates(last)} | "
+        f"{last['settings'].get('learner', {}).get('target_update_period', '-')} | "
+        f"{len(seeds)} | {last['env_steps'] / 1e6:.1f}M | {_duration(last['wall_s'])} | "
+        f"{mean:.1f} +- {sd:.1f} ({'/'.join(sorted(kinds))}) | {best:.1f} | {at} | "
+        + (f"{expert:.1f} | {mean / expert:.2f}" if expert else "- | -")
+        + f" | {ours} | {ours / paper.EXPERT[task]:.2f} | {_run_label(key[2], task)} |")
+  return "\n".join(lines)
+
+
 # The generated tables of each file: {marker name: table}.
 def readme_tables(records: list[dict]) -> dict[str, str]:
   return {"form": form_table(records, best_per_task=True),
+          "baselines": baselines_table(records),
           "demonstrators": effect_model_table(records), "experts": experts_table(records),
           "learning_summary": learning_summary(records), "parity_summary": parity_summary(records),
           "scaling_summary": scaling_summary(records)}

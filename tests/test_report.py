@@ -152,6 +152,42 @@ def test_form_table_averages_the_final_policy_over_seeds():
           "850.0 | - | - | - | - | - | 950.0 | 0.89 |") in table, table
 
 
+def test_baselines_table_takes_the_fresh_return_else_the_last_evaluation():
+  assert report.baselines_table([]).startswith("No GPU result for the baselines yet")
+  settings = {"updates_per_iteration": 512, "replay_ratio": 64.0,
+              "learner": {"target_update_period": 25},
+              "reward": {"discriminator": {"frames": 1, "gradient_penalty": 10.0,
+                                           "kl_bound": None}, "standardise_reward": False}}
+  def curve(seed, steps, value, **kw):
+    return {"kind": "learning_curve", "task": "walker_walk", "method": "gaifo_gp",
+            "seed": seed, "device": "gpu:X", "num_envs": 512, "env_steps": steps,
+            "wall_s": steps / 1e4, "pre_training_s": 50.0, "eval_return": value,
+            "settings": settings, "_file": "2026-12-07_learning_curve_walker_walk_g.jsonl",
+            "time": f"2026-12-07T00:{steps // 1000000:02d}:00", **kw}
+  records = [curve(0, 1_000_000, 800.0), curve(0, 2_000_000, 950.0), curve(0, 3_000_000, 940.0),
+             curve(1, 1_000_000, 500.0), curve(1, 2_000_000, 880.0), curve(1, 3_000_000, 960.0),
+             # seed 1's fresh final evaluation replaces its last periodic one
+             dict(curve(1, 3_000_000, None), kind="final_return", policy="final",
+                  final_return=900.0),
+             # a CPU run is not a GPU result; FORM's runs are not baselines
+             dict(curve(0, 1_000_000, 10.0), device="cpu:cpu x1"),
+             dict(curve(0, 1_000_000, 10.0), method="form")]
+  table = report.baselines_table(records, expert_returns={"walker_walk": 1000.0})
+  rows = [line for line in table.splitlines() if line.startswith("| walker_walk")]
+  # seeds 940 (last) and 900 (fresh): 920 +- 20; best (950 + 960) / 2; 0.9x expert = 900: seed 0
+  # at 2M (200 s + 50 s), seed 1 at 3M (300 s + 50 s); paper 981.6 / 983.2 = 1.00.
+  assert rows == [
+      "| walker_walk | GAIfO+GP | 1 frame, GP 10, raw reward | `gpu:X` | 512 | 512 (64) | 25 | "
+      "2 | 3.0M | 300 s | 920.0 +- 20.0 (fresh/last) | 955.0 | 350 s (3.0M) | 1000.0 | 0.92 | "
+      "981.6 | 1.00 | 2026-12-07 g |"], table
+  # a seed that never reaches 0.9x the expert leaves the column empty; BC's setting is its fit
+  bc = {"updates_per_iteration": 512, "learner": {"cloning_loss": "squared",
+                                                  "learning_rate": 1e-3}}
+  table = report.baselines_table([dict(curve(0, 1_000_000, 700.0), method="bc", settings=bc)],
+                                 expert_returns={"walker_walk": 1000.0})
+  assert "| BC | squared, lr 0.001 |" in table and "| 700.0 +- 0.0 (last) | 700.0 | - |" in table
+
+
 def test_form_table_per_task_keeps_the_best_configuration_of_two_seeds_or_more():
   records = [_final_return(0, 800.0), _final_return(1, 700.0),  # 512 envs: 750 over 2 seeds
              _final_return(0, 900.0, num_envs=64),  # higher, but one seed
