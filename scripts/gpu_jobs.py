@@ -15,6 +15,9 @@ runs' TensorBoard folders come last, where there is room (progress.csv holds the
   python scripts/gpu_jobs.py start jobs.txt --dir /tmp/sitting --deadline 1200
   python scripts/gpu_jobs.py poll --dir /tmp/sitting --wait 540 --out $OUT [--final]
   python scripts/gpu_jobs.py poll --dir /tmp/sitting --out $OUT --final --runs qr3 --checkpoints
+  python scripts/gpu_jobs.py poll --dir /tmp/sitting --out $OUT --stop --wait 300 --final
+                                   # the device's time runs short: end the runs now, each with
+                                   # its final evaluations, and bring them back
 
 `check` parses each `scripts/run.py` job as run.py would (with $LEFT, $RES and $RUNS filled
 in) and prints the settings it would train with, so that a mistyped flag or a setting other than
@@ -33,6 +36,8 @@ host's cores (each GPU owns an equal slice, so that one job's `--eval_on_host` d
 the cores of another's), and these variables:
   RES   the folder for its records (`--results $RES/NAME.jsonl`), brought back at every poll;
   RUNS  the folder for its run directories (`--run_dir $RUNS/NAME`), packed at the end;
+  MJX_FORM_STOP_FILE  the sitting's stop file, run.py's `--stop_file` (`poll --stop` makes
+        it: each run stops at the end of its iteration, as `--max_seconds` stops it);
   LEFT  seconds left until the deadline at the job's start (`--max_seconds $LEFT` makes a
         queued job's training end by the deadline, demonstrations and a demonstrator
         included; its final evaluations come after, ~1-2.5 min; the deadline counts from
@@ -65,6 +70,10 @@ LINE = re.compile(r"^(?P<name>[A-Za-z0-9_.-]+)(\s+gpus=(?P<gpus>\d+))?\s*:\s*(?P
 
 class JobsError(ValueError):
   """A jobs file or request that cannot be run; the message names the problem."""
+
+
+STOP = "stop"  # the sitting's stop file (`poll --stop`), under --dir
+STOP_VARIABLE = "MJX_FORM_STOP_FILE"  # run.py's --stop_file default (run.STOP_FILE_VARIABLE)
 
 
 def parse_jobs(text: str, num_gpus: int) -> list[dict]:
@@ -273,13 +282,15 @@ def schedule(jobs: list[dict], gpus: list[str], folder: Path, end_time: float,
     while waiting and len(free) >= waiting[0]["gpus"]:
       job = waiting.pop(0)
       left = int(end_time - time.time())
-      if left <= 0:
-        status[job["name"]] = {"state": "skipped (past the deadline)"}
+      if left <= 0 or (folder / STOP).exists():
+        status[job["name"]] = {"state": "skipped (past the deadline)" if left <= 0
+                               else "skipped (stopped)"}
         write_status(folder, status)
         continue
       mine, free = free[:job["gpus"]], free[job["gpus"]:]
       env = {**os.environ, "CUDA_VISIBLE_DEVICES": ",".join(mine),
-             "RES": str(folder / "res"), "RUNS": str(folder / "runs"), "LEFT": str(left)}
+             "RES": str(folder / "res"), "RUNS": str(folder / "runs"), "LEFT": str(left),
+             STOP_VARIABLE: str(folder / STOP)}
       cores = sorted({c for g in mine for c in shares[g]})
       log = open(folder / "logs" / f"{job['name']}.log", "w")
       process = subprocess.Popen(["bash", "-c", job["cmd"]], env=env, stdout=log,
@@ -459,13 +470,19 @@ def _scheduler_alive(folder: Path) -> bool:
 
 
 def poll(folder: Path, wait_s: float, out: Path | None, final: bool, lines: int = 3,
-         checkpoints: bool = False, jobs: tuple[str, ...] | None = None) -> bool:
+         checkpoints: bool = False, jobs: tuple[str, ...] | None = None,
+         stop: bool = False) -> bool:
   """Waits until every job has ended or `wait_s` has passed; prints each job's state and last
   log lines; writes the records, logs and status to `out`; packs the runs there (with their
   newest checkpoints if `checkpoints`; `jobs`: only theirs) once every job has ended or `final`.
+  `stop` first asks the runs to stop (the sitting's stop file: each run.py job ends at the end
+  of its iteration, checkpointed, with its final evaluations; waiting jobs are skipped).
   Returns whether every job has ended."""
   if not (folder / "status.json").exists():
     raise JobsError(f"{folder} holds no sitting (no status.json): run `start` first")
+  if stop:
+    (folder / STOP).touch()
+    print(f"asked the runs to stop ({folder / STOP})")
   end = time.time() + wait_s
   while not (folder / "all_done").exists() and time.time() < end:
     time.sleep(min(5.0, max(end - time.time(), 0.0)))
@@ -509,6 +526,10 @@ def main(argv=None) -> int:
   p.add_argument("--out", type=Path, default=None, help="where to copy (the device's $OUT)")
   p.add_argument("--final", action="store_true", help="pack the runs even if jobs still run")
   p.add_argument("--lines", type=int, default=3, help="log lines per job")
+  p.add_argument("--stop", action="store_true",
+                 help="first ask the runs to stop at the end of their iteration (run.py's "
+                      "--stop_file: checkpointed, final evaluations after) and skip waiting jobs: "
+                      "e.g. `poll --stop --wait 240 --final` where the device's time runs short")
   p.add_argument("--checkpoints", action="store_true",
                  help="pack each run's newest checkpoint too (to resume on another machine: "
                       "run with --lean_checkpoints; as many as keep the whole under 56 MiB)")
@@ -526,7 +547,7 @@ def main(argv=None) -> int:
       start(args.jobs, args.dir, args.deadline, args.gpus)
     elif args.action == "poll":
       poll(args.dir, args.wait, args.out, args.final, args.lines, args.checkpoints,
-           tuple(args.runs.split(",")) if args.runs else None)
+           tuple(args.runs.split(",")) if args.runs else None, args.stop)
     else:
       plan = json.loads((args.dir / "jobs.json").read_text())
       schedule(plan["jobs"], plan["gpus"], args.dir, plan["end_time"])

@@ -90,6 +90,9 @@ CLONING_ONLY = ("cloning_loss",)
 MPO_ONLY = ("num_action_samples", "target_update_period", "action_penalty", "clip_critic_actions",
             "epsilon_scale", "sampled_q_bfloat16", "sampled_q_float32_head", "preset")
 
+# The environment variable that gives --stop_file its default (scripts/gpu_jobs.py sets it).
+STOP_FILE_VARIABLE = "MJX_FORM_STOP_FILE"
+
 DEFAULT_COMPILATION_CACHE = os.path.join(
     os.environ.get("XDG_CACHE_HOME", os.path.expanduser("~/.cache")), "mjx_form", "jax")
 
@@ -280,6 +283,12 @@ def parse_args(argv=None) -> argparse.Namespace:
                           "a demonstrator trained here included (it gets about half of them); "
                           "the final evaluations (--final_eval_envs) come after; --resume "
                           "continues")
+  train.add_argument("--stop_file", default=os.environ.get(STOP_FILE_VARIABLE) or None,
+                     metavar="PATH",
+                     help="once this file exists, training stops at the end of its iteration as "
+                          "--max_seconds stops it (checkpointed, policy exported, final "
+                          "evaluations); it must not exist at the start (default: $"
+                          f"{STOP_FILE_VARIABLE}, which scripts/gpu_jobs.py sets for its jobs)")
   train.add_argument("--init_policy", metavar="FILE",
                      help="--method expert: every member starts from this trained policy (its "
                           "parameters and observation statistics; a policy.npz of this task or "
@@ -511,6 +520,9 @@ def parse_args(argv=None) -> argparse.Namespace:
       parser.error(f"--{name} must be a positive integer, got {getattr(args, name)}")
   if args.max_seconds is not None and args.max_seconds <= 0:
     parser.error(f"--max_seconds must be positive, got {args.max_seconds}")
+  if args.stop_file is not None and os.path.exists(args.stop_file):
+    parser.error(f"--stop_file {args.stop_file} exists already (the run would stop after its "
+                 "first iteration): remove it, or name another")
   if args.imitator_every <= 0 or args.updates_per_iteration % args.imitator_every:
     parser.error(f"--imitator_every must be a positive divisor of --updates_per_iteration "
                  f"({args.updates_per_iteration}), got {args.imitator_every}")
@@ -847,7 +859,8 @@ def main(argv=None) -> int:
                         checkpoint_replay=not args.lean_checkpoints, results_path=results_path,
                         final_eval_envs=args.final_eval_envs, mesh=mesh, reward_source=source,
                         seeds=seeds, overrides=overrides, initial_policy=initial,
-                        eval_on_host=args.eval_on_host, print_fn=say)
+                        eval_on_host=args.eval_on_host, stop_file=args.stop_file,
+                        print_fn=say)
     except ValueError as e:  # bad settings or artefacts, an existing run, another config
       print(f"error: {e}{recipe_hint(args, e)}", file=sys.stderr)
       return 2

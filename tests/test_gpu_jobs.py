@@ -85,6 +85,30 @@ def test_a_job_that_would_start_after_the_deadline_is_skipped(tmp_path):
   assert not (tmp_path / "res" / "b").exists()
 
 
+def test_poll_stop_makes_the_stop_file_the_jobs_watch_and_skips_waiting_jobs(tmp_path, capsys):
+  """Each job is told the sitting's stop file (run.py's --stop_file default); `poll --stop`
+  makes it: a running job that watches it ends, a waiting one is skipped."""
+  jobs = tmp_path / "jobs.txt"
+  jobs.write_text("a: echo $MJX_FORM_STOP_FILE > $RES/a.txt; "
+                  "while [ ! -e $MJX_FORM_STOP_FILE ]; do sleep 0.05; done; echo saw it\n"
+                  "b: touch $RES/b\n")
+  folder = tmp_path / "sitting"
+  assert gpu_jobs.main(["start", str(jobs), "--dir", str(folder), "--gpus", "1"]) == 0
+  deadline = time.time() + 30
+  while not (folder / "res" / "a.txt").exists() and time.time() < deadline:
+    time.sleep(0.05)
+  assert gpu_jobs.main(["poll", "--dir", str(folder), "--wait", "0"]) == 0
+  assert not (folder / "stop").exists() and "jobs still running" in capsys.readouterr().out
+  assert gpu_jobs.main(["poll", "--dir", str(folder), "--wait", "30", "--stop"]) == 0
+  printed = capsys.readouterr().out
+  assert "asked the runs to stop" in printed and "every job has ended" in printed
+  assert (folder / "res" / "a.txt").read_text().strip() == str(folder / "stop")
+  status = json.loads((folder / "status.json").read_text())
+  assert status["a"]["rc"] == 0 and status["b"]["state"] == "skipped (stopped)"
+  assert not (folder / "res" / "b").exists()
+  assert "saw it" in (folder / "logs" / "a.log").read_text()
+
+
 def test_start_poll_copy_and_pack(tmp_path, capsys, monkeypatch):
   monkeypatch.delenv("CUDA_VISIBLE_DEVICES", raising=False)
   jobs = tmp_path / "jobs.txt"

@@ -424,6 +424,44 @@ def test_command_line_trains_resumes_and_refuses_mismatches(tmp_path, capsys, mo
 
 
 @pytest.mark.slow
+def test_a_stop_file_stops_the_run_as_its_time_budget_does(tmp_path, monkeypatch):
+  """Once the stop file exists the run ends at the end of that iteration, checkpointed, with
+  its final evaluations marked unfinished; a stop file there at the start is refused (by
+  run.py before anything runs, its default from the variable scripts/gpu_jobs.py sets)."""
+  stop = tmp_path / "stop"
+  stop.touch()
+  with pytest.raises(runner.RunError, match="stop file .* exists already"):
+    runner.run(CONFIG, str(tmp_path / "refused"), 5 * CONFIG.env_steps_per_iteration,
+               stop_file=str(stop), print_fn=lambda *_: None)
+  cli = load_script("run")
+  assert cli.STOP_FILE_VARIABLE == load_script("gpu_jobs").STOP_VARIABLE
+  monkeypatch.setenv(cli.STOP_FILE_VARIABLE, str(stop))
+  with pytest.raises(SystemExit) as exited:
+    cli.parse_args(_cli_args(tmp_path / "refused"))
+  assert exited.value.code == 2
+  stop.unlink()
+  assert cli.parse_args(_cli_args(tmp_path / "run")).stop_file == str(stop)
+  said = []
+
+  def say(line):
+    said.append(line)
+    if re.search(r"\biter 2/5\b", line):
+      stop.touch()
+
+  curve = tmp_path / "curve.jsonl"
+  rows = runner.run(CONFIG, str(tmp_path / "run"), 5 * CONFIG.env_steps_per_iteration,
+                    eval_every=10, checkpoint_every=10, final_eval_envs=2,
+                    results_path=str(curve), stop_file=str(stop), print_fn=say)
+  stopped = rows[0]["iteration"]
+  assert 2 <= stopped < 5, said
+  assert any(f"(the stop file {stop} appeared) at iteration {stopped}/5" in line
+             for line in said), said
+  assert checkpoint.latest_step(str(tmp_path / "run" / "checkpoints")) == stopped
+  finals = [r for r in results.read_records(str(curve)) if r["kind"] == "final_return"]
+  assert finals and all(not r["finished"] and r["env_steps"] == stopped
+                        * CONFIG.env_steps_per_iteration for r in finals)
+
+
 def test_a_run_starts_from_a_trained_policy(trainers, tmp_path, capsys):
   """--init_policy: every member starts from a policy file's parameters (policy and target
   policy) and observation statistics; the config, the records and the exported policies name
