@@ -150,6 +150,29 @@ def test_sampled_q_diagnostics_measure_the_spread_and_bfloat16s_error():
                              np.sqrt(np.mean(centred ** 2)), rtol=1e-4)
 
 
+def test_sampled_all_beyond_counts_dimensions_whose_samples_all_clip_to_one_bound():
+  """`sampled_all_beyond`: the share of (state, dimension) pairs whose N sampled actions all
+  exceed 1 or all fall below -1 (numpy's, on the same samples); a target policy whose means sit
+  at +3 and -3 in two of its dimensions has most of those pairs there, none elsewhere."""
+  state = learner.init(NETWORKS, CONFIG, jax.random.PRNGKey(0), D, A)
+  bias = state.target_policy["params"]["Dense_0"]["bias"]
+  shifted = jax.tree.map(lambda x: x, state.target_policy)
+  shifted["params"]["Dense_0"]["bias"] = bias.at[:2].set(jnp.array([3.0, -3.0]))
+  state = state._replace(target_policy=shifted)
+  keys = jax.random.split(jax.random.PRNGKey(1), 3)
+  obs = jax.random.normal(keys[0], (B, T + 1, D))
+  batch = {"action": jnp.zeros((B, T, A)), "behaviour_log_prob": jnp.zeros((B, T)),
+           "discount": jnp.ones((B, T))}
+  online = (state.policy, state.critic, state.duals)
+  metrics = learner.losses(NETWORKS, CONFIG, online, state, obs, batch, jnp.ones((B, T)),
+                           keys[2])[1]
+  sampled = np.asarray(NETWORKS.policy.apply(state.target_policy, obs).sample(
+      keys[2], (CONFIG.num_action_samples,)))  # [N, B, T+1, A]
+  beyond = (sampled > 1).all(axis=0) | (sampled < -1).all(axis=0)  # [B, T+1, A]
+  np.testing.assert_allclose(float(metrics["sampled_all_beyond"]), beyond.mean(), rtol=1e-6)
+  assert beyond[..., :2].mean() > 0.5 and not beyond[..., 2:].any()
+
+
 def _updates(config: learner.LearnerConfig, n: int):
   """The states after each of n updates from one init, on random batches."""
   state = learner.init(NETWORKS, config, jax.random.PRNGKey(0), D, A)

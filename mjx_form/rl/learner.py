@@ -184,9 +184,18 @@ def losses(networks: Networks, config: LearnerConfig, online: tuple, state: Lear
   metrics = dict(metrics, critic_loss=critic_loss, q_online=jnp.mean(q_online),
                  retrace_target=jnp.mean(targets), reward=jnp.mean(rewards),
                  importance_weight=jnp.mean(jnp.minimum(1.0, jnp.exp(log_rhos))),
+                 sampled_all_beyond=all_beyond(sampled),
                  **sampled_q_diagnostics(networks, config, state.target_critic, obs,
                                          sampled_seen, q_sampled))
   return critic_loss + policy_loss, metrics
+
+
+def all_beyond(sampled: jax.Array) -> jax.Array:
+  """The share of (state, action dimension) pairs whose N sampled actions [N, ..., A] all lie
+  beyond the same bound of [-1, 1]: where the critic sees them clipped
+  (`clip_critic_actions`), every sample has the same value in that dimension, and the E-step's
+  weights cannot pull the policy's mean back from beyond the bound."""
+  return jnp.mean(jnp.all(sampled > 1.0, axis=0) | jnp.all(sampled < -1.0, axis=0))
 
 
 def sampled_q_diagnostics(networks: Networks, config: LearnerConfig, critic_params,

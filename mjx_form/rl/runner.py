@@ -879,8 +879,9 @@ def _record_settings(trainer: Trainer, member: int, total_env_steps: int) -> dic
 _CURVE_FIELDS = (
     "iteration", "env_steps", "updates", "wall_s", "eval_s", "steps_per_s", "eval_return",
     "eval_return_std", "train_return", "peak_memory_bytes",
-    # the policy's saturation: shares of its mean and samples outside [-1, 1]
-    "mean_out_of_bounds", "sampled_out_of_bounds", "penalty_temperature",
+    # the policy's saturation: shares of its mean and samples outside [-1, 1], and of the
+    # (state, dimension) pairs whose samples all lie beyond one bound
+    "mean_out_of_bounds", "sampled_out_of_bounds", "sampled_all_beyond", "penalty_temperature",
     # MPO's state: temperature, the mean and scale multipliers, the KLs over their bounds
     # (> 1: constraint violated), the policy's mean scale and entropy, the critic
     "temperature", "alpha_mean", "alpha_scale", "kl_mean_rel", "kl_scale_rel",
