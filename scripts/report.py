@@ -919,30 +919,13 @@ def _updates(record: dict) -> str:
   return f"{settings['updates_per_iteration']}" + ("" if ratio is None else f" ({ratio:g})")
 
 
-def form_table(records: list[dict], expert_returns: dict[str, float] | None = None,
-               demonstration_returns: dict[str, float] | None = None,
-               best_per_task: bool = False,
-               shipped_demonstrators: set[str] | None = None) -> str:
-  """FORM's results: one row per task and configuration, over its seeds. Each seed's return is
-  its newest `kind: final_return` record of the final policy (a fresh evaluation after
-  training). The expert's return it is compared with: the mean return of the demonstrations
-  its demonstrator was trained on (`demonstration_returns`, by the demonstrator's sha256;
-  default: the shipped demonstrators'), else `expert_returns` (default: the shipped experts'
-  returns at export). A configuration is one result file's runs of one setting (two runs of a
-  seed in two files are two runs). With `best_per_task`, one row per task, chosen among its
-  configurations run with 2 seeds or more (else among all), then on a GPU (else all), then
-  with the shipped demonstrator (`shipped_demonstrators`, sha256s; default: those in
-  tasks/demonstrators/, so the row is what the shipped expert and demonstrator give): the
-  default settings (`_default_form_variant`) with the most seeds, then the highest mean;
-  without the default settings, the highest mean return."""
+def _form_groups(records: list[dict], best_per_task: bool,
+                 shipped_demonstrators: set[str] | None = None
+                 ) -> tuple[dict[tuple, dict[str, list[dict]]], dict[str, int]]:
+  """FORM's configurations {key: {policy: the seeds' newest final_return records}} (only those
+  with a final policy's) and how many each task has; with `best_per_task`, one per task
+  (`form_table`'s rule)."""
   rows = [r for r in records if r.get("kind") == "final_return" and r.get("method") == "form"]
-  if not rows:
-    return ("No FORM results yet: a run with `--final_eval_envs` > 0 writes `kind: "
-            "final_return` records; copied to `benchmarks/results/`, they appear here.")
-  if expert_returns is None:
-    expert_returns = {meta["task"]: meta["eval_return"] for meta, _ in _shipped_experts()}
-  if demonstration_returns is None:
-    demonstration_returns = _demonstration_returns()
   if shipped_demonstrators is None:
     shipped_demonstrators = {meta["sha256"] for meta in _demonstrator_metadata((DEMONSTRATORS,))}
   newest = _newest(rows, lambda r: (r["task"], r["physics"], r["num_envs"], _updates(r),
@@ -965,6 +948,43 @@ def form_table(records: list[dict], expert_returns: dict[str, float] | None = No
               _mean_std([r["final_return"] for r in final])[0])
     groups = {key: groups[key] for key in (max((k for k in groups if k[0] == task), key=rank)
                                            for task in configurations)}
+  return groups, configurations
+
+
+def _form_expert(task: str, final: list[dict], expert_returns: dict[str, float],
+                 demonstration_returns: dict[str, float]) -> float | None:
+  """The expert return a FORM configuration's seeds (`final`) are compared with: the mean
+  return of the demonstrations their demonstrator learned, else the task's expert return."""
+  shas = {r.get("settings", {}).get("reward", {}).get("demonstrator_sha256") for r in final}
+  targets = {_demonstration_return(sha, demonstration_returns) for sha in shas}
+  return (targets.pop() if len(targets) == 1 and None not in targets
+          else expert_returns.get(task))
+
+
+def form_table(records: list[dict], expert_returns: dict[str, float] | None = None,
+               demonstration_returns: dict[str, float] | None = None,
+               best_per_task: bool = False,
+               shipped_demonstrators: set[str] | None = None) -> str:
+  """FORM's results: one row per task and configuration, over its seeds. Each seed's return is
+  its newest `kind: final_return` record of the final policy (a fresh evaluation after
+  training). The expert's return it is compared with: the mean return of the demonstrations
+  its demonstrator was trained on (`demonstration_returns`, by the demonstrator's sha256;
+  default: the shipped demonstrators'), else `expert_returns` (default: the shipped experts'
+  returns at export). A configuration is one result file's runs of one setting (two runs of a
+  seed in two files are two runs). With `best_per_task`, one row per task, chosen among its
+  configurations run with 2 seeds or more (else among all), then on a GPU (else all), then
+  with the shipped demonstrator (`shipped_demonstrators`, sha256s; default: those in
+  tasks/demonstrators/, so the row is what the shipped expert and demonstrator give): the
+  default settings (`_default_form_variant`) with the most seeds, then the highest mean;
+  without the default settings, the highest mean return."""
+  groups, configurations = _form_groups(records, best_per_task, shipped_demonstrators)
+  if not groups:
+    return ("No FORM results yet: a run with `--final_eval_envs` > 0 writes `kind: "
+            "final_return` records; copied to `benchmarks/results/`, they appear here.")
+  if expert_returns is None:
+    expert_returns = {meta["task"]: meta["eval_return"] for meta, _ in _shipped_experts()}
+  if demonstration_returns is None:
+    demonstration_returns = _demonstration_returns()
   caption = ("FORM (`--method form`), per task one configuration (one result file's runs of "
              "one setting; all of them: `benchmarks/NOTES.md`), among those run with 2 seeds "
              "or more on a GPU where there are any, with the shipped demonstrator (and so its "
@@ -1017,10 +1037,7 @@ def form_table(records: list[dict], expert_returns: dict[str, float] | None = No
                                  groups[key].get("best_log_pd_average", []))]
     wall = _mean_std([r["wall_s"] for r in final])[0]
     episodes = sorted({r["episodes"] for r in final})
-    shas = {r.get("settings", {}).get("reward", {}).get("demonstrator_sha256") for r in final}
-    targets = {_demonstration_return(sha, demonstration_returns) for sha in shas}
-    expert = targets.pop() if len(targets) == 1 and None not in targets else (
-        expert_returns.get(task))
+    expert = _form_expert(task, final, expert_returns, demonstration_returns)
     spread = f" +- {std:.1f}" if len(final) > 1 else ""
     stopped = " stopped" if any(r.get("finished") is False for r in final) else ""
     fraction = f"{mean / expert:.2f}" if expert else "-"
@@ -1148,13 +1165,11 @@ def _baseline_variant(record: dict) -> str:
           + f", {'standardised' if reward.get('standardise_reward') else 'raw'} reward")
 
 
-def baselines_table(records: list[dict], expert_returns: dict[str, float] | None = None,
-                    fraction: float = 0.9) -> str:
-  """The baselines' GPU runs (BC, BCO, GAIfO, GAIfO+GP, VAIfO, VAIfO+GP), one row per task,
-  method and configuration (one result file's runs of one setting) over its seeds. Each seed's
-  return: its fresh final evaluation (`kind: final_return`, policy "final") where the run wrote
-  one, else its last periodic evaluation (a run stopped before its final evaluation). Expert:
-  `expert_returns` (default: the shipped experts' returns at export)."""
+def _baseline_groups(records: list[dict]) -> tuple[dict[tuple, dict[int, list[dict]]],
+                                                    dict[tuple, dict[int, dict]]]:
+  """The baselines' GPU configurations, keyed (task, method, result file, member, setting):
+  each seed's periodic evaluations in order of env steps, and each seed's newest fresh final
+  evaluation (policy "final") where the run wrote one."""
   curves: dict[tuple, dict[int, list[dict]]] = {}
   finals: dict[tuple, dict[int, dict]] = {}
   for r in sorted(records, key=lambda r: r.get("time", "")):
@@ -1165,6 +1180,29 @@ def baselines_table(records: list[dict], expert_returns: dict[str, float] | None
       curves.setdefault(key, {}).setdefault(r["seed"], []).append(r)
     elif r.get("kind") == "final_return" and r.get("policy") == "final":
       finals.setdefault(key, {})[r["seed"]] = r
+  for seeds in curves.values():
+    for curve in seeds.values():
+      curve.sort(key=lambda r: r["env_steps"])
+  return curves, finals
+
+
+def _baseline_return(seeds: dict[int, list[dict]], final: dict[int, dict]
+                     ) -> tuple[float, float, set[str]]:
+  """Mean and sd over seeds of each seed's fresh final return, else its last periodic
+  evaluation, and which of the two ("fresh", "last") they are."""
+  returns = [final[s]["final_return"] if s in final else c[-1]["eval_return"]
+             for s, c in seeds.items()]
+  return (*_mean_std(returns), {"fresh" if s in final else "last" for s in seeds})
+
+
+def baselines_table(records: list[dict], expert_returns: dict[str, float] | None = None,
+                    fraction: float = 0.9) -> str:
+  """The baselines' GPU runs (BC, BCO, GAIfO, GAIfO+GP, VAIfO, VAIfO+GP), one row per task,
+  method and configuration (one result file's runs of one setting) over its seeds. Each seed's
+  return: its fresh final evaluation (`kind: final_return`, policy "final") where the run wrote
+  one, else its last periodic evaluation (a run stopped before its final evaluation). Expert:
+  `expert_returns` (default: the shipped experts' returns at export)."""
+  curves, finals = _baseline_groups(records)
   if not curves:
     return ("No GPU result for the baselines yet: a GPU run's result file "
             "(`--method gaifo`, `gaifo_gp`, `vaifo`, `vaifo_gp`, `bco`, `bc`) copied to "
@@ -1191,12 +1229,9 @@ def baselines_table(records: list[dict], expert_returns: dict[str, float] | None
       "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
   for key in sorted(curves, key=lambda k: (_order(k[0]), BASELINES.index(k[1]), k[2], k[3])):
     task, method = key[0], key[1]
-    seeds = {seed: sorted(c, key=lambda r: r["env_steps"]) for seed, c in curves[key].items()}
+    seeds = curves[key]
     final = finals.get(key, {})
-    returns = [final[s]["final_return"] if s in final else c[-1]["eval_return"]
-               for s, c in seeds.items()]
-    kinds = {"fresh" if s in final else "last" for s in seeds}
-    mean, sd = _mean_std(returns)
+    mean, sd, kinds = _baseline_return(seeds, final)
     best = _mean_std([max(r["eval_return"] for r in c) for c in seeds.values()])[0]
     last = max((c[-1] for c in seeds.values()), key=lambda r: r["env_steps"])
     expert = expert_returns.get(task)
@@ -1217,11 +1252,51 @@ def baselines_table(records: list[dict], expert_returns: dict[str, float] | None
   return "\n".join(lines)
 
 
+def table1(records: list[dict], expert_returns: dict[str, float] | None = None) -> str:
+  """The paper's Table 1 with ours beside it: per task and method, ours / the paper's return.
+  FORM's: the configuration `form_table(best_per_task=True)` shows; a baseline's: among its
+  GPU configurations (`baselines_table`), the one with the most seeds, then the highest mean;
+  the expert's: `expert_returns` (default: the shipped experts' at export)."""
+  if expert_returns is None:
+    expert_returns = {meta["task"]: meta["eval_return"] for meta, _ in _shipped_experts()}
+  ours: dict[tuple[str, str], str] = {}
+  groups, _ = _form_groups(records, best_per_task=True)
+  for key, group in groups.items():
+    ours[(key[0], "form")] = f"{_mean_std([r['final_return'] for r in group['final']])[0]:.1f}"
+  curves, finals = _baseline_groups(records)
+  best: dict[tuple[str, str], tuple] = {}
+  for key, seeds in curves.items():
+    mean, _, kinds = _baseline_return(seeds, finals.get(key, {}))
+    rank = (len(seeds), mean)
+    if (key[0], key[1]) not in best or rank > best[(key[0], key[1])][0]:
+      best[(key[0], key[1])] = (rank, mean, kinds)
+  for pair, (_, mean, kinds) in best.items():
+    ours[pair] = f"{mean:.1f}" + ("*" if "last" in kinds else "")
+  methods = list(paper.BASELINES) + ["form"]
+  lines = ["The paper's Table 1 beside ours, each cell ours / the paper's return (mean over "
+           "seeds). Ours: FORM's configuration in the FORM table below, a baseline's among its "
+           "GPU configurations in the baselines table (`Use`) the one with the most seeds, "
+           "then the highest mean; `*`: its last periodic evaluation (the run stopped before "
+           "its final one); `-`: no result yet. Expert: the shipped expert's return at export. "
+           "Our experts are not the paper's: the tables below give each method's fraction of "
+           "its own expert.", "",
+           "| task | expert | " + " | ".join(paper.BASELINE_NAMES[m] for m in methods[:-1])
+           + " | FORM |",
+           "|---|---|" + "---|" * len(methods)]
+  for task in TASK_ORDER:
+    expert = expert_returns.get(task)
+    cells = [f"{'-' if expert is None else f'{expert:.1f}'} / {paper.EXPERT[task]}"]
+    for method in methods:
+      theirs = paper.FORM[task] if method == "form" else paper.BASELINES[method][task]
+      cells.append(f"{ours.get((task, method), '-')} / {theirs}")
+    lines.append(f"| {task} | " + " | ".join(cells) + " |")
+  return "\n".join(lines)
+
+
 # The generated tables of each file: {marker name: table}.
 def readme_tables(records: list[dict]) -> dict[str, str]:
-  return {"form": form_table(records, best_per_task=True),
-          "baselines": baselines_table(records),
-          "demonstrators": effect_model_table(records), "experts": experts_table(records),
+  return {"table1": table1(records), "form": form_table(records, best_per_task=True),
+          "baselines": baselines_table(records), "experts": experts_table(records),
           "learning_summary": learning_summary(records), "parity_summary": parity_summary(records),
           "scaling_summary": scaling_summary(records)}
 
@@ -1230,6 +1305,7 @@ def notes_tables(records: list[dict]) -> dict[str, str]:
   return {"parity": parity_table(records), "sweep": sweep_table(records),
           "throughput": throughput_table(records), "learning": learning_table(records),
           "train_throughput": train_throughput_table(records),
+          "demonstrators": effect_model_table(records),
           "effect_models": effect_model_table(records, best_per_task=False),
           "form": form_table(records), "form_runs": form_runs_table(records),
           "populations": population_table(records), "scaling": scaling_table(records)}

@@ -621,8 +621,9 @@ def recipe_hint(args: argparse.Namespace, error: ValueError) -> str:
             "or with another --policy_average_decay, resumes with the value it was started "
             "with: --policy_average_decay 0 for none)")
   if "learner.cloning_loss" in error.keys:
-    return (" (a BC or BCO run started before --cloning_loss existed, 2026-12-01, fitted by "
-            "likelihood: it resumes with --cloning_loss likelihood)")
+    return (" (a BC or BCO run resumes with the fit it started with: --cloning_loss likelihood "
+            "for one started before the flag existed, 2026-12-01, decoupled for one started "
+            "before 2026-12-07 without the flag)")
   if "reward.ensemble_log_pd" in error.keys:
     return (" (a run started with --ensemble_log_pd mean resumes with it; one started without "
             "it, without it)")

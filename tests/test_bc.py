@@ -376,8 +376,9 @@ def test_run_py_bc_and_bco_take_their_demonstrations_and_refuse_what_does_not_fi
   # a BC run from before the flag (fitted by likelihood), refused on resume, is told how
   from mjx_form.files import checkpoint
   refused = checkpoint.CheckpointError("differs", ("learner.cloning_loss",))
-  assert "resumes with --cloning_loss likelihood" in cli.recipe_hint(
-      cli.parse_args(["--method", "bc", "--resume"]), refused)
+  hint = cli.recipe_hint(cli.parse_args(["--method", "bc", "--resume"]), refused)
+  assert "--cloning_loss likelihood for one started before" in hint
+  assert "decoupled for one started before 2026-12-07" in hint
   with pytest.raises(SystemExit):
     cli.parse_args(["--method", "expert", "--reward_scale", "raw"])
   assert "--reward_scale applies to --method form, gaifo, gaifo_gp, vaifo, vaifo_gp" in (

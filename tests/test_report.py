@@ -188,6 +188,32 @@ def test_baselines_table_takes_the_fresh_return_else_the_last_evaluation():
   assert "| BC | squared, lr 0.001 |" in table and "| 700.0 +- 0.0 (last) | 700.0 | - |" in table
 
 
+def test_table1_sets_ours_beside_the_papers_for_every_task_and_method():
+  """FORM's cell is the FORM table's configuration; a baseline's the configuration of most
+  seeds (then the higher mean), starred where it is a last periodic evaluation; the rest
+  `-`; the paper's numbers from mjx_form/paper.py."""
+  def curve(seed, value, file, method="gaifo_gp", **kw):
+    return {"kind": "learning_curve", "task": "walker_walk", "method": method, "seed": seed,
+            "device": "gpu:X", "num_envs": 512, "env_steps": 1_000_000, "wall_s": 100.0,
+            "eval_return": value, "settings": {}, "_file": file, "time": "2026-12-07", **kw}
+  records = [_final_return(0, 800.0), _final_return(1, 700.0),  # FORM, cheetah_run: 750
+             # GAIfO+GP: two seeds at 900 (last evaluations) beat one seed at 990
+             curve(0, 890.0, "a.jsonl"), curve(1, 910.0, "a.jsonl"), curve(0, 990.0, "b.jsonl"),
+             # BC: its fresh final return replaces its last evaluation (no star)
+             curve(0, 500.0, "c.jsonl", method="bc"),
+             dict(curve(0, None, "c.jsonl", method="bc"), kind="final_return", policy="final",
+                  final_return=650.0)]
+  table = report.table1(records, expert_returns={"walker_walk": 960.0})
+  rows = {line.split(" | ")[0][2:]: line for line in table.splitlines()
+          if line.startswith("| ") and not line.startswith("| task")}
+  assert list(rows) == report.TASK_ORDER
+  assert rows["walker_walk"] == ("| walker_walk | 960.0 / 983.2 | 650.0 / 719.5 | - / 61.9 | "
+                                 "- / 976.5 | 900.0* / 981.6 | - / 971.2 | - / 975.2 | "
+                                 "- / 977.8 |"), rows["walker_walk"]
+  assert rows["cheetah_run"].startswith("| cheetah_run | - / 930.5 | - / 227.5 |")
+  assert rows["cheetah_run"].endswith("| 750.0 / 827.9 |")
+
+
 def test_form_table_per_task_keeps_the_best_configuration_of_two_seeds_or_more():
   records = [_final_return(0, 800.0), _final_return(1, 700.0),  # 512 envs: 750 over 2 seeds
              _final_return(0, 900.0, num_envs=64),  # higher, but one seed
