@@ -1165,11 +1165,10 @@ def _baseline_variant(record: dict) -> str:
           + f", {'standardised' if reward.get('standardise_reward') else 'raw'} reward")
 
 
-def _baseline_groups(records: list[dict]) -> tuple[dict[tuple, dict[int, list[dict]]],
-                                                    dict[tuple, dict[int, dict]]]:
+def _baseline_groups(records: list[dict]) -> dict[tuple, dict[int, tuple[list[dict], dict | None]]]:
   """The baselines' GPU configurations, keyed (task, method, result file, member, setting):
-  each seed's periodic evaluations in order of env steps, and each seed's newest fresh final
-  evaluation (policy "final") where the run wrote one."""
+  per seed, its periodic evaluations in order of env steps and its newest fresh final
+  evaluation (policy "final"; None where the run wrote none)."""
   curves: dict[tuple, dict[int, list[dict]]] = {}
   finals: dict[tuple, dict[int, dict]] = {}
   for r in sorted(records, key=lambda r: r.get("time", "")):
@@ -1180,19 +1179,19 @@ def _baseline_groups(records: list[dict]) -> tuple[dict[tuple, dict[int, list[di
       curves.setdefault(key, {}).setdefault(r["seed"], []).append(r)
     elif r.get("kind") == "final_return" and r.get("policy") == "final":
       finals.setdefault(key, {})[r["seed"]] = r
-  for seeds in curves.values():
-    for curve in seeds.values():
-      curve.sort(key=lambda r: r["env_steps"])
-  return curves, finals
+  return {key: {seed: (sorted(curves.get(key, {}).get(seed, []), key=lambda r: r["env_steps"]),
+                       finals.get(key, {}).get(seed))
+                for seed in sorted({*curves.get(key, {}), *finals.get(key, {})})}
+          for key in {*curves, *finals}}
 
 
-def _baseline_return(seeds: dict[int, list[dict]], final: dict[int, dict]
+def _baseline_return(seeds: dict[int, tuple[list[dict], dict | None]]
                      ) -> tuple[float, float, set[str]]:
   """Mean and sd over seeds of each seed's fresh final return, else its last periodic
   evaluation, and which of the two ("fresh", "last") they are."""
-  returns = [final[s]["final_return"] if s in final else c[-1]["eval_return"]
-             for s, c in seeds.items()]
-  return (*_mean_std(returns), {"fresh" if s in final else "last" for s in seeds})
+  returns = [final["final_return"] if final else curve[-1]["eval_return"]
+             for curve, final in seeds.values()]
+  return (*_mean_std(returns), {"fresh" if final else "last" for _, final in seeds.values()})
 
 
 def baselines_table(records: list[dict], expert_returns: dict[str, float] | None = None,
@@ -1202,8 +1201,8 @@ def baselines_table(records: list[dict], expert_returns: dict[str, float] | None
   return: its fresh final evaluation (`kind: final_return`, policy "final") where the run wrote
   one, else its last periodic evaluation (a run stopped before its final evaluation). Expert:
   `expert_returns` (default: the shipped experts' returns at export)."""
-  curves, finals = _baseline_groups(records)
-  if not curves:
+  groups = _baseline_groups(records)
+  if not groups:
     return ("No GPU result for the baselines yet: a GPU run's result file "
             "(`--method gaifo`, `gaifo_gp`, `vaifo`, `vaifo_gp`, `bco`, `bc`) copied to "
             "`benchmarks/results/` appears here.")
@@ -1212,8 +1211,9 @@ def baselines_table(records: list[dict], expert_returns: dict[str, float] | None
   lines = [
       "The baselines on a GPU, one row per task, method and configuration (one result file's "
       "runs of one setting), mean +- standard deviation over its seeds of each seed's return: "
-      "the final policy's fresh evaluation after training (`fresh`, `--final_eval_envs` "
-      "episodes), else, where the run stopped before it, its last periodic evaluation (`last`, "
+      "the final policy's fresh evaluation after training, or where the run's time budget "
+      "or stop file stopped it (`fresh`, `--final_eval_envs` episodes; `stopped` beside the "
+      "env steps), else, where the run ended before it, its last periodic evaluation (`last`, "
       "`--eval_envs` episodes); policy mean action. Best: the mean over seeds of each seed's "
       f"best periodic evaluation. {fraction:g}x expert: the wall clock (env steps) by which "
       f"every seed had a periodic evaluation at or above {fraction:g}x the expert, compilation "
@@ -1227,26 +1227,31 @@ def baselines_table(records: list[dict], expert_returns: dict[str, float] | None
       "seeds | env steps | wall clock | return | best | "
       f"{fraction:g}x expert | expert | fraction | paper | paper's fraction | result file |",
       "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
-  for key in sorted(curves, key=lambda k: (_order(k[0]), BASELINES.index(k[1]), k[2], k[3])):
-    task, method = key[0], key[1]
-    seeds = curves[key]
-    final = finals.get(key, {})
-    mean, sd, kinds = _baseline_return(seeds, final)
-    best = _mean_std([max(r["eval_return"] for r in c) for c in seeds.values()])[0]
-    last = max((c[-1] for c in seeds.values()), key=lambda r: r["env_steps"])
+  for key in sorted(groups, key=lambda k: (_order(k[0]), BASELINES.index(k[1]), k[2], k[3])):
+    task, method, seeds = key[0], key[1], groups[key]
+    mean, sd, kinds = _baseline_return(seeds)
+    curves = [curve for curve, _ in seeds.values()]
+    best = (f"{_mean_std([max(r['eval_return'] for r in c) for c in curves])[0]:.1f}"
+            if all(curves) else "-")
+    last = max([c[-1] for c in curves if c] + [f for _, f in seeds.values() if f],
+               key=lambda r: r["env_steps"])
+    stopped = any(f is not None and f.get("finished") is False for _, f in seeds.values())
     expert = expert_returns.get(task)
     reached = ([next((r for r in c if r["eval_return"] >= fraction * expert), None)
-                for c in seeds.values()] if expert else [None])
+                for c in curves] if expert else [None])
     at = ("-" if None in reached else
           f"{_duration(max(r['wall_s'] + r.get('pre_training_s', 0.0) for r in reached))} "
           f"({max(r['env_steps'] for r in reached) / 1e6:.1f}M)")
+    period = ("-" if method in ("bc", "bco")  # (no critic: cloning.py)
+              else last["settings"].get("learner", {}).get("target_update_period", "-"))
     ours = paper.BASELINES[method].get(task)
     lines.append(
         f"| {task} | {paper.BASELINE_NAMES[method]} | {key[4]} | `{last['device']}` | "
-        f"{last['num_envs']} | {_updates(last)} | "
-        f"{last['settings'].get('learner', {}).get('target_update_period', '-')} | "
-        f"{len(seeds)} | {last['env_steps'] / 1e6:.1f}M | {_duration(last['wall_s'])} | "
-        f"{mean:.1f} +- {sd:.1f} ({'/'.join(sorted(kinds))}) | {best:.1f} | {at} | "
+        f"{last['num_envs']} | {_updates(last)} | {period} | {len(seeds)} | "
+        f"{last['env_steps'] / 1e6:.1f}M{' stopped' if stopped else ''} | "
+        f"{_duration(last['wall_s'])} | "
+        f"{mean:.1f}{f' +- {sd:.1f}' if len(seeds) > 1 else ''} ({'/'.join(sorted(kinds))}) | "
+        f"{best} | {at} | "
         + (f"{expert:.1f} | {mean / expert:.2f}" if expert else "- | -")
         + f" | {ours} | {ours / paper.EXPERT[task]:.2f} | {_run_label(key[2], task)} |")
   return "\n".join(lines)
@@ -1263,10 +1268,9 @@ def table1(records: list[dict], expert_returns: dict[str, float] | None = None) 
   groups, _ = _form_groups(records, best_per_task=True)
   for key, group in groups.items():
     ours[(key[0], "form")] = f"{_mean_std([r['final_return'] for r in group['final']])[0]:.1f}"
-  curves, finals = _baseline_groups(records)
   best: dict[tuple[str, str], tuple] = {}
-  for key, seeds in curves.items():
-    mean, _, kinds = _baseline_return(seeds, finals.get(key, {}))
+  for key, seeds in _baseline_groups(records).items():
+    mean, _, kinds = _baseline_return(seeds)
     rank = (len(seeds), mean)
     if (key[0], key[1]) not in best or rank > best[(key[0], key[1])][0]:
       best[(key[0], key[1])] = (rank, mean, kinds)

@@ -520,7 +520,7 @@ def parse_args(argv=None) -> argparse.Namespace:
       parser.error(f"--{name} must be a positive integer, got {getattr(args, name)}")
   if args.max_seconds is not None and args.max_seconds <= 0:
     parser.error(f"--max_seconds must be positive, got {args.max_seconds}")
-  if args.stop_file is not None and os.path.exists(args.stop_file):
+  if args.method in LEARNERS and args.stop_file is not None and os.path.exists(args.stop_file):
     parser.error(f"--stop_file {args.stop_file} exists already (the run would stop after its "
                  "first iteration): remove it, or name another")
   if args.imitator_every <= 0 or args.updates_per_iteration % args.imitator_every:

@@ -185,7 +185,15 @@ def test_baselines_table_takes_the_fresh_return_else_the_last_evaluation():
                                                   "learning_rate": 1e-3}}
   table = report.baselines_table([dict(curve(0, 1_000_000, 700.0), method="bc", settings=bc)],
                                  expert_returns={"walker_walk": 1000.0})
-  assert "| BC | squared, lr 0.001 |" in table and "| 700.0 +- 0.0 (last) | 700.0 | - |" in table
+  assert "| BC | squared, lr 0.001 |" in table and "| 512 | 512 | - | 1 | 1.0M | " in table
+  assert "| 700.0 (last) | 700.0 | - |" in table  # (one seed: no spread; BC has no T)
+  # a seed with a final evaluation where its time budget or stop file stopped it, and no
+  # periodic one, counts; its row says stopped, and has no best evaluation
+  stopped = dict(curve(0, 2_000_000, None), kind="final_return", policy="final",
+                 final_return=930.0, finished=False)
+  table = report.baselines_table([stopped], expert_returns={"walker_walk": 1000.0})
+  assert ("| 1 | 2.0M stopped | 200 s | 930.0 (fresh) | - | - | 1000.0 | 0.93 |" in table), table
+  assert report.table1([stopped], expert_returns={}).count("930.0 / 981.6") == 1
 
 
 def test_table1_sets_ours_beside_the_papers_for_every_task_and_method():

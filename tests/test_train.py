@@ -371,7 +371,7 @@ def test_command_line_trains_resumes_and_refuses_mismatches(tmp_path, capsys, mo
   # ... and MPO's diagnostics, so that a curve explains itself.
   for name in ("temperature", "alpha_mean", "alpha_scale", "kl_mean_rel", "kl_scale_rel",
                "kl_nonparametric_rel", "scale_mean", "entropy", "q_online", "critic_loss",
-               "sampled_q_spread"):
+               "sampled_q_spread", "sampled_all_beyond"):
     assert records[1][name] == float(rows[1][name]), name
   assert records[1]["temperature"] > 0 and records[1]["scale_mean"] > 0
   assert records[1]["sampled_q_spread"] > 0 and "sampled_q_bf16_error" not in records[1]
@@ -426,19 +426,24 @@ def test_command_line_trains_resumes_and_refuses_mismatches(tmp_path, capsys, mo
 @pytest.mark.slow
 def test_a_stop_file_stops_the_run_as_its_time_budget_does(tmp_path, monkeypatch):
   """Once the stop file exists the run ends at the end of that iteration, checkpointed, with
-  its final evaluations marked unfinished; a stop file there at the start is refused (by
-  run.py before anything runs, its default from the variable scripts/gpu_jobs.py sets)."""
+  its final evaluations marked unfinished (one that appeared before training, while
+  demonstrations were recorded, after the first iteration); run.py refuses one there when the
+  command starts (its default from the variable scripts/gpu_jobs.py sets)."""
   stop = tmp_path / "stop"
   stop.touch()
-  with pytest.raises(runner.RunError, match="stop file .* exists already"):
-    runner.run(CONFIG, str(tmp_path / "refused"), 5 * CONFIG.env_steps_per_iteration,
-               stop_file=str(stop), print_fn=lambda *_: None)
+  rows = runner.run(CONFIG, str(tmp_path / "early"), 5 * CONFIG.env_steps_per_iteration,
+                    eval_every=10, final_eval_envs=2, results_path=str(tmp_path / "early.jsonl"),
+                    stop_file=str(stop), print_fn=lambda *_: None)
+  assert rows[0]["iteration"] == 1
+  assert [r["finished"] for r in results.read_records(str(tmp_path / "early.jsonl"))
+          if r["kind"] == "final_return" and r["policy"] == "final"] == [False]
   cli = load_script("run")
   assert cli.STOP_FILE_VARIABLE == load_script("gpu_jobs").STOP_VARIABLE
   monkeypatch.setenv(cli.STOP_FILE_VARIABLE, str(stop))
   with pytest.raises(SystemExit) as exited:
     cli.parse_args(_cli_args(tmp_path / "refused"))
   assert exited.value.code == 2
+  assert cli.parse_args(["--method", "random"]).stop_file == str(stop)  # (no training: not read)
   stop.unlink()
   assert cli.parse_args(_cli_args(tmp_path / "run")).stop_file == str(stop)
   said = []

@@ -184,7 +184,7 @@ def losses(networks: Networks, config: LearnerConfig, online: tuple, state: Lear
   metrics = dict(metrics, critic_loss=critic_loss, q_online=jnp.mean(q_online),
                  retrace_target=jnp.mean(targets), reward=jnp.mean(rewards),
                  importance_weight=jnp.mean(jnp.minimum(1.0, jnp.exp(log_rhos))),
-                 sampled_all_beyond=all_beyond(sampled),
+                 sampled_all_beyond=all_beyond(sampled[:, :, :-1]),  # (MPO's states)
                  **sampled_q_diagnostics(networks, config, state.target_critic, obs,
                                          sampled_seen, q_sampled))
   return critic_loss + policy_loss, metrics

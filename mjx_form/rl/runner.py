@@ -236,9 +236,11 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
   after each iteration; the final evaluations come after); the state is checkpointed and the
   policy exported, so `resume=True` continues the run. Records keep `seconds_before` as
   `pre_training_s`; their `wall_s` counts from this call.
-  `stop_file`: a path that must not exist at the start; once it exists (checked after each
-  iteration) the run stops there as `max_seconds` stops it (checkpoint, exported policies,
-  final evaluations): `scripts/gpu_jobs.py poll --stop` ends a sitting's runs early this way.
+  `stop_file`: once this path exists (checked after each iteration, the first included: a stop
+  asked for while demonstrations were recorded gives one iteration) the run stops there as
+  `max_seconds` stops it (checkpoint, exported policies, final evaluations):
+  `scripts/gpu_jobs.py poll --stop` ends a sitting's runs early this way (run.py refuses a stop
+  file that exists when the command starts).
   `results_path`: where `kind: learning_curve` records (one per evaluation) are appended.
   `checkpoint_replay`: False writes lean checkpoints (see the module docstring).
   `initial_policy`: a trained policy (of this task or another with its observation layout) that
@@ -264,9 +266,6 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
   check_run_dir(directory, resume)
   if max_seconds is not None and max_seconds <= 0:
     raise RunError(f"max_seconds must be positive, got {max_seconds}")
-  if stop_file is not None and os.path.exists(stop_file):
-    raise RunError(f"the stop file {stop_file} exists already (the run would stop after its "
-                   "first iteration): remove it, or name another")
 
   call_start = time.perf_counter()
   budget_start = call_start - seconds_before  # where max_seconds counts from
@@ -417,9 +416,8 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
       timed_steps += steps_per_iteration
       timed_seconds += seconds
     finished = iteration == total_iterations
-    requested = stop_file is not None and os.path.exists(stop_file)
-    overtime = requested or (max_seconds is not None
-                             and time.perf_counter() - budget_start >= max_seconds)
+    spent = max_seconds is not None and time.perf_counter() - budget_start >= max_seconds
+    overtime = spent or (stop_file is not None and os.path.exists(stop_file))
     # (on the host, a run out of time trains on, starting no evaluation, until the one running
     # there is done: the accelerator does not wait idle for it)
     host_busy = host_running()
@@ -469,8 +467,8 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
       checkpoint.save(ckpt_dir, iteration, _checkpointed(state, checkpoint_replay), full_config)
       due_since = None
     if out_of_time and not finished:
-      why = (f"the stop file {stop_file} appeared" if requested else
-             f"--max_seconds {max_seconds:g}, counted from the command's start")
+      why = (f"--max_seconds {max_seconds:g}, counted from the command's start" if spent else
+             f"the stop file {stop_file} appeared")
       print_fn(f"stopped after {time.perf_counter() - budget_start:.0f}s ({why}) at iteration "
                f"{iteration}/{total_iterations}"
                + (f", training on for {overtime_iterations} iteration(s) while the host "
