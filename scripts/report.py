@@ -1200,7 +1200,8 @@ def baselines_table(records: list[dict], expert_returns: dict[str, float] | None
   method and configuration (one result file's runs of one setting) over its seeds. Each seed's
   return: its fresh final evaluation (`kind: final_return`, policy "final") where the run wrote
   one, else its last periodic evaluation (a run stopped before its final evaluation). Expert:
-  `expert_returns` (default: the shipped experts' returns at export)."""
+  the records' `demonstrations_return` where every one of the configuration's says the same,
+  else `expert_returns` (default: the shipped experts' returns at export)."""
   groups = _baseline_groups(records)
   if not groups:
     return ("No GPU result for the baselines yet: a GPU run's result file "
@@ -1217,8 +1218,9 @@ def baselines_table(records: list[dict], expert_returns: dict[str, float] | None
       "`--eval_envs` episodes); policy mean action. Best: the mean over seeds of each seed's "
       f"best periodic evaluation. {fraction:g}x expert: the wall clock (env steps) by which "
       f"every seed had a periodic evaluation at or above {fraction:g}x the expert, compilation "
-      "and recording the demonstrations included. Expert: the shipped expert's return at "
-      "export (the runs imitate its demonstrations); fraction = return / expert; paper: the "
+      "and recording the demonstrations included. Expert: the mean return of the "
+      "demonstrations the runs imitate (records since 2026-12-07), else the shipped expert's "
+      "return at export; fraction = return / expert; paper: the "
       "method's return in the paper's Table 1, and its fraction of the paper's expert. "
       "Setting: the discriminator's input frames, gradient penalty, bottleneck and reward "
       "(GAIfO's family), or the cloning fit and learning rate (BC, BCO); every run uses FORM's "
@@ -1236,7 +1238,9 @@ def baselines_table(records: list[dict], expert_returns: dict[str, float] | None
     last = max([c[-1] for c in curves if c] + [f for _, f in seeds.values() if f],
                key=lambda r: r["env_steps"])
     stopped = any(f is not None and f.get("finished") is False for _, f in seeds.values())
-    expert = expert_returns.get(task)
+    recorded = {r.get("demonstrations_return") for c, f in seeds.values() for r in (*c, f) if r}
+    expert = (recorded.pop() if len(recorded) == 1 and None not in recorded
+              else expert_returns.get(task))
     reached = ([next((r for r in c if r["eval_return"] >= fraction * expert), None)
                 for c in curves] if expert else [None])
     at = ("-" if None in reached else

@@ -743,33 +743,42 @@ def run_demonstrations(args: argparse.Namespace, run_dir: str, print_fn,
                                         print_fn, with_actions=with_actions))
 
 
-def gaifo_source(args: argparse.Namespace, run_dir: str, print_fn) -> gaifo_lib.GaifoReward:
-  """The demonstrations and the discriminator's reward source of --method gaifo, gaifo_gp,
-  vaifo or vaifo_gp, once `run_dir` is known to fit (a new run's unused, a resumed one's
-  there). A resumed run records its demonstrations again (the same seed: the same episodes)
-  or reads --demos; the checkpoint's settings name their observations' checksum (the same for
-  a recording and the file --save_demos wrote of it), so other ones are refused."""
-  _, observations, _ = run_demonstrations(args, run_dir, print_fn)
+def gaifo_source(args: argparse.Namespace, run_dir: str, print_fn
+                 ) -> tuple[gaifo_lib.GaifoReward, dict]:
+  """The discriminator's reward source of --method gaifo, gaifo_gp, vaifo or vaifo_gp and what
+  its demonstrations are (`pipeline.demonstrations`' info), once `run_dir` is known to fit (a
+  new run's unused, a resumed one's there). A resumed run records its demonstrations again (the
+  same seed: the same episodes) or reads --demos; the checkpoint's settings name their
+  observations' checksum (the same for a recording and the file --save_demos wrote of it), so
+  other ones are refused."""
+  _, observations, info = run_demonstrations(args, run_dir, print_fn)
   config = discriminator_config(args)
   # The reward as the paper's, log(1 + D) in [0, log 2], unless --reward_scale standardised:
   # early on D is nearly constant, and its running sd ~0 would blow the standardised one up.
   return gaifo_lib.GaifoReward(config, observations,
                                demos_lib.checksum({"observations": observations}),
-                               standardise_reward=args.reward_scale == "standardised")
+                               standardise_reward=args.reward_scale == "standardised"), info
 
 
-def cloning_source(args: argparse.Namespace, run_dir: str, print_fn):
-  """The demonstrations and the cloning source of --method bc (with the expert's actions; the
-  checksum covers them too) or bco (observations only), once `run_dir` is known to fit (as
-  `gaifo_source`)."""
+def cloning_source(args: argparse.Namespace, run_dir: str, print_fn) -> tuple:
+  """The cloning source of --method bc (with the expert's actions; the checksum covers them
+  too) or bco (observations only) and what its demonstrations are, once `run_dir` is known to
+  fit (as `gaifo_source`)."""
   if args.method == "bc":
     _, observations, actions, info = run_demonstrations(args, run_dir, print_fn,
                                                         with_actions=True)
-    return bc_lib.BehaviourCloning(observations, actions, info["sha256"])
-  env, observations, _ = run_demonstrations(args, run_dir, print_fn)
+    return bc_lib.BehaviourCloning(observations, actions, info["sha256"]), info
+  env, observations, info = run_demonstrations(args, run_dir, print_fn)
   return bco_lib.BcoSource(inverse_model_lib.InverseModelConfig(width=args.network_width),
                            observations, env.action_bounds,
-                           demos_lib.checksum({"observations": observations}))
+                           demos_lib.checksum({"observations": observations})), info
+
+
+def demonstrations_fields(info: dict) -> dict:
+  """What a baseline's records say of its demonstrations: the mean task return of the episodes
+  (the expert's level it imitates; absent where a demonstrations file did not record it)."""
+  mean = (info.get("expert") or {}).get("mean_return")
+  return {} if mean is None else {"demonstrations_return": round(float(mean), 2)}
 
 
 def random_rollout(args: argparse.Namespace, mesh) -> dict:
@@ -850,9 +859,13 @@ def main(argv=None) -> int:
         config = dataclasses.replace(config, init_policy=experts.policy_id(initial))
       if recipe_applies(args):
         say(recipe_line(args))
-      source = (form_source(args, run_dir, results_path, say) if args.method == "form" else
-                gaifo_source(args, run_dir, say) if args.method in GAIFO else
-                cloning_source(args, run_dir, say) if args.method in ("bc", "bco") else None)
+      source, fields = None, {}
+      if args.method == "form":
+        source = form_source(args, run_dir, results_path, say)
+      elif args.method in GAIFO or args.method in CLONING:
+        source, info = (gaifo_source if args.method in GAIFO else cloning_source)(args, run_dir,
+                                                                                  say)
+        fields = demonstrations_fields(info)
       rows = runner.run(config, run_dir, args.env_steps, resume=args.resume,
                         log_every=args.log_every, eval_every=args.eval_every,
                         checkpoint_every=args.checkpoint_every, max_seconds=args.max_seconds,
@@ -861,7 +874,7 @@ def main(argv=None) -> int:
                         final_eval_envs=args.final_eval_envs, mesh=mesh, reward_source=source,
                         seeds=seeds, overrides=overrides, initial_policy=initial,
                         eval_on_host=args.eval_on_host, stop_file=args.stop_file,
-                        print_fn=say)
+                        record_fields=fields, print_fn=say)
     except ValueError as e:  # bad settings or artefacts, an existing run, another config
       print(f"error: {e}{recipe_hint(args, e)}", file=sys.stderr)
       return 2

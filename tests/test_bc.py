@@ -329,8 +329,11 @@ def test_run_py_bc_and_bco_take_their_demonstrations_and_refuse_what_does_not_fi
   assert info["sha256"] == demos.load_demonstrations(saved).metadata["sha256"]
   for method, kind in (("bc", BehaviourCloning), ("bco", BcoSource)):
     args = cli.parse_args([*small, "--method", method, "--demos", str(saved)])
-    source = cli.cloning_source(args, str(tmp_path / method), lambda *_: None)
+    source, seen = cli.cloning_source(args, str(tmp_path / method), lambda *_: None)
     assert isinstance(source, kind) and source.observations.shape == obs.shape
+    # the records carry the demonstrations' mean return (the expert's level they imitate)
+    assert cli.demonstrations_fields(seen) == {
+        "demonstrations_return": round(float(info["expert"]["mean_return"]), 2)}
     assert source.demonstrations_sha256 == (info["sha256"] if method == "bc" else
                                             demos.checksum({"observations": obs}))
     config = cli.train_config(args)

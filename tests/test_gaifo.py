@@ -359,8 +359,12 @@ def test_run_py_gaifo_runs_resumes_and_refuses_what_does_not_fit(tmp_path, capsy
   assert "gaifo reward" in capsys.readouterr().out
   assert cli.main([*args, "--env_steps", "800", "--resume", "--demos", str(saved)]) == 0
   assert max(json.loads(line)["env_steps"] for line in open(out)) == 800
-  # other demonstrations than the run's: refused on resume, by their checksum
+  # every record carries the demonstrations' mean return (recorded, then read from the file)
   loaded = demos.load_demonstrations(str(saved))
+  from mjx_form.files import results
+  assert {r["demonstrations_return"] for r in results.read_records(str(out))} == {
+      round(float(loaded.metadata["expert"]["mean_return"]), 2)}
+  # other demonstrations than the run's: refused on resume, by their checksum
   changed = demos.save_demonstrations(
       tmp_path / "changed.npz", loaded.observations + 1e-3, loaded.actions,
       metadata={k: loaded.metadata[k] for k in ("task", "observation_layout", "physics",

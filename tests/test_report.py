@@ -194,6 +194,10 @@ def test_baselines_table_takes_the_fresh_return_else_the_last_evaluation():
   table = report.baselines_table([stopped], expert_returns={"walker_walk": 1000.0})
   assert ("| 1 | 2.0M stopped | 200 s | 930.0 (fresh) | - | - | 1000.0 | 0.93 |" in table), table
   assert report.table1([stopped], expert_returns={}).count("930.0 / 981.6") == 1
+  # records that carry their demonstrations' mean return are compared with it
+  table = report.baselines_table([dict(stopped, demonstrations_return=950.0)],
+                                 expert_returns={"walker_walk": 1000.0})
+  assert "| 930.0 (fresh) | - | - | 950.0 | 0.98 |" in table, table
 
 
 def test_table1_sets_ours_beside_the_papers_for_every_task_and_method():

@@ -216,7 +216,7 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
         seeds: tuple[int, ...] | None = None, overrides: tuple[dict, ...] | None = None,
         initial_policy: experts.Expert | None = None, seconds_before: float = 0.0,
         eval_on_host: bool = False, host_devices=None, stop_file: str | None = None,
-        print_fn=print) -> list[dict]:
+        record_fields: dict | None = None, print_fn=print) -> list[dict]:
   """Trains until `total_env_steps`; returns each member's last logged row (with its final
   evaluation).
 
@@ -241,6 +241,8 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
   `max_seconds` stops it (checkpoint, exported policies, final evaluations):
   `scripts/gpu_jobs.py poll --stop` ends a sitting's runs early this way (run.py refuses a stop
   file that exists when the command starts).
+  `record_fields`: what the command knows of the run that its records should carry (the
+  baselines: `demonstrations_return`, the mean task return of the demonstrations they imitate).
   `results_path`: where `kind: learning_curve` records (one per evaluation) are appended.
   `checkpoint_replay`: False writes lean checkpoints (see the module docstring).
   `initial_policy`: a trained policy (of this task or another with its observation layout) that
@@ -316,7 +318,8 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
   state = trainer.init(trainer.keys())
   # This call's time before its first iteration: building, tracing, compiling, init.
   startup = {"startup_s": time.perf_counter() - call_start,
-             "persistent_cache_hits": cache_hits[0], "pre_training_s": round(seconds_before, 2)}
+             "persistent_cache_hits": cache_hits[0], "pre_training_s": round(seconds_before, 2),
+             **(record_fields or {})}
   if restored is not None:
     state = restored if checkpoint_replay else state._replace(**restored)
     print_fn(f"resumed from iteration {int(state.iteration)} ({ckpt_dir})")
@@ -490,7 +493,8 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
     final_paths = [os.path.join(d, "policy.npz") for d in dirs] if exported else None
     _final_evaluation(trainer, state, best_paths, rows, final_eval_envs, curve,
                       total_env_steps, labels, print_fn, finished=not stopped,
-                      final_paths=final_paths, averaging=averaging)
+                      final_paths=final_paths, averaging=averaging,
+                      record_fields=record_fields or {})
   return rows
 
 
@@ -498,7 +502,7 @@ def _final_evaluation(trainer: Trainer, state, best_paths: dict[str, list[str]],
                       rows: list[dict], episodes: int, curve, total_env_steps: int,
                       labels: list[str], print_fn, finished: bool = True,
                       final_paths: list[str] | None = None,
-                      averaging: list[bool] | None = None) -> None:
+                      averaging: list[bool] | None = None, record_fields: dict = {}) -> None:
   """Every member's final policy (the state's; exported to `final_paths`, where given), its
   average policy (the state's, for the members `averaging` says keep one) and each of its best
   ones (`best_paths`: {BEST or AVERAGE_BEST name: each member's file}) on `episodes` fresh
@@ -570,7 +574,8 @@ def _final_evaluation(trainer: Trainer, state, best_paths: dict[str, list[str]],
                   f"the {_POLICY_WORDS[name]} holds the {_POLICY_WORDS[same]}'s arrays: "
                   f"{result}, not evaluated again"))
       if curve is not None:
-        curve.write(**_record_base(trainer, i), kind="final_return", policy=name,
+        curve.write(**_record_base(trainer, i), **record_fields, kind="final_return",
+                    policy=name,
                     final_return=float(returns[i].mean()),
                     final_return_std=float(returns[i].std()), **scored,
                     episodes=int(returns.shape[1]),
