@@ -524,6 +524,11 @@ def _shipped_experts(folder: str = EXPERTS) -> list[tuple[dict, str]]:
   return sorted(rows, key=lambda r: _order(r[0]["task"]))
 
 
+def _shipped_expert_returns() -> dict[str, float]:
+  """{task: the shipped expert's return at export}: what a table compares with by default."""
+  return {meta["task"]: meta["eval_return"] for meta, _ in _shipped_experts()}
+
+
 def _final_as_fresh(record: dict) -> dict:
   """A run's final evaluation of one policy file (`kind: final_return`) in the fields of a
   `kind: expert_eval` record: that file evaluated afresh, by its mean action."""
@@ -982,7 +987,7 @@ def form_table(records: list[dict], expert_returns: dict[str, float] | None = No
     return ("No FORM results yet: a run with `--final_eval_envs` > 0 writes `kind: "
             "final_return` records; copied to `benchmarks/results/`, they appear here.")
   if expert_returns is None:
-    expert_returns = {meta["task"]: meta["eval_return"] for meta, _ in _shipped_experts()}
+    expert_returns = _shipped_expert_returns()
   if demonstration_returns is None:
     demonstration_returns = _demonstration_returns()
   caption = ("FORM (`--method form`), per task one configuration (one result file's runs of "
@@ -1148,6 +1153,7 @@ def effect_model_table(records: list[dict], best_per_task: bool = True,
 
 
 BASELINES = tuple(paper.BASELINES)  # run.py's baseline methods
+CLONING = ("bc", "bco")  # those that fit the policy to actions: no reward, no critic (cloning.py)
 
 
 def _baseline_variant(record: dict) -> str:
@@ -1155,7 +1161,7 @@ def _baseline_variant(record: dict) -> str:
   cloning fit (BC, BCO); e.g. `1 frame, GP 10, raw reward` or `squared, lr 0.001`."""
   settings = record.get("settings", {})
   reward = settings.get("reward", {})
-  if record["method"] in ("bc", "bco"):
+  if record["method"] in CLONING:
     learner = settings.get("learner", {})
     return f"{learner.get('cloning_loss', 'likelihood')}, lr {learner.get('learning_rate', 1e-4):g}"
   d = reward.get("discriminator", {})
@@ -1208,7 +1214,7 @@ def baselines_table(records: list[dict], expert_returns: dict[str, float] | None
             "(`--method gaifo`, `gaifo_gp`, `vaifo`, `vaifo_gp`, `bco`, `bc`) copied to "
             "`benchmarks/results/` appears here.")
   if expert_returns is None:
-    expert_returns = {meta["task"]: meta["eval_return"] for meta, _ in _shipped_experts()}
+    expert_returns = _shipped_expert_returns()
   lines = [
       "The baselines on a GPU, one row per task, method and configuration (one result file's "
       "runs of one setting), mean +- standard deviation over its seeds of each seed's return: "
@@ -1246,7 +1252,7 @@ def baselines_table(records: list[dict], expert_returns: dict[str, float] | None
     at = ("-" if None in reached else
           f"{_duration(max(r['wall_s'] + r.get('pre_training_s', 0.0) for r in reached))} "
           f"({max(r['env_steps'] for r in reached) / 1e6:.1f}M)")
-    period = ("-" if method in ("bc", "bco")  # (no critic: cloning.py)
+    period = ("-" if method in CLONING
               else last["settings"].get("learner", {}).get("target_update_period", "-"))
     ours = paper.BASELINES[method].get(task)
     lines.append(
@@ -1267,7 +1273,7 @@ def table1(records: list[dict], expert_returns: dict[str, float] | None = None) 
   GPU configurations (`baselines_table`), the one with the most seeds, then the highest mean;
   the expert's: `expert_returns` (default: the shipped experts' at export)."""
   if expert_returns is None:
-    expert_returns = {meta["task"]: meta["eval_return"] for meta, _ in _shipped_experts()}
+    expert_returns = _shipped_expert_returns()
   ours: dict[tuple[str, str], str] = {}
   groups, _ = _form_groups(records, best_per_task=True)
   for key, group in groups.items():

@@ -494,7 +494,7 @@ def run(config: TrainConfig, directory: str, total_env_steps: int, *, resume: bo
     _final_evaluation(trainer, state, best_paths, rows, final_eval_envs, curve,
                       total_env_steps, labels, print_fn, finished=not stopped,
                       final_paths=final_paths, averaging=averaging,
-                      record_fields=record_fields or {})
+                      record_fields=record_fields)
   return rows
 
 
@@ -502,7 +502,8 @@ def _final_evaluation(trainer: Trainer, state, best_paths: dict[str, list[str]],
                       rows: list[dict], episodes: int, curve, total_env_steps: int,
                       labels: list[str], print_fn, finished: bool = True,
                       final_paths: list[str] | None = None,
-                      averaging: list[bool] | None = None, record_fields: dict = {}) -> None:
+                      averaging: list[bool] | None = None,
+                      record_fields: dict | None = None) -> None:
   """Every member's final policy (the state's; exported to `final_paths`, where given), its
   average policy (the state's, for the members `averaging` says keep one) and each of its best
   ones (`best_paths`: {BEST or AVERAGE_BEST name: each member's file}) on `episodes` fresh
@@ -574,7 +575,7 @@ def _final_evaluation(trainer: Trainer, state, best_paths: dict[str, list[str]],
                   f"the {_POLICY_WORDS[name]} holds the {_POLICY_WORDS[same]}'s arrays: "
                   f"{result}, not evaluated again"))
       if curve is not None:
-        curve.write(**_record_base(trainer, i), **record_fields, kind="final_return",
+        curve.write(**_record_base(trainer, i), **(record_fields or {}), kind="final_return",
                     policy=name,
                     final_return=float(returns[i].mean()),
                     final_return_std=float(returns[i].std()), **scored,
