@@ -268,9 +268,11 @@ def _member(record: dict) -> str:
   learner = settings.get("learner")
   if learner is not None:  # settings added later, at the value that ran before them (a run
     # resumed across one keeps one key): sampled_q_float32_head (2026-11-29), cloning_loss
-    # (2026-12-01)
+    # (2026-12-01), mpo.clip_mean_targets (2026-12-07)
     learner = {k: v for k, v in learner.items()
                if (k, v) not in (("sampled_q_float32_head", False), ("cloning_loss", "likelihood"))}
+    if learner.get("mpo", {}).get("clip_mean_targets") is False:
+      learner["mpo"] = {k: v for k, v in learner["mpo"].items() if k != "clip_mean_targets"}
   return json.dumps([learner, reward.get("standardise_reward"),
                      reward.get("reward_clip", 0.0), settings.get("action_noise_correlation", 0.0),
                      settings.get("wrap_angles", False), settings.get("init_policy"),
@@ -297,6 +299,8 @@ def _learner_notes(record: dict, with_period: bool = True,
     notes.append("sampled Q in " + results.sampled_q_precision(learner))
   if with_penalty and learner.get("mpo", {}).get("action_penalty"):
     notes.append("action penalty")
+  if learner.get("mpo", {}).get("clip_mean_targets"):
+    notes.append("mean fitted to clipped actions")
   if (epsilon_scale := learner.get("mpo", {}).get("epsilon_scale", 1e-5)) != 1e-5:
     notes.append(f"epsilon_scale {epsilon_scale:g}")
   if settings.get("network_width", 256) != 256:

@@ -88,7 +88,7 @@ CLONING_ONLY = ("cloning_loss",)
 # The learner's options that only MPO reads (BC and BCO fit the policy alone: cloning.py uses
 # the learning rate and gradient clip), and --preset (they take the paper's settings).
 MPO_ONLY = ("num_action_samples", "target_update_period", "action_penalty", "clip_critic_actions",
-            "epsilon_scale", "sampled_q_bfloat16", "sampled_q_float32_head", "preset")
+            "epsilon_scale", "sampled_q_bfloat16", "sampled_q_float32_head", "clip_mean_targets", "preset")
 
 # The environment variable that gives --stop_file its default (scripts/gpu_jobs.py sets it).
 STOP_FILE_VARIABLE = "MJX_FORM_STOP_FILE"
@@ -228,6 +228,13 @@ def parse_args(argv=None) -> argparse.Namespace:
                           "where its control range is [-1, 1] (every task but quadruped's) "
                           "(Acme's control-suite MPO), or tanh of the unclipped sample, as the "
                           "paper (default: see --preset)")
+  train.add_argument("--clip_mean_targets", action=argparse.BooleanOptionalAction,
+                     default=False,
+                     help="MPO's M-step fits the policy's mean to the sampled actions clipped "
+                          "to [-1, 1] (the scale still to the raw samples): a mean beyond a "
+                          "bound, where every sample clips alike and the weights cannot tell "
+                          "them apart, returns to the bound instead of wandering (default off, "
+                          "the paper's M-step)")
   train.add_argument("--epsilon_scale", type=float, default=None, metavar="E",
                      help="MPO's bound on the KL of the policy scale's change per update and "
                           "action dimension (default: see --preset; the paper's "
@@ -562,7 +569,8 @@ def train_config(args: argparse.Namespace) -> TrainConfig:
       cloning_loss=(args.cloning_loss or cloning.DEFAULT_CLONING_LOSS) if args.method in CLONING
       else LearnerConfig().cloning_loss,
       mpo=dataclasses.replace(LearnerConfig().mpo, action_penalty=chosen["action_penalty"],
-                              epsilon_scale=chosen["epsilon_scale"]))
+                              epsilon_scale=chosen["epsilon_scale"],
+                              clip_mean_targets=args.clip_mean_targets))
   seed = args.seeds[0] if args.seeds else args.seed
   return TrainConfig(task=args.task, physics=args.physics,
                      reward_source=args.method if args.method in FROM_DEMOS else "task",

@@ -51,6 +51,7 @@ LEARNER = {
     "sampled_q_float32_head": (("sampled_q_float32_head",), bool),
     "action_penalty": (("mpo", "action_penalty"), bool),
     "epsilon_penalty": (("mpo", "epsilon_penalty"), float),
+    "clip_mean_targets": (("mpo", "clip_mean_targets"), bool),
     "policy_average_decay": (("policy_average_decay",), float),
 }
 # MPO's KL bounds: each a dual's target, so 0 or inf makes its dual loss degenerate.

@@ -66,7 +66,7 @@ ADDED_SETTINGS = {"learner.mpo.action_penalty": False, "learner.mpo.epsilon_pena
                   "wrap_angles": False, "init_policy": None, "angle_features": False,
                   "learner.policy_average_decay": 0.0, "source_update_every": 1,
                   "learner.sampled_q_float32_head": False, "noise_scale_min": 1.0,
-                  "learner.cloning_loss": "likelihood"}
+                  "learner.cloning_loss": "likelihood", "learner.mpo.clip_mean_targets": False}
 
 
 # Columns that not every row has (evaluation rows; devices that report memory).
