@@ -234,7 +234,8 @@ def parse_args(argv=None) -> argparse.Namespace:
                           "to [-1, 1] (the scale still to the raw samples): a mean beyond a "
                           "bound, where every sample clips alike and the weights cannot tell "
                           "them apart, returns to the bound instead of wandering (default off, "
-                          "the paper's M-step)")
+                          "the paper's M-step; [-1, 1] on every task, as the critic's clip: "
+                          "quadruped's lift actuators go to 1.1, its extenders to 0.8)")
   train.add_argument("--epsilon_scale", type=float, default=None, metavar="E",
                      help="MPO's bound on the KL of the policy scale's change per update and "
                           "action dimension (default: see --preset; the paper's "
