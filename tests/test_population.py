@@ -26,7 +26,8 @@ pytestmark = pytest.mark.xdist_group("train")  # the single runs' programs are t
 SEEDS = (0, 1)
 # Member 1 has its own learner and actor settings (mjx_form.rl.grid; `--grid NAME=...` gives
 # them): it copies its targets every 2 updates where CONFIG (and member 0) copy every 3, learns
-# 10x faster, penalises actions outside the bounds, and its actors' noise is correlated in time
+# 10x faster, penalises actions outside the bounds and fits its mean to the clipped samples
+# (`clip_mean_targets`), and its actors' noise is correlated in time
 # where member 0's is independent (as a single run's at 0, though the population keeps a noise
 # state and the penalty's dual for both), its envs scale their noise from 0.5 to 1 where
 # member 0's act with the policy (as a single run's at 1, though its multipliers are computed),
@@ -34,22 +35,26 @@ SEEDS = (0, 1)
 # wrap, though its normaliser has a period of zeros).
 OVERRIDES = ({"target_update_period": CONFIG.learner.target_update_period,
               "learning_rate": CONFIG.learner.learning_rate, "action_noise_correlation": 0.0,
-              "noise_scale_min": 1.0, "action_penalty": False, "wrap_angles": False},
+              "noise_scale_min": 1.0, "action_penalty": False, "wrap_angles": False,
+              "clip_mean_targets": False},
              {"target_update_period": 2, "learning_rate": 1e-3, "action_noise_correlation": 0.9,
-              "noise_scale_min": 0.5, "action_penalty": True, "wrap_angles": True})
+              "noise_scale_min": 0.5, "action_penalty": True, "wrap_angles": True,
+              "clip_mean_targets": True})
 MEMBER_CONFIGS = (CONFIG, dataclasses.replace(
     CONFIG, seed=1, action_noise_correlation=0.9, noise_scale_min=0.5, wrap_angles=True,
     learner=dataclasses.replace(
         CONFIG.learner, target_update_period=2, learning_rate=1e-3,
-        mpo=dataclasses.replace(CONFIG.learner.mpo, action_penalty=True))))
+        mpo=dataclasses.replace(CONFIG.learner.mpo, action_penalty=True,
+                                clip_mean_targets=True))))
 
 
 # Member 1's settings on the command line, and the directory name of a member with them.
 GRID = ("--grid", "target_update_period=2", "--grid", "learning_rate=0.001",
         "--grid", "action_noise_correlation=0.9", "--grid", "action_penalty=1",
         "--grid", "noise_scale_min=0.5",
-        "--grid", "wrap_angles=1")
-MEMBER_1_DIR = ("action_noise_correlation0.9_action_penalty1_learning_rate0.001_noise_scale_min0.5"
+        "--grid", "wrap_angles=1", "--grid", "clip_mean_targets=1")
+MEMBER_1_DIR = ("action_noise_correlation0.9_action_penalty1_clip_mean_targets1"
+                "_learning_rate0.001_noise_scale_min0.5"
                 "_target_update_period2_wrap_angles1")
 
 
@@ -199,7 +204,8 @@ def test_population_from_the_command_line_writes_each_member(tmp_path, capsys):
   assert cli.main(args) == 0
   out = capsys.readouterr().out
   names = [f"seed{s}_{MEMBER_1_DIR}" for s in SEEDS]
-  own = ("action_noise_correlation 0.9, action_penalty 1, learning_rate 0.001, "
+  own = ("action_noise_correlation 0.9, action_penalty 1, clip_mean_targets 1, "
+         "learning_rate 0.001, "
          "noise_scale_min 0.5, target_update_period 2, wrap_angles 1")
   assert f"a population of 2 (seed 0, {own}; seed 1, {own})" in out
   assert "2 cpu device(s) (whole members per device)" in out
@@ -209,7 +215,8 @@ def test_population_from_the_command_line_writes_each_member(tmp_path, capsys):
                    r"best policy holds the final policy's arrays)", out)
   stored = json.load(open(run_dir / "config.json"))
   assert stored["seeds"] == [0, 1] and stored["overrides"] == [
-      {"action_noise_correlation": 0.9, "action_penalty": True, "learning_rate": 1e-3,
+      {"action_noise_correlation": 0.9, "action_penalty": True, "clip_mean_targets": True,
+       "learning_rate": 1e-3,
        "noise_scale_min": 0.5, "target_update_period": 2, "wrap_angles": True}] * 2
   assert checkpoint.latest_step(str(run_dir / "checkpoints")) == 2  # one for all members
   records = results.read_records(str(curve))
