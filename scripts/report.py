@@ -973,7 +973,7 @@ def _form_expert(task: str, final: list[dict], expert_returns: dict[str, float],
 def form_table(records: list[dict], expert_returns: dict[str, float] | None = None,
                demonstration_returns: dict[str, float] | None = None,
                best_per_task: bool = False,
-               shipped_demonstrators: set[str] | None = None) -> str:
+               shipped_demonstrators: set[str] | None = None, compact: bool = False) -> str:
   """FORM's results: one row per task and configuration, over its seeds. Each seed's return is
   its newest `kind: final_return` record of the final policy (a fresh evaluation after
   training). The expert's return it is compared with: the mean return of the demonstrations
@@ -985,7 +985,9 @@ def form_table(records: list[dict], expert_returns: dict[str, float] | None = No
   with the shipped demonstrator (`shipped_demonstrators`, sha256s; default: those in
   tasks/demonstrators/, so the row is what the shipped expert and demonstrator give): the
   default settings (`_default_form_variant`) with the most seeds, then the highest mean;
-  without the default settings, the highest mean return."""
+  without the default settings, the highest mean return. `compact` (the README's view, with
+  `best_per_task`): the return, the policy chosen by log pD, the fractions and the settings;
+  the other policies' columns stay in the full table."""
   groups, configurations = _form_groups(records, best_per_task, shipped_demonstrators)
   if not groups:
     return ("No FORM results yet: a run with `--final_eval_envs` > 0 writes `kind: "
@@ -994,6 +996,8 @@ def form_table(records: list[dict], expert_returns: dict[str, float] | None = No
     expert_returns = _shipped_expert_returns()
   if demonstration_returns is None:
     demonstration_returns = _demonstration_returns()
+  if compact:
+    return _form_compact(groups, configurations, expert_returns, demonstration_returns)
   caption = ("FORM (`--method form`), per task one configuration (one result file's runs of "
              "one setting; all of them: `benchmarks/NOTES.md`), among those run with 2 seeds "
              "or more on a GPU where there are any, with the shipped demonstrator (and so its "
@@ -1058,6 +1062,44 @@ def form_table(records: list[dict], expert_returns: dict[str, float] | None = No
                  f"{_duration(wall)} | {mean:.1f}{spread} | {' | '.join(best_texts)} | "
                  f"{'-' if expert is None else f'{expert:.1f}'} | {fraction} | {paper} |"
                  + (f" {configurations[task]} |" if best_per_task else ""))
+  return "\n".join(lines)
+
+
+def _form_compact(groups: dict, configurations: dict, expert_returns: dict,
+                  demonstration_returns: dict) -> str:
+  """form_table's README view of `groups` (one per task, `_form_groups` with best_per_task)."""
+  lines = ["FORM (`--method form`) per task: the default settings (`mjx_form/imitation/"
+           "settings.py`, what `--method form` runs) with the most seeds, with the shipped "
+           "demonstrator, on a GPU, else the highest mean of the task's configurations run with "
+           "2 seeds or more. Return: the final policy's fresh evaluation after training "
+           "(`stopped`: ended by its time budget), `--final_eval_envs` episodes per seed, "
+           "mean action, mean +- sd over seeds; by log pD: the policy of the evaluation with "
+           "the highest demonstrator log pD, chosen without the task reward. Expert: the mean "
+           "return of the demonstrations its demonstrator learned, else the shipped expert's "
+           "at export; configurations: how many the task has. The full table (sampled "
+           "actions, best and average policies, every configuration): `benchmarks/NOTES.md`.",
+           "",
+           "| task | seeds | env steps | wall clock | return | by log pD | expert | fraction | "
+           "paper's fraction | device, envs x updates / iteration | settings | configurations |",
+           "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+  for key in sorted(groups, key=lambda k: (_order(k[0]), k[2], k[4], str(k))):
+    task, physics, num_envs, updates, env_steps, _, device, variant, _ = key
+    final = groups[key]["final"]
+    mean, std = _mean_std([r["final_return"] for r in final])
+    chosen = groups[key].get("best_log_pd", [])
+    by_log_pd = f"{_mean_std([r['final_return'] for r in chosen])[0]:.1f}" if chosen else "-"
+    expert = _form_expert(task, final, expert_returns, demonstration_returns)
+    spread = f" +- {std:.1f}" if len(final) > 1 else ""
+    stopped = " stopped" if any(r.get("finished") is False for r in final) else ""
+    fraction = f"{mean / expert:.2f}" if expert else "-"
+    paper = (f"{PAPER_FORM[task] / PAPER_EXPERT[task]:.2f}"
+             if task in PAPER_FORM and task in PAPER_EXPERT else "-")
+    card = device.removeprefix("gpu:NVIDIA ").removesuffix(" x1")
+    lines.append(f"| {task} | {len(final)} | {env_steps / 1e6:.1f}M{stopped} | "
+                 f"{_duration(_mean_std([r['wall_s'] for r in final])[0])} | {mean:.1f}{spread} | "
+                 f"{by_log_pd} | {'-' if expert is None else f'{expert:.1f}'} | {fraction} | "
+                 f"{paper} | {card}, {num_envs} x {updates.split(' ')[0]} | "
+                 f"{physics}, {variant} | {configurations[task]} |")
   return "\n".join(lines)
 
 
@@ -1313,7 +1355,8 @@ def table1(records: list[dict], expert_returns: dict[str, float] | None = None) 
 
 # The generated tables of each file: {marker name: table}.
 def readme_tables(records: list[dict]) -> dict[str, str]:
-  return {"table1": table1(records), "form": form_table(records, best_per_task=True),
+  return {"table1": table1(records),
+          "form": form_table(records, best_per_task=True, compact=True),
           "baselines": baselines_table(records), "experts": experts_table(records),
           "learning_summary": learning_summary(records), "parity_summary": parity_summary(records),
           "scaling_summary": scaling_summary(records)}

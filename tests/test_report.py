@@ -238,6 +238,15 @@ def test_form_table_per_task_keeps_the_best_configuration_of_two_seeds_or_more()
       ["| cheetah_run", "`gpu:X`", "fast", "256"], ["| walker_walk", "`gpu:X`", "fast", "512"]]
   assert rows[0].endswith("| 770.0 +- 10.0 | - | - | - | - | - | 875.0 | 0.88 | 0.89 | 3 |"), rows
   assert rows[1].endswith("| 1 |"), rows
+  # The README's compact view: the same row per task, fewer columns.
+  compact = report.form_table(records, expert_returns={"cheetah_run": 875.0, "walker_walk": 1.0},
+                              demonstration_returns={}, best_per_task=True, compact=True)
+  rows = [line for line in compact.splitlines() if line.startswith("| ")][1:]
+  assert [row.split(" | ")[:6] for row in rows] == [
+      ["| cheetah_run", "2", "20.0M", "10.0 min", "770.0 +- 10.0", "-"],
+      ["| walker_walk", "1", "20.0M", "10.0 min", "500.0", "-"]], rows
+  assert rows[0].split(" | ")[6:10] == ["875.0", "0.88", "0.89", "gpu:X, 256 x -"], rows
+  assert rows[0].endswith("| 3 |") and rows[1].endswith("| 1 |"), rows
 
 
 def test_form_table_per_task_prefers_the_shipped_demonstrator():
