@@ -9,6 +9,8 @@ No network, no critic, no environment: S states, each with its own policy mean a
 target policy copied every `--target_period` updates, N samples per state from the target,
 `mpo.mpo_loss` with Adam on the policy and the duals, as the learner does. Phase 1 (b = 1.5:
 every action at or beyond 1 is best) lets the mean drift; phase 2 (b = 0.5) asks it back.
+Q values the clipped action, as a critic with `--clip_critic_actions` does (the recipes'); the
+paper's critic sees the raw action, and can tell apart samples beyond a bound.
 
   python benchmarks/saturation_bandit.py            # prints a table, writes a record
 """
@@ -37,8 +39,9 @@ ARMS = {"paper M-step": {}, "clip_mean_targets": {"clip_mean_targets": True},
 
 
 def run_arm(config: mpo.MPOConfig, args, key) -> dict[str, np.ndarray]:
-  """Per update: share of means beyond the bounds, mean |mean|, mean |clip(mean) - b| (the
-  applied action's error), mean scale; [updates] arrays."""
+  """Per update: share of means beyond the bounds, mean |mean|, mean |clip(mean) - clip(b)|
+  (the applied mean action's distance from the best applied action), mean scale; [updates]
+  arrays."""
   S, A, N = args.states, args.actions, args.samples
   params = {"mean": jnp.zeros((S, A)), "log_scale": jnp.full((S, A), jnp.log(args.init_scale))}
   duals = mpo.init_duals(config, A)
@@ -65,14 +68,15 @@ def run_arm(config: mpo.MPOConfig, args, key) -> dict[str, np.ndarray]:
     target_params = jax.tree.map(lambda t, o: jnp.where((step + 1) % args.target_period == 0, o, t),
                                  target_params, params)
     out = (jnp.mean(jnp.abs(params["mean"]) > 1.0), jnp.mean(jnp.abs(params["mean"])),
-           jnp.mean(jnp.abs(jnp.clip(params["mean"], -1.0, 1.0) - b)),
+           jnp.mean(jnp.abs(jnp.clip(params["mean"], -1.0, 1.0) - jnp.clip(b, -1.0, 1.0))),
            jnp.mean(jnp.exp(params["log_scale"])))
     return (params, target_params, duals, popt, dopt), out
 
   keys = jax.random.split(key, args.updates)
   _, (beyond, size, error, scale) = jax.jit(lambda s: jax.lax.scan(
       update, s, (jnp.arange(args.updates), best, keys)))(state)
-  return {"beyond": np.asarray(beyond), "size": np.asarray(size), "error": np.asarray(error), "scale": np.asarray(scale)}
+  return {"beyond": np.asarray(beyond), "size": np.asarray(size), "error": np.asarray(error),
+          "scale": np.asarray(scale)}
 
 
 def first_below(values: np.ndarray, threshold: float) -> int | None:
@@ -100,14 +104,15 @@ def main(argv=None) -> int:
   parser.add_argument("--epsilon_scale", type=float, default=1e-6)
   parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
   parser.add_argument("--tolerance", type=float, default=0.1,
-                      help="phase 2 counts as done when |clip(mean) - b| < this on average")
+                      help="phase 2 counts as done when |clip(mean) - clip(b)| < this on "
+                           "average")
   parser.add_argument("--results", default=None, help="a JSON Lines file (default: no record)")
   args = parser.parse_args(argv)
   if not 0 < args.phase1 < args.updates:
     parser.error("--phase1 must lie strictly between 0 and --updates")
   rows = []
-  print(f"{'arm':<18} seed  beyond@phase1  |mean|@phase1  scale@phase1  updates back (< {args.tolerance})  "
-        "error@end  beyond@end")
+  print(f"{'arm':<18} seed  beyond@phase1  |mean|@phase1  error@phase1  scale@phase1  "
+        f"updates back (< {args.tolerance})  error@end  beyond@end")
   for name, overrides in ARMS.items():
     config = dataclasses.replace(mpo.MPOConfig(epsilon_scale=args.epsilon_scale), **overrides)
     for seed in args.seeds:
@@ -116,12 +121,13 @@ def main(argv=None) -> int:
       row = {"arm": name, "seed": seed,
              "beyond_at_phase1": float(out["beyond"][args.phase1 - 1]),
              "abs_mean_at_phase1": float(out["size"][args.phase1 - 1]),
+             "error_at_phase1": float(out["error"][args.phase1 - 1]),
              "scale_at_phase1": float(out["scale"][args.phase1 - 1]),
              "updates_back": back, "error_at_end": float(out["error"][-1]),
              "beyond_at_end": float(out["beyond"][-1])}
       rows.append(row)
       print(f"{name:<18} {seed:>4}  {row['beyond_at_phase1']:>13.2f}  "
-            f"{row['abs_mean_at_phase1']:>13.2f}  "
+            f"{row['abs_mean_at_phase1']:>13.2f}  {row['error_at_phase1']:>12.3f}  "
             f"{row['scale_at_phase1']:>12.3f}  {str(back):>26}  {row['error_at_end']:>9.3f}  "
             f"{row['beyond_at_end']:>10.2f}")
   if args.results:

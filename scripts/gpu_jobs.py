@@ -169,6 +169,7 @@ def check(jobs_file: Path, deadline_s: float = 1200.0) -> list[str]:
         f"width {config.network_width}, T {learner.target_update_period}, sampled Q "
         f"{results.sampled_q_precision(vars(learner))}, critic clips actions "
         f"{learner.clip_critic_actions}, action penalty {learner.mpo.action_penalty}, "
+        f"mean fitted to clipped actions {learner.mpo.clip_mean_targets}, "
         f"epsilon_scale {learner.mpo.epsilon_scale:g}, average policy decay "
         f"{learner.policy_average_decay:g}, head "
         f"{config.policy_head}, noise correlation {config.action_noise_correlation:g}"

@@ -1068,13 +1068,15 @@ def form_table(records: list[dict], expert_returns: dict[str, float] | None = No
 def _form_compact(groups: dict, configurations: dict, expert_returns: dict,
                   demonstration_returns: dict) -> str:
   """form_table's README view of `groups` (one per task, `_form_groups` with best_per_task)."""
-  lines = ["FORM (`--method form`) per task: the default settings (`mjx_form/imitation/"
-           "settings.py`, what `--method form` runs) with the most seeds, with the shipped "
-           "demonstrator, on a GPU, else the highest mean of the task's configurations run with "
-           "2 seeds or more. Return: the final policy's fresh evaluation after training "
+  lines = ["FORM (`--method form`) per task, one configuration: among those run with 2 seeds "
+           "or more, on a GPU, with the shipped demonstrator (each where there are any), the "
+           "default settings (`mjx_form/imitation/settings.py`, what `--method form` runs) "
+           "with the most seeds, else the highest mean. Return: the final policy's fresh "
+           "evaluation after training "
            "(`stopped`: ended by its time budget), `--final_eval_envs` episodes per seed, "
            "mean action, mean +- sd over seeds; by log pD: the policy of the evaluation with "
-           "the highest demonstrator log pD, chosen without the task reward. Expert: the mean "
+           "the highest demonstrator log pD, chosen without the task reward (`-`: runs before "
+           "2026-11-28). Expert: the mean "
            "return of the demonstrations its demonstrator learned, else the shipped expert's "
            "at export; configurations: how many the task has. The full table (sampled "
            "actions, best and average policies, every configuration): `benchmarks/NOTES.md`.",

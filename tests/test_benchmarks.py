@@ -1210,19 +1210,22 @@ def test_cloning_fit_holds_out_whole_episodes_and_measures_each_loss(tmp_path, c
   assert len(out.read_text().splitlines()) == 2  # nothing more written
 
 
-def test_saturation_bandit_keeps_the_clipped_fits_mean_at_the_bound(tmp_path, capsys):
+def test_saturation_bandit_keeps_the_clipped_fits_mean_near_the_bound(tmp_path, capsys):
   """Small sizes: with the best action beyond the bound, the paper's M-step drives every mean
-  out of [-1, 1] (the samples beyond it are all best), the clipped-target fit keeps them at the
-  bound and so brings the applied action back sooner once the best action lies inside."""
+  far out of [-1, 1] (the samples beyond it are all best); the clipped-target fit keeps the
+  means within about a scale of the bound, still applying the bound, and so brings the applied
+  action back sooner once the best action lies inside."""
   bench = load_script("saturation_bandit", folder="benchmarks")
   out = tmp_path / "r.jsonl"
-  assert bench.main(["--states", "8", "--actions", "2", "--updates", "1200", "--phase1", "600",
+  assert bench.main(["--states", "8", "--actions", "2", "--updates", "4000", "--phase1", "2000",
                      "--seeds", "0", "--results", str(out)]) == 0
   rows = {r["arm"]: r for r in json.loads(out.read_text())["rows"]}
-  assert rows["paper M-step"]["beyond_at_phase1"] > 0.9
-  assert rows["clip_mean_targets"]["beyond_at_phase1"] == 0.0
-  assert rows["clip_mean_targets"]["abs_mean_at_phase1"] <= 1.0
-  assert rows["clip_mean_targets"]["updates_back"] < (rows["paper M-step"]["updates_back"]
-                                                      or 600)
+  paper, clipped = rows["paper M-step"], rows["clip_mean_targets"]
+  assert paper["beyond_at_phase1"] > 0.9 and paper["abs_mean_at_phase1"] > 1.5
+  assert 1.0 < clipped["abs_mean_at_phase1"] < 1.0 + 2 * clipped["scale_at_phase1"]
+  assert clipped["error_at_phase1"] < 0.01  # the bound is applied
+  assert clipped["updates_back"] is not None
+  assert clipped["updates_back"] < (2000 if paper["updates_back"] is None
+                                    else paper["updates_back"])
   with pytest.raises(SystemExit):
     bench.main(["--updates", "10", "--phase1", "10"])

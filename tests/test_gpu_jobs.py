@@ -282,6 +282,7 @@ def test_check_parses_run_jobs_as_run_does_and_names_a_bad_one(tmp_path, capsys)
   assert len(out) == 20 and out[0].startswith(
       "rx: reacher_hard expert, seeds 0,1; grid target_update_period=25,100")
   for part in ("512 envs x 256 updates (replay ratio 32)", "T 25", "action penalty True",
+               "mean fitted to clipped actions False",
                "average policy decay 0,",
                "max seconds 900.0"):  # reacher_hard's recipe, the flags, $LEFT
     assert part in out[0], part

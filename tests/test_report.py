@@ -770,6 +770,13 @@ def test_expert_runs_tell_members_apart_by_every_grid_setting():
                                                                    key: v}))
     assert report._member(added(before)) == report._member(old), key
     assert report._member(added(other)) != report._member(old), key
+  mpo = lambda **kw: dict(base, settings=dict(settings, learner={
+      "target_update_period": 25, "mpo": {"epsilon_scale": 1e-6, **kw}}))
+  assert report._member(mpo(clip_mean_targets=False)) == report._member(mpo())
+  assert report._member(mpo(clip_mean_targets=True)) != report._member(mpo())
+  assert "mean fitted to clipped actions" in report._learner_notes(mpo(clip_mean_targets=True))
+  assert "mean fitted to clipped actions" not in report._learner_notes(
+      mpo(clip_mean_targets=False))
 
 
 def test_learning_summary_sets_cheetah_against_brax_ppo_cold_and_warm():

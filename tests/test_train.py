@@ -279,6 +279,19 @@ def test_action_penalty_setting_reaches_the_learner(tmp_path):
   assert plain.learner.average_policy is None  # (and checkpoints keep their structure)
 
 
+def test_clip_mean_targets_setting_reaches_the_learner_and_cloning_refuses_it(tmp_path, capsys):
+  cli = load_script("run")
+  config = cli.train_config(cli.parse_args(_cli_args(tmp_path / "run", "--clip_mean_targets")))
+  assert config == dataclasses.replace(CONFIG, learner=dataclasses.replace(
+      CONFIG.learner, mpo=dataclasses.replace(CONFIG.learner.mpo, clip_mean_targets=True)))
+  assert not CONFIG.learner.mpo.clip_mean_targets
+  for method in ("bc", "bco"):
+    with pytest.raises(SystemExit) as e:
+      cli.parse_args(_cli_args(tmp_path / method, "--method", method, "--clip_mean_targets"))
+    assert e.value.code == 2
+    assert "--clip_mean_targets" in capsys.readouterr().err
+
+
 def test_a_population_keeps_average_policies_if_any_member_averages():
   trainer = Trainer(CONFIG, mesh_lib.make_mesh(), seeds=(0, 0),
                     overrides=({"policy_average_decay": 0.0}, {"policy_average_decay": 0.9}))

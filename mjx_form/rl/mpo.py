@@ -22,7 +22,8 @@ epsilon_penalty (multi-objective MPO, Abdolmaleki et al., 2020); its weights are
 its dual loss to the temperature's. Without it a Gaussian policy whose actions are clipped by
 the environment can drift its mean far outside [-1, 1], where every sample saturates: the
 policy is then bang-bang and explores little (as hopper_stand's policy did: README).
-`MPOConfig.clip_mean_targets` (optional) fits the mean to the clipped samples instead.
+`MPOConfig.clip_mean_targets` (optional) fits the mean to samples clipped to the bounds
+widened by a scale instead.
 """
 
 from __future__ import annotations
@@ -62,12 +63,16 @@ class MPOConfig:
   # (a population member's traced bool where members differ: its duals then always hold the
   # penalty's, `init_duals` with it True)
   epsilon_penalty: float = 1e-3  # its KL bound (Acme's default); its dual starts as eta's
-  # The M-step fits the mean to the sampled actions clipped to [-1, 1], the actions the
-  # environment applies (and a clipping critic values): in a dimension whose samples all lie
-  # beyond one bound the E-step's weights cannot tell them apart, and fitted to the raw
-  # samples the mean wanders there at random; fitted to the clipped ones it returns to the
-  # bound, where the samples straddle it and the weights see both sides. The scale is fitted
-  # to the raw samples (their spread about the target's mean). Off: the paper's M-step.
+  # The M-step fits the mean to the sampled actions clipped to [-1 - s, 1 + s], s the target's
+  # scale: where samples lie beyond a bound the environment applies the bound (and a clipping
+  # critic values them alike); fitted to the raw samples, those beyond a bound that is best
+  # pull the mean further out, until every sample lies beyond it and the E-step's weights
+  # cannot tell them apart (benchmarks/saturation_bandit.py). Fitted to the clipped samples,
+  # the mean stays within about a scale of the bound, where the samples straddle it and the
+  # weights see both sides. The scale's margin keeps the mean at or past a bound that is best
+  # (clipped at the bound itself, the mean would settle inside it: 0.93 for 1 on the bandit).
+  # The scale is fitted to the raw samples (their spread about the target's mean). Off: the
+  # paper's M-step.
   clip_mean_targets: bool = False  # (a population member's traced bool where members differ)
 
 
@@ -160,8 +165,9 @@ def mpo_loss(duals: MPODuals, online: DiagonalGaussian, target: DiagonalGaussian
   # M-step: weighted maximum likelihood of the two decoupled distributions.
   fixed_scale = DiagonalGaussian(online.mean, target.scale)  # learns the mean
   fixed_mean = DiagonalGaussian(target.mean, online.scale)  # learns the scale
-  mean_targets = jnp.where(config.clip_mean_targets, sampled_actions - out_of_bounds,
-                           sampled_actions)  # [N, S, A]
+  bound = 1.0 + target.scale  # [S, A]: the bounds widened by one scale (MPOConfig)
+  mean_targets = jnp.where(config.clip_mean_targets,
+                           jnp.clip(sampled_actions, -bound, bound), sampled_actions)  # [N, S, A]
   loss_policy_mean = -jnp.mean(jnp.sum(weights * fixed_scale.log_prob(mean_targets), axis=0))
   loss_policy_scale = -jnp.mean(jnp.sum(weights * fixed_mean.log_prob(sampled_actions), axis=0))
 
