@@ -88,7 +88,8 @@ CLONING_ONLY = ("cloning_loss",)
 # The learner's options that only MPO reads (BC and BCO fit the policy alone: cloning.py uses
 # the learning rate and gradient clip), and --preset (they take the paper's settings).
 MPO_ONLY = ("num_action_samples", "target_update_period", "action_penalty", "clip_critic_actions",
-            "epsilon_scale", "sampled_q_bfloat16", "sampled_q_float32_head", "clip_mean_targets", "preset")
+            "epsilon_scale", "sampled_q_bfloat16", "sampled_q_float32_head", "clip_mean_targets",
+            "preset")
 
 # The environment variable that gives --stop_file its default (scripts/gpu_jobs.py sets it).
 STOP_FILE_VARIABLE = "MJX_FORM_STOP_FILE"
@@ -231,11 +232,12 @@ def parse_args(argv=None) -> argparse.Namespace:
   train.add_argument("--clip_mean_targets", action=argparse.BooleanOptionalAction,
                      default=False,
                      help="MPO's M-step fits the policy's mean to the sampled actions clipped "
-                          "to [-1, 1] (the scale still to the raw samples): a mean beyond a "
-                          "bound, where every sample clips alike and the weights cannot tell "
-                          "them apart, returns to the bound instead of wandering (default off, "
-                          "the paper's M-step; [-1, 1] on every task, as the critic's clip: "
-                          "quadruped's lift actuators go to 1.1, its extenders to 0.8)")
+                          "to [-1 - s, 1 + s], s the target policy's scale (the scale still to "
+                          "the raw samples): a mean beyond a bound, where every sample clips "
+                          "alike and the weights cannot tell them apart, returns to within a "
+                          "scale of it (default off, the paper's M-step; [-1, 1] on every "
+                          "task, as the critic's clip: quadruped's lift actuators go to 1.1, "
+                          "its extenders to 0.8)")
   train.add_argument("--epsilon_scale", type=float, default=None, metavar="E",
                      help="MPO's bound on the KL of the policy scale's change per update and "
                           "action dimension (default: see --preset; the paper's "
