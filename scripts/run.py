@@ -645,6 +645,11 @@ def recipe_hint(args: argparse.Namespace, error: ValueError) -> str:
             "mjx_form/imitation/settings.py; a run started before resumes "
             "with --no-clip_critic_actions --epsilon_scale 1e-5, one started with other flags "
             "with those flags)")
+  flags = [key for key in ("learner.mpo.clip_mean_targets", "learner.sampled_q_float32_head")
+           if key in error.keys]
+  if flags:
+    names = " and ".join(f"--[no-]{key.rsplit('.', 1)[1]}" for key in flags)
+    return f" (a run resumes with the {names} it was started with)"
   if "source_update_every" in error.keys:
     return (" (a run started with --imitator_every K resumes with it; one started without it, "
             "without it)")

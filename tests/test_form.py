@@ -1114,6 +1114,11 @@ def test_form_flags_are_refused_for_other_methods(capsys, monkeypatch, tmp_path)
   refused = checkpoint.CheckpointError("differs", ("source_update_every",))
   assert "started with --imitator_every K resumes with it" in cli.recipe_hint(
       cli.parse_args(["--resume"]), refused)
+  # the learner flags that no recipe sets: resume with the one the run started with
+  refused = checkpoint.CheckpointError("differs", ("learner.mpo.clip_mean_targets",))
+  assert cli.recipe_hint(cli.parse_args(["--resume", "--task", "walker_run", "--method",
+                                         "expert"]), refused) == (
+      " (a run resumes with the --[no-]clip_mean_targets it was started with)")
   # and one refused for the critic's clip or MPO's scale bound (walker_walk's and
   # quadruped_run's FORM entries set them since 2026-11-29)
   refused = checkpoint.CheckpointError("differs", ("learner.mpo.epsilon_scale",))
