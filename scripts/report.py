@@ -988,6 +988,8 @@ def form_table(records: list[dict], expert_returns: dict[str, float] | None = No
   without the default settings, the highest mean return. `compact` (the README's view, with
   `best_per_task`): the return, the policy chosen by log pD, the fractions and the settings;
   the other policies' columns stay in the full table."""
+  if compact and not best_per_task:
+    raise ValueError("form_table: compact is the per-task view (best_per_task)")
   groups, configurations = _form_groups(records, best_per_task, shipped_demonstrators)
   if not groups:
     return ("No FORM results yet: a run with `--final_eval_envs` > 0 writes `kind: "

@@ -247,6 +247,8 @@ def test_form_table_per_task_keeps_the_best_configuration_of_two_seeds_or_more()
       ["| walker_walk", "1", "20.0M", "10.0 min", "500.0", "-"]], rows
   assert rows[0].split(" | ")[6:10] == ["875.0", "0.88", "0.89", "gpu:X, 256 x -"], rows
   assert rows[0].endswith("| 3 |") and rows[1].endswith("| 1 |"), rows
+  with pytest.raises(ValueError, match="per-task view"):
+    report.form_table(records, compact=True)
 
 
 def test_form_table_per_task_prefers_the_shipped_demonstrator():
