@@ -22,15 +22,17 @@ import dataclasses
 import os
 import sys
 
-sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-from mjx_form import cpu  # noqa: E402,F401  (XLA's CPU flags before JAX starts)
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import common  # noqa: E402  (puts the repository on sys.path)
+from mjx_form.cpu import configure_cpu_xla  # noqa: E402  (before JAX starts)
+
+configure_cpu_xla()
 
 import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 import optax  # noqa: E402
 
-from benchmarks import common  # noqa: E402
 from mjx_form.rl import mpo  # noqa: E402
 from mjx_form.rl.distributions import DiagonalGaussian  # noqa: E402
 
