@@ -1041,30 +1041,45 @@ def form_table(records: list[dict], expert_returns: dict[str, float] | None = No
            "paper's fraction |" + (" configurations |" if best_per_task else ""),
            "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"
            + ("---|" if best_per_task else "")]
-  for key in sorted(groups, key=lambda k: (_order(k[0]), k[2], k[4], str(k))):
-    task, physics, num_envs, updates, env_steps, _, device, variant, _ = key
-    final, best = groups[key]["final"], groups[key].get("best", [])
-    mean, std = _mean_std([r["final_return"] for r in final])
-    best_texts = [f"{_mean_std([r['final_return'] for r in chosen])[0]:.1f}" if chosen else "-"
-                  for chosen in (groups[key].get("final_sampled", []), best,
-                                 groups[key].get("best_log_pd", []),
-                                 groups[key].get("average", []),
-                                 groups[key].get("best_log_pd_average", []))]
-    wall = _mean_std([r["wall_s"] for r in final])[0]
-    episodes = sorted({r["episodes"] for r in final})
-    expert = _form_expert(task, final, expert_returns, demonstration_returns)
-    spread = f" +- {std:.1f}" if len(final) > 1 else ""
-    stopped = " stopped" if any(r.get("finished") is False for r in final) else ""
-    fraction = f"{mean / expert:.2f}" if expert else "-"
-    paper = (f"{PAPER_FORM[task] / PAPER_EXPERT[task]:.2f}"
-             if task in PAPER_FORM and task in PAPER_EXPERT else "-")
+  for key in sorted(groups, key=_form_key_order):
+    task, physics, num_envs, updates, _, _, device, variant, _ = key
+    c = _form_cells(key, groups[key], expert_returns, demonstration_returns)
+    episodes = sorted({r["episodes"] for r in groups[key]["final"]})
+    policies = [c[name] for name in ("final_sampled", "best", "best_log_pd", "average",
+                                     "best_log_pd_average")]
     lines.append(f"| {task} | `{device}` | {physics} | {num_envs} | {updates} | {variant} | "
-                 f"{len(final)} | "
-                 f"{'/'.join(str(e) for e in episodes)} | {env_steps / 1e6:.1f}M{stopped} | "
-                 f"{_duration(wall)} | {mean:.1f}{spread} | {' | '.join(best_texts)} | "
-                 f"{'-' if expert is None else f'{expert:.1f}'} | {fraction} | {paper} |"
+                 f"{c['seeds']} | {'/'.join(str(e) for e in episodes)} | {c['env_steps']} | "
+                 f"{c['wall']} | {c['return']} | {' | '.join(policies)} | "
+                 f"{c['expert']} | {c['fraction']} | {c['paper']} |"
                  + (f" {configurations[task]} |" if best_per_task else ""))
   return "\n".join(lines)
+
+
+def _form_key_order(key: tuple):
+  """The FORM tables' row order: task, then envs, then env steps (`_form_groups`' keys)."""
+  return _order(key[0]), key[2], key[4], str(key)
+
+
+def _form_cells(key: tuple, group: dict, expert_returns: dict,
+                demonstration_returns: dict) -> dict[str, str]:
+  """The texts both FORM tables show of one configuration (`_form_groups`' key and group):
+  seeds, env steps, wall clock, return (mean +- sd over seeds), expert, fraction, the paper's
+  fraction, and each other policy's mean return by its group name ('-' where none)."""
+  task, env_steps, final = key[0], key[4], group["final"]
+  mean, std = _mean_std([r["final_return"] for r in final])
+  expert = _form_expert(task, final, expert_returns, demonstration_returns)
+  stopped = " stopped" if any(r.get("finished") is False for r in final) else ""
+  cells = {"seeds": str(len(final)), "env_steps": f"{env_steps / 1e6:.1f}M{stopped}",
+           "wall": _duration(_mean_std([r["wall_s"] for r in final])[0]),
+           "return": f"{mean:.1f}" + (f" +- {std:.1f}" if len(final) > 1 else ""),
+           "expert": "-" if expert is None else f"{expert:.1f}",
+           "fraction": f"{mean / expert:.2f}" if expert else "-",
+           "paper": (f"{PAPER_FORM[task] / PAPER_EXPERT[task]:.2f}"
+                     if task in PAPER_FORM and task in PAPER_EXPERT else "-")}
+  for name in ("final_sampled", "best", "best_log_pd", "average", "best_log_pd_average"):
+    chosen = group.get(name, [])
+    cells[name] = f"{_mean_std([r['final_return'] for r in chosen])[0]:.1f}" if chosen else "-"
+  return cells
 
 
 def _form_compact(groups: dict, configurations: dict, expert_returns: dict,
@@ -1086,24 +1101,14 @@ def _form_compact(groups: dict, configurations: dict, expert_returns: dict,
            "| task | seeds | env steps | wall clock | return | by log pD | expert | fraction | "
            "paper's fraction | device, envs x updates / iteration | settings | configurations |",
            "|---|---|---|---|---|---|---|---|---|---|---|---|"]
-  for key in sorted(groups, key=lambda k: (_order(k[0]), k[2], k[4], str(k))):
-    task, physics, num_envs, updates, env_steps, _, device, variant, _ = key
-    final = groups[key]["final"]
-    mean, std = _mean_std([r["final_return"] for r in final])
-    chosen = groups[key].get("best_log_pd", [])
-    by_log_pd = f"{_mean_std([r['final_return'] for r in chosen])[0]:.1f}" if chosen else "-"
-    expert = _form_expert(task, final, expert_returns, demonstration_returns)
-    spread = f" +- {std:.1f}" if len(final) > 1 else ""
-    stopped = " stopped" if any(r.get("finished") is False for r in final) else ""
-    fraction = f"{mean / expert:.2f}" if expert else "-"
-    paper = (f"{PAPER_FORM[task] / PAPER_EXPERT[task]:.2f}"
-             if task in PAPER_FORM and task in PAPER_EXPERT else "-")
+  for key in sorted(groups, key=_form_key_order):
+    task, physics, num_envs, updates, _, _, device, variant, _ = key
+    c = _form_cells(key, groups[key], expert_returns, demonstration_returns)
     card = device.removeprefix("gpu:NVIDIA ").removesuffix(" x1")
-    lines.append(f"| {task} | {len(final)} | {env_steps / 1e6:.1f}M{stopped} | "
-                 f"{_duration(_mean_std([r['wall_s'] for r in final])[0])} | {mean:.1f}{spread} | "
-                 f"{by_log_pd} | {'-' if expert is None else f'{expert:.1f}'} | {fraction} | "
-                 f"{paper} | {card}, {num_envs} x {updates.split(' ')[0]} | "
-                 f"{physics}, {variant} | {configurations[task]} |")
+    lines.append(f"| {task} | {c['seeds']} | {c['env_steps']} | {c['wall']} | {c['return']} | "
+                 f"{c['best_log_pd']} | {c['expert']} | {c['fraction']} | {c['paper']} | "
+                 f"{card}, {num_envs} x {updates.split(' ')[0]} | {physics}, {variant} | "
+                 f"{configurations[task]} |")
   return "\n".join(lines)
 
 
