@@ -1360,11 +1360,11 @@ def table1(records: list[dict], expert_returns: dict[str, float] | None = None) 
   methods = list(paper.BASELINES) + ["form"]
   lines = ["The paper's Table 1 beside ours, each cell ours / the paper's return (mean over "
            "seeds). Ours: FORM's configuration in the FORM table below, a baseline's among its "
-           "configurations in the baselines table (`Use`) the one with the most seeds, "
-           "then the highest mean; `*`: its last periodic evaluation (the run stopped before "
-           "its final one); `-`: no result yet. Expert: the shipped expert's return at export. "
-           "Our experts are not the paper's: the tables below give each method's fraction of "
-           "its own expert.", "",
+           "configurations in the baselines table of `benchmarks/NOTES.md` the one with the "
+           "most seeds, then the highest mean; `*`: its last periodic evaluation (the run "
+           "stopped before its final one); `-`: no result yet. Expert: the shipped expert's "
+           "return at export. Our experts are not the paper's: those two tables give each "
+           "method's fraction of its own expert.", "",
            "| task | expert | " + " | ".join(paper.BASELINE_NAMES[m] for m in methods[:-1])
            + " | FORM |",
            "|---|---|" + "---|" * len(methods)]
@@ -1382,7 +1382,7 @@ def table1(records: list[dict], expert_returns: dict[str, float] | None = None) 
 def readme_tables(records: list[dict]) -> dict[str, str]:
   return {"table1": table1(records),
           "form": form_table(records, best_per_task=True, compact=True),
-          "baselines": baselines_table(records), "experts": experts_table(records),
+          "experts": experts_table(records),
           "learning_summary": learning_summary(records), "parity_summary": parity_summary(records),
           "scaling_summary": scaling_summary(records)}
 
@@ -1394,6 +1394,7 @@ def notes_tables(records: list[dict]) -> dict[str, str]:
           "demonstrators": effect_model_table(records),
           "effect_models": effect_model_table(records, best_per_task=False),
           "form": form_table(records), "form_runs": form_runs_table(records),
+          "baselines": baselines_table(records),
           "populations": population_table(records), "scaling": scaling_table(records)}
 
 
