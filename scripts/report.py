@@ -81,6 +81,11 @@ def _k(x: float) -> str:
   return f"{x / 1e6:.2f}M" if x >= 1e6 else f"{x / 1e3:.0f}k" if x >= 1e3 else f"{x:.0f}"
 
 
+def _steps(x: float) -> str:
+  """Env steps as the tables write them: `10.2M`, or `64k` below a million (BC's CPU runs)."""
+  return f"{x / 1e6:.1f}M" if x >= 1e6 else _k(x)
+
+
 def _solver(settings: dict) -> str:
   """'100/50' (iterations / line-search iterations), plus ' cull N' with contact culling."""
   text = f"{settings.get('iterations') or 100}/{settings.get('ls_iterations') or 50}"
@@ -1322,14 +1327,14 @@ def baselines_table(records: list[dict], expert_returns: dict[str, float] | None
                 for c in curves] if expert else [None])
     at = ("-" if None in reached else
           f"{_duration(max(r['wall_s'] + r.get('pre_training_s', 0.0) for r in reached))} "
-          f"({max(r['env_steps'] for r in reached) / 1e6:.1f}M)")
+          f"({_steps(max(r['env_steps'] for r in reached))})")
     period = ("-" if method in CLONING
               else last["settings"].get("learner", {}).get("target_update_period", "-"))
     ours = paper.BASELINES[method].get(task)
     lines.append(
         f"| {task} | {paper.BASELINE_NAMES[method]} | {key[4]} | `{last['device']}` | "
         f"{last['num_envs']} | {_updates(last)} | {period} | {len(seeds)} | "
-        f"{last['env_steps'] / 1e6:.1f}M{' stopped' if stopped else ''} | "
+        f"{_steps(last['env_steps'])}{' stopped' if stopped else ''} | "
         f"{_duration(last['wall_s'])} | "
         f"{mean:.1f}{f' +- {sd:.1f}' if len(seeds) > 1 else ''} ({'/'.join(sorted(kinds))}) | "
         f"{best} | {at} | "
