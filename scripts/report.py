@@ -1284,9 +1284,9 @@ def baselines_table(records: list[dict], expert_returns: dict[str, float] | None
   else `expert_returns` (default: the shipped experts' returns at export)."""
   groups = _baseline_groups(records)
   if not groups:
-    return ("No GPU result for the baselines yet: a GPU run's result file "
-            "(`--method gaifo`, `gaifo_gp`, `vaifo`, `vaifo_gp`, `bco`, `bc`) copied to "
-            "`benchmarks/results/` appears here.")
+    return ("No result for the baselines yet: the result file of a GPU run of `--method "
+            "gaifo`, `gaifo_gp`, `vaifo`, `vaifo_gp`, `bco` or `bc` (BC's also on the CPU with "
+            "the paper's 1000 demonstrations), copied to `benchmarks/results/`, appears here.")
   if expert_returns is None:
     expert_returns = _shipped_expert_returns()
   lines = [

@@ -155,7 +155,7 @@ def test_form_table_averages_the_final_policy_over_seeds():
 
 
 def test_baselines_table_takes_the_fresh_return_else_the_last_evaluation():
-  assert report.baselines_table([]).startswith("No GPU result for the baselines yet")
+  assert report.baselines_table([]).startswith("No result for the baselines yet")
   settings = {"updates_per_iteration": 512, "replay_ratio": 64.0,
               "learner": {"target_update_period": 25},
               "reward": {"discriminator": {"frames": 1, "gradient_penalty": 10.0,
@@ -171,7 +171,7 @@ def test_baselines_table_takes_the_fresh_return_else_the_last_evaluation():
              # seed 1's fresh final evaluation replaces its last periodic one
              dict(curve(1, 3_000_000, None), kind="final_return", policy="final",
                   final_return=900.0),
-             # a CPU run is not a GPU result; FORM's runs are not baselines
+             # GAIfO+GP on the CPU is not a result; FORM's runs are not baselines
              dict(curve(0, 1_000_000, 10.0), device="cpu:cpu x1"),
              dict(curve(0, 1_000_000, 10.0), method="form")]
   table = report.baselines_table(records, expert_returns={"walker_walk": 1000.0})
@@ -194,8 +194,9 @@ def test_baselines_table_takes_the_fresh_return_else_the_last_evaluation():
   def on_cpu(method, episodes, value):
     return dict(curve(0, 64_000, value), method=method, device="cpu:cpu x1",
                 settings=dict(bc, reward={"demonstration_episodes": episodes}))
-  table = report.baselines_table([on_cpu("bc", 1000, 610.0), on_cpu("bc", 100, 620.0),
-                                  on_cpu("bco", 1000, 630.0)],
+  table = report.baselines_table([on_cpu("bc", 1000, 610.0),
+                                  dict(on_cpu("bc", 100, 620.0), _file="smoke.jsonl"),
+                                  dict(on_cpu("bco", 1000, 630.0), _file="bco.jsonl")],
                                  expert_returns={"walker_walk": 1000.0})
   rows = [line for line in table.splitlines() if line.startswith("| walker_walk")]
   assert len(rows) == 1 and "| BC |" in rows[0] and "`cpu:cpu x1`" in rows[0], table
