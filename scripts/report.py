@@ -1277,9 +1277,9 @@ def _baseline_return(seeds: dict[int, tuple[list[dict], dict | None]]
 def baselines_table(records: list[dict], expert_returns: dict[str, float] | None = None,
                     fraction: float = 0.9) -> str:
   """The baselines' runs (BC, BCO, GAIfO, GAIfO+GP, VAIfO, VAIfO+GP; `_baseline_admitted`), one
-  row per task, method and configuration (one result file's runs of one setting) over its seeds. Each seed's
-  return: its fresh final evaluation (`kind: final_return`, policy "final") where the run wrote
-  one, else its last periodic evaluation (a run stopped before its final evaluation). Expert:
+  row per task, method and configuration (one result file's runs of one setting) over its
+  seeds. Each seed's return: its fresh final evaluation (`kind: final_return`, policy "final")
+  where the run wrote one, else its last periodic evaluation (a run stopped before it). Expert:
   the records' `demonstrations_return` where every one of the configuration's says the same,
   else `expert_returns` (default: the shipped experts' returns at export)."""
   groups = _baseline_groups(records)
