@@ -1,5 +1,6 @@
-"""The FORM paper's Table 1 returns (mean over 3 seeds; ../shared/DESIGN.md), for comparison
-only. Constants only: importing this starts nothing (scripts/report.py runs without JAX)."""
+"""The FORM paper's Table 1 returns (mean over 3 seeds; ../shared/DESIGN.md) and its
+demonstrations per task, for comparison only. Constants only: importing this starts nothing
+(scripts/report.py runs without JAX)."""
 
 # Table 1's columns, by run.py's --method names ("expert": the MPO experts).
 COLUMNS = ("expert", "bc", "bco", "gaifo", "gaifo_gp", "vaifo", "vaifo_gp", "form")
@@ -28,5 +29,7 @@ BASELINES = {method: _BY_COLUMN[method] for method in COLUMNS[1:-1]}
 # Their column names in the paper's Table 1.
 BASELINE_NAMES = {"bc": "BC", "bco": "BCO", "gaifo": "GAIfO", "gaifo_gp": "GAIfO+GP",
                   "vaifo": "VAIfO", "vaifo_gp": "VAIfO+GP"}
+# The demonstrations per task the paper's imitation methods learn from.
+DEMONSTRATIONS = 1000
 # The experts issue's bar: an expert reaches this fraction of the paper's expert return.
 EXPERT_BAR = 0.95

@@ -82,7 +82,8 @@ def _k(x: float) -> str:
 
 
 def _steps(x: float) -> str:
-  """Env steps as the tables write them: `10.2M`, or `64k` below a million (BC's CPU runs)."""
+  """Env steps as the baselines table writes them: `10.2M`, or `64k` below a million (BC's CPU
+  runs; the other tables keep `0.2M`)."""
   return f"{x / 1e6:.1f}M" if x >= 1e6 else _k(x)
 
 
@@ -1050,14 +1051,18 @@ def form_table(records: list[dict], expert_returns: dict[str, float] | None = No
     task, physics, num_envs, updates, _, _, device, variant, _ = key
     c = _form_cells(key, groups[key], expert_returns, demonstration_returns)
     episodes = sorted({r["episodes"] for r in groups[key]["final"]})
-    policies = [c[name] for name in ("final_sampled", "best", "best_log_pd", "average",
-                                     "best_log_pd_average")]
+    policies = [c[name] for name in FORM_POLICIES]
     lines.append(f"| {task} | `{device}` | {physics} | {num_envs} | {updates} | {variant} | "
                  f"{c['seeds']} | {'/'.join(str(e) for e in episodes)} | {c['env_steps']} | "
                  f"{c['wall']} | {c['return']} | {' | '.join(policies)} | "
                  f"{c['expert']} | {c['fraction']} | {c['paper']} |"
                  + (f" {configurations[task]} |" if best_per_task else ""))
   return "\n".join(lines)
+
+
+# The policies beside the final one in the FORM tables, by `_form_groups`' group names: the final
+# policy with sampled actions, the best by return, by log pD, the average, and its best by log pD.
+FORM_POLICIES = ("final_sampled", "best", "best_log_pd", "average", "best_log_pd_average")
 
 
 def _form_key_order(key: tuple):
@@ -1081,7 +1086,7 @@ def _form_cells(key: tuple, group: dict, expert_returns: dict,
            "fraction": f"{mean / expert:.2f}" if expert else "-",
            "paper": (f"{PAPER_FORM[task] / PAPER_EXPERT[task]:.2f}"
                      if task in PAPER_FORM and task in PAPER_EXPERT else "-")}
-  for name in ("final_sampled", "best", "best_log_pd", "average", "best_log_pd_average"):
+  for name in FORM_POLICIES:
     chosen = group.get(name, [])
     cells[name] = f"{_mean_std([r['final_return'] for r in chosen])[0]:.1f}" if chosen else "-"
   return cells
@@ -1214,7 +1219,6 @@ def effect_model_table(records: list[dict], best_per_task: bool = True,
 
 BASELINES = tuple(paper.BASELINES)  # run.py's baseline methods
 CLONING = ("bc", "bco")  # those that fit the policy to actions: no reward, no critic (cloning.py)
-PAPER_DEMONSTRATIONS = 1000  # the paper's demonstrations per task
 
 
 def _baseline_admitted(record: dict) -> bool:
@@ -1226,7 +1230,7 @@ def _baseline_admitted(record: dict) -> bool:
   if record.get("device", "").startswith("gpu"):
     return True
   episodes = record.get("settings", {}).get("reward", {}).get("demonstration_episodes", 0)
-  return record["method"] == "bc" and episodes >= PAPER_DEMONSTRATIONS
+  return record["method"] == "bc" and episodes >= paper.DEMONSTRATIONS
 
 
 def _baseline_variant(record: dict) -> str:
@@ -1286,12 +1290,13 @@ def baselines_table(records: list[dict], expert_returns: dict[str, float] | None
   if not groups:
     return ("No result for the baselines yet: the result file of a GPU run of `--method "
             "gaifo`, `gaifo_gp`, `vaifo`, `vaifo_gp`, `bco` or `bc` (BC's also on the CPU with "
-            "the paper's 1000 demonstrations), copied to `benchmarks/results/`, appears here.")
+            f"the paper's {paper.DEMONSTRATIONS} demonstrations), copied to "
+            "`benchmarks/results/`, appears here.")
   if expert_returns is None:
     expert_returns = _shipped_expert_returns()
   lines = [
       "The baselines on a GPU (BC, which learns from its demonstrations alone, also on the "
-      f"CPU with the paper's {PAPER_DEMONSTRATIONS} demonstrations), one row per task, method "
+      f"CPU with the paper's {paper.DEMONSTRATIONS} demonstrations), one row per task, method "
       "and configuration (one result file's "
       "runs of one setting), mean +- standard deviation over its seeds of each seed's return: "
       "the final policy's fresh evaluation after training, or where the run's time budget "

@@ -33,6 +33,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import tasks
+from mjx_form import paper
 from mjx_form.files import demos as demos_lib
 from mjx_form.files import effect_models, experts, results
 from mjx_form.imitation import demonstrator as demonstrator_lib
@@ -41,7 +42,7 @@ from mjx_form.imitation.form import Demonstrator, FormReward
 from mjx_form.rl import normalizer, runner
 
 DEMONSTRATOR_FILE = "demonstrator.npz"
-DEFAULT_TRAINING_EPISODES = 1000  # the paper's demonstrations per task
+DEFAULT_TRAINING_EPISODES = paper.DEMONSTRATIONS  # the paper's demonstrations per task
 DEFAULT_CHECK_EPISODES = 16
 # A ready demonstrator whose offset-1 log-likelihood on this run's demonstrations of the expert
 # it learned lies more than this many nats per transition below its own held-out figure learned
