@@ -1392,14 +1392,14 @@ def table1(records: list[dict], expert_returns: dict[str, float] | None = None) 
 def readme_tables(records: list[dict]) -> dict[str, str]:
   return {"table1": table1(records),
           "form": form_table(records, best_per_task=True, compact=True),
-          "experts": experts_table(records),
-          "learning_summary": learning_summary(records), "parity_summary": parity_summary(records),
+          "experts": experts_table(records), "parity_summary": parity_summary(records),
           "scaling_summary": scaling_summary(records)}
 
 
 def notes_tables(records: list[dict]) -> dict[str, str]:
   return {"parity": parity_table(records), "sweep": sweep_table(records),
-          "throughput": throughput_table(records), "learning": learning_table(records),
+          "throughput": throughput_table(records),
+          "learning_summary": learning_summary(records), "learning": learning_table(records),
           "train_throughput": train_throughput_table(records),
           "demonstrators": effect_model_table(records),
           "effect_models": effect_model_table(records, best_per_task=False),
