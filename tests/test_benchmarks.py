@@ -163,6 +163,7 @@ def test_update_speed_times_forms_work_per_learner_update(tmp_path, capsys):
     bench.main(["--profile", "-1"])
 
 
+@pytest.mark.slow
 def test_device_profile_names_the_source_line_that_costs_the_most(monkeypatch):
   """benchmarks/device_profile.py on the CPU: a scan whose flax layer dwarfs the rest is
   attributed to the line here that applies the layer (up the call stack from flax's own line),
@@ -898,6 +899,7 @@ def test_locomotion_speed_factors_are_the_tasks_reward(tmp_path, capsys):
   assert row["max_factor_error"] == pytest.approx(0.25)
 
 
+@pytest.mark.slow
 def test_demonstrator_heldout_scores_each_episode_as_the_training_record_scores_them_all():
   """per_episode: each episode's mean log-likelihood per offset; over episodes of one length
   their mean is demonstrator.heldout_log_likelihood of them all (what a training record
@@ -1161,6 +1163,7 @@ def _linear_demos(path, episodes: int, steps: int, seed: int = 0, actions: bool 
   return obs, act
 
 
+@pytest.mark.slow
 def test_cloning_fit_holds_out_whole_episodes_and_measures_each_loss(tmp_path, capsys):
   """cloning_fit: the held-out pairs are the file's last episodes, whole; fitting actions that
   are a function of the observation lowers the mean action's error on held-out episodes, for
@@ -1210,6 +1213,7 @@ def test_cloning_fit_holds_out_whole_episodes_and_measures_each_loss(tmp_path, c
   assert len(out.read_text().splitlines()) == 2  # nothing more written
 
 
+@pytest.mark.slow
 def test_saturation_bandit_keeps_the_clipped_fits_mean_near_the_bound(tmp_path, capsys):
   """Small sizes: with the best action beyond the bound, the paper's M-step drives every mean
   far out of [-1, 1] (the samples beyond it are all best); the clipped-target fit keeps the

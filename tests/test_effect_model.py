@@ -203,6 +203,7 @@ def test_demonstrator_learns_a_linear_system_and_keeps_its_best_step():
   assert any("out of time" in line for line in lines)
 
 
+@pytest.mark.slow
 def test_demonstrator_draws_side_by_side_are_the_draws_alone():
   """Draws of several seeds trained in one program: each draw's report (its curve, where and
   why it stopped, its best step) and best parameters are those of the draw trained alone, each

@@ -18,6 +18,7 @@ import pytest
 from jax.extend import core as jax_core
 
 import tasks
+from conftest import load_script
 from mjx_form import cpu
 from mjx_form import mesh as mesh_lib
 from mjx_form.sim import env as env_lib
@@ -211,19 +212,29 @@ def _run_cli(*args):
                         capture_output=True, text=True, timeout=300, cwd=ROOT)
 
 
-def test_cli_lists_tasks_and_rejects_bad_input():
+def _cli_in_process(capsys, *args) -> tuple[int, str]:
+  """scripts/run.py's main in this process (a process each cost CI ~4 s): exit status, stderr."""
+  capsys.readouterr()
+  try:
+    status = load_script("run").main(list(args))
+  except SystemExit as e:  # (argparse's errors)
+    status = e.code
+  return status, capsys.readouterr().err
+
+
+def test_cli_lists_tasks_and_rejects_bad_input(capsys):
   listed = _run_cli("--list")
   # (MJX may print a note about the optional Warp backend before the list.)
   assert listed.returncode == 0 and listed.stdout.split()[-len(tasks.TASKS):] == list(tasks.TASKS)
-  unknown = _run_cli("--task", "humanoid_fly")
+  unknown = _run_cli("--task", "humanoid_fly")  # (a process's exit status and message)
   assert unknown.returncode != 0
   assert "unknown task 'humanoid_fly'" in unknown.stderr and "humanoid_run" in unknown.stderr
+  assert "Traceback" not in unknown.stderr
   for bad in (["--num_envs", "0"], ["--num_envs", "-3"], ["--steps", "0"]):
-    result = _run_cli("--task", "reacher_easy", *bad)
-    assert result.returncode != 0 and "must be a positive integer" in result.stderr
-  odd = _run_cli("--task", "reacher_easy", "--num_envs", "3")
-  assert odd.returncode != 0 and "multiple of the number of devices" in odd.stderr
-  assert "Traceback" not in odd.stderr
+    status, err = _cli_in_process(capsys, "--task", "reacher_easy", *bad)
+    assert status != 0 and "must be a positive integer" in err, (bad, status, err)
+  status, err = _cli_in_process(capsys, "--task", "reacher_easy", "--num_envs", "3")
+  assert status != 0 and "multiple of the number of devices" in err, (status, err)
 
 
 def test_cli_random_rollout_reports_steps_per_second(tmp_path):

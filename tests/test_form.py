@@ -97,6 +97,7 @@ def test_relabel_is_the_difference_of_the_two_log_densities():
                                                       "discount": discount})[0], 0.0)
 
 
+@pytest.mark.slow
 def test_an_ensemble_of_demonstrators_scores_with_their_mixture():
   """Several demonstrators: log pD is the log of the mean of their densities (numpy, float64,
   from each model's own log pD); the same model twice is that model; one is no ensemble; models
@@ -137,6 +138,7 @@ def test_an_ensemble_of_demonstrators_scores_with_their_mixture():
       FormReward(EFFECT, bad)
 
 
+@pytest.mark.slow
 def test_an_ensemble_can_score_with_the_mean_of_its_log_densities():
   """`ensemble_log_pd="mean"`: log pD is the mean of the models' own log pD (numpy, float64),
   below the mixture's wherever they differ (Jensen), and the reward is log pD - log pI; the
@@ -1168,6 +1170,24 @@ def _readme_args(run_dir, *extra):
                                                               *extra]
 
 
+@pytest.mark.slow
+def test_evaluate_run_scores_every_policy_a_form_run_kept(tmp_path):
+  """scripts/evaluate_run.py after the README's main command (one iteration, no final
+  evaluations, as a run stopped by its time budget): every policy the run kept is scored
+  afresh, the average's too, and the records go to the run's packed curve."""
+  cli, run_dir, curve = load_script("run"), tmp_path / "run", tmp_path / "curve.jsonl"
+  assert cli.main(_readme_args(run_dir, "--final_eval_envs", "0", "--results", str(curve))) == 0
+  points = results.read_records(str(curve))
+  assert [r["kind"] for r in points] == ["learning_curve"]
+  afterwards = tmp_path / "afterwards.jsonl"
+  afterwards.write_text("".join(json.dumps(r) + "\n" for r in points))
+  results.pack_curve(str(afterwards))  # (as committed: the curve alone, packed)
+  assert load_script("evaluate_run").main(["--run_dir", str(run_dir), "--curve", str(afterwards),
+                                           "--episodes", "2", "--chunk", "2"]) == 0
+  assert [r["policy"] for r in results.read_records(str(afterwards))] == [
+      "final", "final_sampled", "best", "best_log_pd", "average", "best_log_pd_average"]
+
+
 def test_form_command_line_runs_every_stage(tmp_path, capsys):
   """The README's main command (the default method, FORM): the shipped expert's
   demonstrations check the shipped demonstrator, MPO imitates, the policies are evaluated
@@ -1244,14 +1264,6 @@ def test_form_command_line_runs_every_stage(tmp_path, capsys):
   points = [r for r in results.read_records(str(curve)) if r["kind"] == "learning_curve"]
   assert policy_io.load_policy(first / "best_log_pd_average_policy.npz")[1][
       "eval_demonstrator_log_prob"] == max(r["eval_demonstrator_log_prob_average"] for r in points)
-  # scripts/evaluate_run.py scores every policy the run kept, the average's too.
-  afterwards = tmp_path / "afterwards.jsonl"
-  afterwards.write_text("".join(json.dumps(r) + "\n" for r in points))
-  results.pack_curve(str(afterwards))  # (as committed: the curve alone, packed)
-  assert load_script("evaluate_run").main(["--run_dir", str(first), "--curve", str(afterwards),
-                                           "--episodes", "2", "--chunk", "2"]) == 0
-  assert [r["policy"] for r in results.read_records(str(afterwards))] == [
-      "final", "final_sampled", "best", "best_log_pd", "average", "best_log_pd_average"]
   resumed = effect_models.load_effect_model(first / "imitator.npz", task="reacher_easy")
   assert resumed.metadata["training"]["steps"] == 2 * records[0]["updates"]  # rewritten
   # The best policies over both processes' evaluations: by their task return, and by their
@@ -1698,6 +1710,7 @@ def test_demonstrator_files_per_member_are_checked_kept_and_resumed(tmp_path, mo
                      resume=True)
 
 
+@pytest.mark.slow
 def test_demonstrator_draws_per_member_are_trained_side_by_side_and_kept(tmp_path,
                                                                          monkeypatch):
   """--member_demonstrators --train_demonstrator: one draw per member, of the given seeds, on

@@ -6,6 +6,7 @@ import dataclasses
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pytest
 
 from mjx_form.rl import learner, normalizer
 from mjx_form.rl.networks import make_networks
@@ -77,6 +78,7 @@ def test_sampled_q_in_bfloat16_is_close_to_float32_and_only_when_asked():
     assert all(np.isfinite(float(v)) for v in jax.tree.leaves(metrics))
 
 
+@pytest.mark.slow
 def test_sampled_q_float32_head_removes_bfloat16s_rounding_of_high_q():
   """At Q ~80 (humanoid_stand's late runs), bfloat16 rounds Q to a spacing of 0.5, so the
   differences between a state's sampled actions, which the E-step weighs, are off by more than
@@ -118,6 +120,7 @@ def test_sampled_q_float32_head_removes_bfloat16s_rounding_of_high_q():
     np.testing.assert_array_equal(traced(jnp.array(head)), compiled(head))
 
 
+@pytest.mark.slow
 def test_sampled_q_diagnostics_measure_the_spread_and_bfloat16s_error():
   """`sampled_q_spread` is the sd of the sampled actions' Q over the N samples, averaged over
   states (numpy's, on the Q the E-step gets); `sampled_q_bf16_error`, only with bfloat16, is

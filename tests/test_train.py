@@ -480,6 +480,7 @@ def test_a_stop_file_stops_the_run_as_its_time_budget_does(tmp_path, monkeypatch
                         * CONFIG.env_steps_per_iteration for r in finals)
 
 
+@pytest.mark.slow
 def test_a_run_starts_from_a_trained_policy(trainers, tmp_path, capsys):
   """--init_policy: every member starts from a policy file's parameters (policy and target
   policy) and observation statistics; the config, the records and the exported policies name
