@@ -9,9 +9,9 @@ it exits 1 where a result file holds FORM learning-curve rows not packed
   python scripts/report.py --check   # exit 1 if either file is not what the results give
 
 Each table sits between `<!-- name:begin -->` and `<!-- name:end -->` markers. The README holds
-compact tables (FORM results, demonstrators, shipped experts, expert runs per task, parity per
-task); benchmarks/NOTES.md holds the full ones (every parity, throughput, solver-sweep,
-learning-run, training-loop, population, scaling and demonstrator record). The tables are never
+compact tables (Table 1, FORM results, shipped experts, parity per task, scaling);
+benchmarks/NOTES.md holds the full ones (every parity, throughput, solver-sweep, learning-run and
+its per-task summary, training-loop, population, scaling, demonstrator and baseline record). The tables are never
 typed by hand: each comes from the newest record per (task, mode, size, device) in the result files.
 """
 
@@ -399,7 +399,7 @@ def learning_summary(records: list[dict], threshold: float = 800.0) -> str:
   if not runs:
     return "No learning results yet."
   lines = [f"Expert runs (`--method expert`) per task; the full table, one row per run with its "
-           f"settings, is in `benchmarks/NOTES.md`. Evaluation: mean task return of "
+           f"settings, follows. Evaluation: mean task return of "
            f"{_eval_episodes(runs)} episodes (a run's `--eval_envs`) with the "
            f"policy's mean action; wall clock includes start-up (compiling, or loading from "
            f"JAX's persistent compilation cache; a run resumed from its checkpoint, `--resume`, "
