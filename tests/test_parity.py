@@ -32,8 +32,8 @@ FIRST_OF_DOMAIN = [p for p in BY_DOMAIN
                    if p.values[0] == next(t for t in tasks.TASKS
                                           if t.split("_")[0] == p.values[0].split("_")[0])]
 # The float32 checks of the two largest models are `slow` (the full suite runs them): their
-# one-step tests took 55-78 s each of CI's ~25 minutes (compile 38-53 s). Quick suites keep every task's float64
-# step, the exactness check, and the float32 checks of the other four domains.
+# one-step tests took 55-78 s each of CI's ~25 minutes (compile 38-53 s). Quick suites keep
+# every task's float64 step, the exactness check, and the other four domains' float32 checks.
 SLOW_FLOAT32 = ("quadruped", "humanoid")
 
 
