@@ -1177,14 +1177,11 @@ def test_evaluate_run_scores_every_policy_a_form_run_kept(tmp_path):
   afresh, the average's too, and the records go to the run's packed curve."""
   cli, run_dir, curve = load_script("run"), tmp_path / "run", tmp_path / "curve.jsonl"
   assert cli.main(_readme_args(run_dir, "--final_eval_envs", "0", "--results", str(curve))) == 0
-  points = results.read_records(str(curve))
-  assert [r["kind"] for r in points] == ["learning_curve"]
-  afterwards = tmp_path / "afterwards.jsonl"
-  afterwards.write_text("".join(json.dumps(r) + "\n" for r in points))
-  results.pack_curve(str(afterwards))  # (as committed: the curve alone, packed)
-  assert load_script("evaluate_run").main(["--run_dir", str(run_dir), "--curve", str(afterwards),
+  assert [r["kind"] for r in results.read_records(str(curve))] == ["learning_curve"]
+  results.pack_curve(str(curve))  # (as committed: the curve alone, packed)
+  assert load_script("evaluate_run").main(["--run_dir", str(run_dir), "--curve", str(curve),
                                            "--episodes", "2", "--chunk", "2"]) == 0
-  assert [r["policy"] for r in results.read_records(str(afterwards))] == [
+  assert [r["policy"] for r in results.read_records(str(curve))] == [
       "final", "final_sampled", "best", "best_log_pd", "average", "best_log_pd_average"]
 
 

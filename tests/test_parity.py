@@ -22,24 +22,30 @@ from mjx_form.sim import parity
 
 NUM_STATES = 24  # transitions sampled per task from dm_control rollouts (actions up to 1.2x range)
 DIVERGENCE_STEPS = 25
-# Tests of one domain run in one xdist worker, so they share its compiled functions.
-BY_DOMAIN = [pytest.param(name, marks=pytest.mark.xdist_group(name.split("_")[0]))
-             for name in tasks.TASKS]
+
+
+def _domain(name: str) -> str:
+  return name.split("_")[0]
+
+
+def _params(names, slow_domains=()) -> list:
+  """`names` as parameters in their domain's xdist group (tests of one domain run in one worker,
+  so they share its compiled functions), `slow` where the domain is listed."""
+  return [pytest.param(name, marks=[pytest.mark.xdist_group(_domain(name))]
+                       + ([pytest.mark.slow] if _domain(name) in slow_domains else []))
+          for name in names]
+
+
+BY_DOMAIN = _params(tasks.TASKS)
 # One task per domain: the tasks of a domain share its model, reset and observation, so from the
 # same seeds they give the same states and observations (only the reward differs; the one-step
 # tests check each task's).
-FIRST_OF_DOMAIN = [p for p in BY_DOMAIN
-                   if p.values[0] == next(t for t in tasks.TASKS
-                                          if t.split("_")[0] == p.values[0].split("_")[0])]
+FIRST_OF_DOMAIN = [name for i, name in enumerate(tasks.TASKS)
+                   if _domain(name) not in map(_domain, tasks.TASKS[:i])]
 # The float32 checks of the two largest models are `slow` (the full suite runs them): their
 # one-step tests took 55-78 s each of CI's ~25 minutes (compile 38-53 s). Quick suites keep
 # every task's float64 step, the exactness check, and the other four domains' float32 checks.
 SLOW_FLOAT32 = ("quadruped", "humanoid")
-
-
-def _float32(params: list) -> list:
-  return [pytest.param(*p.values, marks=[*p.marks, pytest.mark.slow])
-          if p.values[0].split("_")[0] in SLOW_FLOAT32 else p for p in params]
 
 
 @functools.cache
@@ -67,7 +73,7 @@ def _stats(errors) -> dict:
 
 # --- One control step from the same state and action ---------------------------------------
 
-@pytest.mark.parametrize("name", _float32(BY_DOMAIN))
+@pytest.mark.parametrize("name", _params(tasks.TASKS, SLOW_FLOAT32))
 def test_one_control_step_matches_dm_control(name, parity_report):
   """Parity mode, float32: the step's observation, reward and next state match dm_control.
 
@@ -119,7 +125,7 @@ def test_one_control_step_is_exact_in_float64(name, parity_report):
 
 # --- A fixed action sequence from the same start -------------------------------------------
 
-@pytest.mark.parametrize("name", _float32(FIRST_OF_DOMAIN))
+@pytest.mark.parametrize("name", _params(FIRST_OF_DOMAIN, SLOW_FLOAT32))
 def test_fixed_action_sequence_divergence(name, parity_report):
   """From dm_control's reset states, the same actions: the error grows slowly, and is reported.
   Observations only, so one task per domain (the others repeated its numbers exactly).
